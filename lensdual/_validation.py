@@ -1,0 +1,86 @@
+"""Input checks shared by the public functions (private module)."""
+
+import numpy as np
+from astropy import units as u
+
+__all__ = []
+
+
+def as_positions(value, name, *, unit=u.arcsec):
+    """Validate an (N, 2) angular Quantity and return it as float64 in ``unit``.
+
+    Raises
+    ------
+    TypeError
+        ``value`` is not a Quantity with angular units.
+    ValueError
+        Wrong shape, or non-finite entries.
+    """
+    if not isinstance(value, u.Quantity):
+        raise TypeError(
+            f"{name} must be an astropy Quantity with angular units (e.g. "
+            f"np.array(...) * u.arcsec), got {type(value).__name__}"
+        )
+    if value.unit.physical_type != "angle":
+        raise TypeError(f"{name} must have angular units, got unit {value.unit!s}")
+    arr = np.asarray(value.to_value(unit), dtype=np.float64)
+    if arr.ndim != 2 or arr.shape[1] != 2:
+        raise ValueError(f"{name} must have shape (N, 2), got shape {arr.shape}")
+    bad = ~np.isfinite(arr).all(axis=1)
+    if bad.any():
+        raise ValueError(
+            f"{name} contains NaN or infinite positions at row(s) {np.flatnonzero(bad).tolist()}"
+        )
+    return np.ascontiguousarray(arr)
+
+
+def as_angle_scalar(value, name, *, unit=u.arcsec, allow_zero=True):
+    """Validate a scalar angular Quantity >= 0 (or > 0) and return it in ``unit``."""
+    if not isinstance(value, u.Quantity) or value.unit.physical_type != "angle":
+        raise TypeError(
+            f"{name} must be a scalar Quantity with angular units (e.g. 0.06 * u.arcsec), "
+            f"got {value!r}"
+        )
+    if not value.isscalar:
+        raise ValueError(f"{name} must be a scalar, got shape {value.shape}")
+    v = float(value.to_value(unit))
+    if not np.isfinite(v) or v < 0 or (not allow_zero and v == 0):
+        cond = ">= 0" if allow_zero else "> 0"
+        raise ValueError(f"{name} must be finite and {cond}, got {value}")
+    return v
+
+
+def as_int(value, name, *, minimum):
+    """Validate an integer >= minimum."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise TypeError(f"{name} must be an integer, got {value!r}")
+    if value < minimum:
+        raise ValueError(f"{name} must be >= {minimum}, got {value}")
+    return int(value)
+
+
+def as_real(value, name, *, minimum=None, maximum=None, inclusive=True):
+    """Validate a finite real number, optionally bounded."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise TypeError(f"{name} must be a real number, got {value!r}")
+    v = float(value)
+    if not np.isfinite(v):
+        raise ValueError(f"{name} must be finite, got {value}")
+    if minimum is not None and (v < minimum or (not inclusive and v == minimum)):
+        raise ValueError(f"{name} must be {'>=' if inclusive else '>'} {minimum}, got {value}")
+    if maximum is not None and v > maximum:
+        raise ValueError(f"{name} must be <= {maximum}, got {value}")
+    return v
+
+
+def check_unique_rows(arr, name):
+    """Raise ValueError if two rows of ``arr`` (N, 2) are identical."""
+    _, first, counts = np.unique(arr, axis=0, return_index=True, return_counts=True)
+    if (counts > 1).any():
+        dup = np.flatnonzero(
+            (arr[:, None, :] == arr[None, :, :]).all(axis=2).sum(axis=1) > 1
+        )
+        raise ValueError(
+            f"{name} contains duplicate positions (rows {dup.tolist()}); every point "
+            "source of an arc must have its own position"
+        )

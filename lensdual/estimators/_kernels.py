@@ -1,0 +1,340 @@
+"""Numba kernels of the relative-Jacobian estimators.
+
+Everything here is unit-free: positions are plain ``float64`` arrays in one
+angular unit (the public wrappers use arcsec), the Jacobians are dimensionless.
+No input validation happens here; :mod:`lensdual.estimators.core` does it.
+
+Conventions (DESIGN.md, Sect. 2): at pair ``a`` the baselines are
+``D_ab = theta_b - theta_a`` on each arc, and the relative Jacobian ``J_a``
+satisfies ``D1_ab ~= J_a D2_ab`` (column vectors).
+
+Status codes returned per pair:
+
+* ``STATUS_OK`` (0): a finite Jacobian.
+* ``STATUS_NO_TRIANGLE`` (1): 2v only, no neighbour pair closes a triangle
+  whose baselines are separated by at least the minimum angle.
+* ``STATUS_ILL_CONDITIONED`` (2): the weighted least-squares design matrix
+  is (numerically) rank deficient, e.g. all baselines collinear.
+"""
+
+import numpy as np
+from numba import njit
+
+__all__ = []
+
+# One place for the numba flags of the package (see DESIGN.md, Sect. 6).
+JIT_OPTIONS = {"cache": True, "fastmath": False, "nogil": True}
+
+STATUS_OK = 0
+STATUS_NO_TRIANGLE = 1
+STATUS_ILL_CONDITIONED = 2
+
+METHOD_2V = 0
+METHOD_QUAD = 1
+METHOD_QUAD2 = 2
+
+
+@njit(**JIT_OPTIONS)
+def _lstsq_mgs(A, Y, ncol, sol, cond_max):
+    """Least squares ``min ||A[:, :ncol] B - Y||`` by modified Gram-Schmidt.
+
+    ``A`` (M, >=ncol) is overwritten (it becomes Q, column-equilibrated), ``Y``
+    is (M, 2), ``sol`` (>=ncol, 2) receives ``B``. Two Gram-Schmidt passes are
+    made per column ("twice is enough"), which keeps Q orthonormal to rounding
+    even for badly conditioned columns. The columns are scaled to unit norm
+    first, so that the conditioning test is independent of the units of the
+    columns (baselines and squared baselines in the second-order fit).
+
+    Returns True on success, False when the smallest pivot is below
+    ``1 / cond_max`` of the largest (the design is numerically rank deficient).
+    """
+    M = A.shape[0]
+    scale = np.empty(ncol)
+    R = np.zeros((ncol, ncol))
+    for j in range(ncol):
+        s = 0.0
+        for m in range(M):
+            s += A[m, j] * A[m, j]
+        s = np.sqrt(s)
+        if not s > 0.0:
+            return False
+        scale[j] = s
+        for m in range(M):
+            A[m, j] /= s
+    for j in range(ncol):
+        for _ in range(2):
+            for i in range(j):
+                r = 0.0
+                for m in range(M):
+                    r += A[m, i] * A[m, j]
+                R[i, j] += r
+                for m in range(M):
+                    A[m, j] -= r * A[m, i]
+        nrm = 0.0
+        for m in range(M):
+            nrm += A[m, j] * A[m, j]
+        nrm = np.sqrt(nrm)
+        R[j, j] = nrm
+        if not nrm > 0.0:
+            return False
+        for m in range(M):
+            A[m, j] /= nrm
+    rmax = 0.0
+    rmin = np.inf
+    for j in range(ncol):
+        d = abs(R[j, j])
+        rmax = max(rmax, d)
+        rmin = min(rmin, d)
+    if not rmin * cond_max > rmax:
+        return False
+    # B = R^-1 Q^T Y, then undo the column scaling.
+    for c in range(2):
+        for j in range(ncol):
+            q = 0.0
+            for m in range(M):
+                q += A[m, j] * Y[m, c]
+            sol[j, c] = q
+        for j in range(ncol - 1, -1, -1):
+            v = sol[j, c]
+            for i in range(j + 1, ncol):
+                v -= R[j, i] * sol[i, c]
+            sol[j, c] = v / R[j, j]
+        for j in range(ncol):
+            sol[j, c] /= scale[j]
+    return True
+
+
+# Largest condition number of the 2x2 weighted normal matrix for which the
+# closed-form solution is used (its relative error is about cond * eps, i.e.
+# below 1e-10); worse-conditioned fits go through the QR path instead.
+_NORMAL_COND_MAX = 1e6
+
+
+@njit(**JIT_OPTIONS)
+def _jacobian_quad_normal(t1, t2, a, weight_power, out):
+    """First-order Quad Jacobian from the closed-form 2x2 normal equations.
+
+    ``J = T S^-1`` with ``S = sum w D2 D2^T`` and ``T = sum w D1 D2^T``. Returns
+    False, leaving ``out`` untouched, when ``S`` is too badly conditioned for
+    the normal equations to be accurate; the caller then uses the QR path.
+    """
+    n = t1.shape[0]
+    sxx = 0.0
+    sxy = 0.0
+    syy = 0.0
+    txx = 0.0
+    txy = 0.0
+    tyx = 0.0
+    tyy = 0.0
+    square = weight_power == 2.0
+    for b in range(n):
+        if b == a:
+            continue
+        dx = t2[b, 0] - t2[a, 0]
+        dy = t2[b, 1] - t2[a, 1]
+        ex = t1[b, 0] - t1[a, 0]
+        ey = t1[b, 1] - t1[a, 1]
+        r2 = dx * dx + dy * dy
+        w = 1.0 / r2 if square else r2 ** (-0.5 * weight_power)
+        wx = w * dx
+        wy = w * dy
+        sxx += wx * dx
+        sxy += wx * dy
+        syy += wy * dy
+        txx += ex * wx
+        txy += ex * wy
+        tyx += ey * wx
+        tyy += ey * wy
+    half_tr = 0.5 * (sxx + syy)
+    disc = np.sqrt(0.25 * (sxx - syy) ** 2 + sxy * sxy)
+    lam_max = half_tr + disc
+    lam_min = half_tr - disc
+    if not lam_min * _NORMAL_COND_MAX > lam_max:
+        return False
+    det = sxx * syy - sxy * sxy
+    # S^-1 = [[syy, -sxy], [-sxy, sxx]] / det
+    out[0, 0] = (txx * syy - txy * sxy) / det
+    out[0, 1] = (txy * sxx - txx * sxy) / det
+    out[1, 0] = (tyx * syy - tyy * sxy) / det
+    out[1, 1] = (tyy * sxx - tyx * sxy) / det
+    return True
+
+
+@njit(**JIT_OPTIONS)
+def _jacobian_quad(t1, t2, a, order, weight_power, cond_max, A, Y, sol, out):
+    """Weighted least-squares (Quad/QW) Jacobian at pair ``a``.
+
+    ``order`` 1 fits ``D1 = J D2``; ``order`` 2 adds the quadratic terms of
+    the Taylor expansion (``D2x^2, D2x D2y, D2y^2`` per output component), of
+    which only the linear part is returned. Weights ``|D2|^-weight_power``
+    enter the squared residuals, so rows are scaled by their square root.
+    """
+    n = t1.shape[0]
+    if order == 1 and _jacobian_quad_normal(t1, t2, a, weight_power, out):
+        return STATUS_OK
+    ncol = 2 if order == 1 else 5
+    half_power = 0.5 * weight_power
+    m = 0
+    for b in range(n):
+        if b == a:
+            continue
+        dx = t2[b, 0] - t2[a, 0]
+        dy = t2[b, 1] - t2[a, 1]
+        r2 = dx * dx + dy * dy
+        sw = r2 ** (-0.5 * half_power)
+        A[m, 0] = sw * dx
+        A[m, 1] = sw * dy
+        if order == 2:
+            A[m, 2] = sw * dx * dx
+            A[m, 3] = sw * dx * dy
+            A[m, 4] = sw * dy * dy
+        Y[m, 0] = sw * (t1[b, 0] - t1[a, 0])
+        Y[m, 1] = sw * (t1[b, 1] - t1[a, 1])
+        m += 1
+    if not _lstsq_mgs(A, Y, ncol, sol, cond_max):
+        for i in range(2):
+            for j in range(2):
+                out[i, j] = np.nan
+        return STATUS_ILL_CONDITIONED
+    # rows of B are the coefficients of D2x, D2y: J = B[:2].T
+    out[0, 0] = sol[0, 0]
+    out[0, 1] = sol[1, 0]
+    out[1, 0] = sol[0, 1]
+    out[1, 1] = sol[1, 1]
+    return STATUS_OK
+
+
+@njit(**JIT_OPTIONS)
+def _triangle_2v(t1, t2, a, b, c, min_sin, dist, out):
+    """Exact Jacobian on triangle (a, b, c) if its L2 baselines are well separated.
+
+    ``dist`` holds the squared L2 distances from ``a``. Returns False (``out``
+    untouched) when the sine of the angle between the baselines is below
+    ``min_sin``.
+    """
+    bx = t2[b, 0] - t2[a, 0]
+    by = t2[b, 1] - t2[a, 1]
+    cx = t2[c, 0] - t2[a, 0]
+    cy = t2[c, 1] - t2[a, 1]
+    det = bx * cy - by * cx
+    if not abs(det) >= min_sin * np.sqrt(dist[b] * dist[c]) or det == 0.0:
+        return False
+    # J [b c] = [b1 c1]  =>  J = [b1 c1] [b c]^-1
+    b1x = t1[b, 0] - t1[a, 0]
+    b1y = t1[b, 1] - t1[a, 1]
+    c1x = t1[c, 0] - t1[a, 0]
+    c1y = t1[c, 1] - t1[a, 1]
+    out[0, 0] = (b1x * cy - c1x * by) / det
+    out[0, 1] = (c1x * bx - b1x * cx) / det
+    out[1, 0] = (b1y * cy - c1y * by) / det
+    out[1, 1] = (c1y * bx - b1y * cx) / det
+    return True
+
+
+@njit(**JIT_OPTIONS)
+def _jacobian_2v(t1, t2, a, min_sin, dist, out):
+    """2v Jacobian at pair ``a``: the exact inverse on one triangle.
+
+    The triangle is ``a`` with its two nearest neighbours in L2. When their
+    baselines are closer to collinear than ``min_sin`` (the sine of the minimum
+    angle between them), the neighbourhood grows one neighbour at a time
+    (ranked by distance in L2) and the first pair ``(i, j)``, ``i < j``, that
+    closes a well-conditioned triangle is used.
+    """
+    n = t1.shape[0]
+    # the two nearest neighbours by a linear scan (the common case) ...
+    n1 = -1
+    n2 = -1
+    d1 = np.inf
+    d2 = np.inf
+    for b in range(n):
+        dx = t2[b, 0] - t2[a, 0]
+        dy = t2[b, 1] - t2[a, 1]
+        d = dx * dx + dy * dy
+        dist[b] = d
+        if b == a:
+            continue
+        if d < d1:
+            n2 = n1
+            d2 = d1
+            n1 = b
+            d1 = d
+        elif d < d2:
+            n2 = b
+            d2 = d
+    dist[a] = np.inf
+    if _triangle_2v(t1, t2, a, n1, n2, min_sin, dist, out):
+        return STATUS_OK
+    # ... and a growing neighbourhood only when they are nearly collinear
+    order = np.argsort(dist)  # a itself is last
+    for jj in range(1, n - 1):
+        c = order[jj]
+        for ii in range(jj):
+            if _triangle_2v(t1, t2, a, order[ii], c, min_sin, dist, out):
+                return STATUS_OK
+    for i in range(2):
+        for j in range(2):
+            out[i, j] = np.nan
+    return STATUS_NO_TRIANGLE
+
+
+@njit(**JIT_OPTIONS)
+def relative_jacobians(t1, t2, method, weight_power, min_sin, cond_max, jac, status):
+    """Relative Jacobian at every pair.
+
+    Parameters
+    ----------
+    t1, t2 : (N, 2) float64
+        Positions on arcs L1 and L2.
+    method : int
+        ``METHOD_2V``, ``METHOD_QUAD`` or ``METHOD_QUAD2``.
+    weight_power : float
+        Baseline weights ``|D2|^-weight_power`` (Quad methods).
+    min_sin : float
+        Sine of the minimum angle between the two baselines of a 2v triangle.
+    cond_max : float
+        Largest acceptable condition estimate of the least-squares design.
+    jac : (N, 2, 2) float64
+        Output Jacobians (NaN where the status is not ``STATUS_OK``).
+    status : (N,) int64
+        Output status codes.
+    """
+    n = t1.shape[0]
+    ncol = 5 if method == METHOD_QUAD2 else 2
+    A = np.empty((n - 1, ncol))
+    Y = np.empty((n - 1, 2))
+    sol = np.empty((ncol, 2))
+    dist = np.empty(n)
+    for a in range(n):
+        if method == METHOD_2V:
+            status[a] = _jacobian_2v(t1, t2, a, min_sin, dist, jac[a])
+        else:
+            order = 2 if method == METHOD_QUAD2 else 1
+            status[a] = _jacobian_quad(
+                t1, t2, a, order, weight_power, cond_max, A, Y, sol, jac[a]
+            )
+
+
+@njit(**JIT_OPTIONS)
+def bootstrap_determinants(t1, t2, noise1, noise2, method, weight_power, min_sin,
+                           cond_max, det_out):
+    """Signed ``det J`` at every pair for every bootstrap realisation.
+
+    ``noise1``, ``noise2`` are (B, N, 2) offsets added to ``t1``, ``t2``;
+    ``det_out`` (B, N) receives the determinants (NaN where a realisation has
+    no finite Jacobian).
+    """
+    nboot = noise1.shape[0]
+    n = t1.shape[0]
+    p1 = np.empty((n, 2))
+    p2 = np.empty((n, 2))
+    jac = np.empty((n, 2, 2))
+    status = np.empty(n, dtype=np.int64)
+    for k in range(nboot):
+        for i in range(n):
+            for d in range(2):
+                p1[i, d] = t1[i, d] + noise1[k, i, d]
+                p2[i, d] = t2[i, d] + noise2[k, i, d]
+        relative_jacobians(p1, p2, method, weight_power, min_sin, cond_max, jac, status)
+        for i in range(n):
+            det_out[k, i] = jac[i, 0, 0] * jac[i, 1, 1] - jac[i, 0, 1] * jac[i, 1, 0]

@@ -1,0 +1,16 @@
+"""Warnings and errors specific to lensdual."""
+
+from astropy.utils.exceptions import AstropyUserWarning
+
+__all__ = ["LensdualWarning", "EstimatorWarning"]
+
+
+class LensdualWarning(AstropyUserWarning):
+    """Base class of the warnings lensdual emits."""
+
+
+class EstimatorWarning(LensdualWarning):
+    """A size-magnification estimate could not be formed for some pairs.
+
+    The affected values are NaN; the message says which pairs and why.
+    """

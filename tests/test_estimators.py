@@ -1,0 +1,360 @@
+"""Tests of lensdual.estimators against closed forms and plain-numpy references."""
+
+import numpy as np
+import pytest
+from astropy import units as u
+from astropy.table import QTable
+
+import _reference as ref
+from lensdual.estimators import METHODS, relative_jacobian, size_magnification
+from lensdual.estimators import _kernels
+from lensdual.exceptions import EstimatorWarning
+
+ALL_METHODS = sorted(METHODS)
+
+
+def random_rotation(rng):
+    phi = rng.uniform(0, 2 * np.pi)
+    return np.array([[np.cos(phi), -np.sin(phi)], [np.sin(phi), np.cos(phi)]])
+
+
+def random_affine(rng, det):
+    """A random 2x2 matrix with the given (signed) determinant."""
+    stretch = rng.uniform(0.3, 3.0)
+    diag = np.diag([stretch, det / stretch])
+    return random_rotation(rng) @ diag @ random_rotation(rng)
+
+
+def nonlinear_map(t2):
+    """A smooth non-linear image-to-image map, L2 -> L1 (arcsec)."""
+    x, y = t2.T
+    return np.column_stack(
+        [
+            1.3 * x - 0.4 * y + 0.05 * x * y + 0.02 * np.sin(3 * y) + 7.0,
+            -0.3 * x - 0.9 * y + 0.04 * x**2 - 0.03 * y**2 - 2.0,
+        ]
+    )
+
+
+@pytest.fixture
+def constellation():
+    rng = np.random.default_rng(42)
+    t2 = rng.normal(scale=0.5, size=(25, 2))
+    return nonlinear_map(t2), t2
+
+
+# --------------------------------------------------------------------------- exactness
+
+
+@pytest.mark.parametrize("method", ALL_METHODS)
+@pytest.mark.parametrize("det", [0.1, -0.1, 0.5, -1.0, 1.0, 3.0, -10.0, 10.0])
+def test_affine_maps_recovered_exactly(method, det):
+    rng = np.random.default_rng(abs(int(det * 100)) + (det < 0))
+    for _ in range(3):
+        A = random_affine(rng, det)
+        t2 = rng.normal(size=(20, 2))
+        t1 = t2 @ A.T + rng.normal(size=2) * 10
+        J = relative_jacobian(t1 * u.arcsec, t2 * u.arcsec, method)
+        assert J.shape == (20, 2, 2)
+        np.testing.assert_allclose(J, np.broadcast_to(A, J.shape), rtol=0, atol=1e-10 * np.abs(A).max())
+        np.testing.assert_allclose(np.linalg.det(J), det, rtol=1e-10)
+
+
+@pytest.mark.parametrize("method", ALL_METHODS)
+def test_size_magnification_affine_and_parity(method):
+    rng = np.random.default_rng(3)
+    A = random_affine(rng, -2.5)
+    t2 = rng.normal(size=(12, 2))
+    t1 = t2 @ A.T
+    tab = size_magnification(t1 * u.arcsec, t2 * u.arcsec, method, n_bootstrap=50, seed=1)
+    assert isinstance(tab, QTable)
+    np.testing.assert_allclose(tab["mu_size"], 2.5, rtol=1e-10)
+    assert (tab["parity"] == -1).all()
+    assert tab["jacobian"].shape == (12, 2, 2)
+    assert (tab["mu_size_err"] > 0).all()
+    assert (tab["mu_size_p16"] <= tab["mu_size_p50"]).all()
+    assert (tab["mu_size_p50"] <= tab["mu_size_p84"]).all()
+    assert tab.meta["method"] == method
+
+
+def test_units_are_converted():
+    rng = np.random.default_rng(5)
+    t2 = rng.normal(size=(10, 2))
+    t1 = nonlinear_map(t2)
+    J_arcsec = relative_jacobian(t1 * u.arcsec, t2 * u.arcsec)
+    J_mixed = relative_jacobian((t1 / 3600) * u.deg, (t2 * 1000) * u.mas)
+    np.testing.assert_allclose(J_mixed, J_arcsec, rtol=1e-12)
+
+
+# --------------------------------------------------------------------------- invariances
+
+
+@pytest.mark.parametrize("method", ALL_METHODS)
+def test_common_rotation_translation(method, constellation):
+    t1, t2 = constellation
+    rng = np.random.default_rng(7)
+    R = random_rotation(rng)
+    shift = np.array([3.0, -1.5])
+    J = relative_jacobian(t1 * u.arcsec, t2 * u.arcsec, method)
+    Jr = relative_jacobian((t1 @ R.T + shift) * u.arcsec, (t2 @ R.T - shift) * u.arcsec, method)
+    np.testing.assert_allclose(Jr, R @ J @ R.T, atol=1e-10)
+    np.testing.assert_allclose(np.linalg.det(Jr), np.linalg.det(J), rtol=1e-10)
+
+
+@pytest.mark.parametrize("method", ALL_METHODS)
+def test_common_permutation(method, constellation):
+    t1, t2 = constellation
+    perm = np.random.default_rng(8).permutation(len(t1))
+    J = relative_jacobian(t1 * u.arcsec, t2 * u.arcsec, method)
+    Jp = relative_jacobian(t1[perm] * u.arcsec, t2[perm] * u.arcsec, method)
+    np.testing.assert_allclose(Jp, J[perm], rtol=1e-12, atol=1e-13)
+
+
+@pytest.mark.parametrize("method", ALL_METHODS)
+@pytest.mark.parametrize("s", [0.3, 2.0])
+def test_rescaling_arc_l1(method, s, constellation):
+    t1, t2 = constellation
+    a = size_magnification(t1 * u.arcsec, t2 * u.arcsec, method, n_bootstrap=20, seed=0)
+    b = size_magnification(s * t1 * u.arcsec, t2 * u.arcsec, method, n_bootstrap=20, seed=0)
+    np.testing.assert_allclose(b["mu_size"], s**2 * a["mu_size"], rtol=1e-10)
+    np.testing.assert_allclose(b["jacobian"], s * a["jacobian"], rtol=1e-10, atol=1e-13)
+
+
+def test_mirror_flips_parity(constellation):
+    t1, t2 = constellation
+    a = size_magnification(t1 * u.arcsec, t2 * u.arcsec, n_bootstrap=10, seed=0)
+    b = size_magnification(t1 * [-1, 1] * u.arcsec, t2 * u.arcsec, n_bootstrap=10, seed=0)
+    np.testing.assert_array_equal(b["parity"], -a["parity"])
+    np.testing.assert_allclose(b["mu_size"], a["mu_size"], rtol=1e-12)
+
+
+def test_common_rescaling_keeps_mu_size(constellation):
+    """Both arcs scaled together: the Jacobian does not change."""
+    t1, t2 = constellation
+    J = relative_jacobian(t1 * u.arcsec, t2 * u.arcsec)
+    J2 = relative_jacobian(4 * t1 * u.arcsec, 4 * t2 * u.arcsec)
+    np.testing.assert_allclose(J2, J, rtol=1e-10)
+
+
+# --------------------------------------------------------------------------- references
+
+
+@pytest.mark.parametrize("power", [2.0, 1.0, 3.5])
+def test_quad_kernel_matches_numpy_reference(constellation, power):
+    t1, t2 = constellation
+    J = relative_jacobian(t1 * u.arcsec, t2 * u.arcsec, "quad", weight_power=power)
+    np.testing.assert_allclose(J, ref.jacobian_quad(t1, t2, power), rtol=1e-10, atol=1e-12)
+
+
+def test_quad2_kernel_matches_numpy_reference(constellation):
+    t1, t2 = constellation
+    J = relative_jacobian(t1 * u.arcsec, t2 * u.arcsec, "quad2")
+    np.testing.assert_allclose(J, ref.jacobian_quad(t1, t2, order=2), rtol=1e-10, atol=1e-12)
+
+
+def test_2v_kernel_matches_numpy_reference(constellation):
+    t1, t2 = constellation
+    J = relative_jacobian(t1 * u.arcsec, t2 * u.arcsec, "2v")
+    np.testing.assert_allclose(J, ref.jacobian_2v(t1, t2), rtol=1e-10, atol=1e-12)
+
+
+def test_quad_qr_fallback_matches_reference():
+    """Badly conditioned baselines take the QR path; it still matches lstsq."""
+    rng = np.random.default_rng(11)
+    x = rng.uniform(-1, 1, 15)
+    t2 = np.column_stack([x, 1e-4 * rng.normal(size=15)])  # nearly collinear
+    t1 = nonlinear_map(t2)
+    J = np.empty((15, 2, 2))
+    status = np.empty(15, dtype=np.int64)
+    _kernels.relative_jacobians(t1, t2, _kernels.METHOD_QUAD, 2.0, 0.0, 1e10, J, status)
+    assert (status == _kernels.STATUS_OK).all()
+    np.testing.assert_allclose(J, ref.jacobian_quad(t1, t2), rtol=1e-6)
+
+
+@pytest.mark.parametrize("method", ALL_METHODS)
+def test_bootstrap_kernel_matches_reference(method, constellation):
+    t1, t2 = constellation
+    rng = np.random.default_rng(3)
+    noise1 = rng.normal(scale=0.01, size=(20, len(t1), 2))
+    noise2 = rng.normal(scale=0.01, size=(20, len(t1), 2))
+    dets = np.empty((20, len(t1)))
+    code = {"quad": 1, "quad2": 2, "2v": 0}[method]
+    _kernels.bootstrap_determinants(
+        t1, t2, noise1, noise2, code, 2.0, np.sin(np.deg2rad(5.0)), 1e10, dets
+    )
+    np.testing.assert_allclose(
+        dets, ref.bootstrap_determinants(t1, t2, noise1, noise2, method), rtol=1e-9, atol=1e-12
+    )
+
+
+@pytest.mark.parametrize("method", ALL_METHODS)
+def test_size_magnification_matches_reference(method, constellation):
+    t1, t2 = constellation
+    tab = size_magnification(
+        t1 * u.arcsec, t2 * u.arcsec, method, sigma_pos=0.02 * u.arcsec, n_bootstrap=40, seed=9
+    )
+    mu, err, (p16, p50, p84) = ref.size_magnification(
+        t1, t2, 0.02, 40, np.random.default_rng(9), method
+    )
+    np.testing.assert_allclose(tab["mu_size"], mu, rtol=1e-10)
+    np.testing.assert_allclose(tab["mu_size_err"], err, rtol=1e-8)
+    np.testing.assert_allclose(tab["mu_size_p50"], p50, rtol=1e-8)
+    assert (tab["n_bootstrap_valid"] == 40).all()
+
+
+def test_bootstrap_error_scales_with_sigma(constellation):
+    t1, t2 = constellation
+    small = size_magnification(t1 * u.arcsec, t2 * u.arcsec, sigma_pos=1 * u.mas,
+                               n_bootstrap=400, seed=1)
+    large = size_magnification(t1 * u.arcsec, t2 * u.arcsec, sigma_pos=4 * u.mas,
+                               n_bootstrap=400, seed=1)
+    ratio = np.median(large["mu_size_err"] / small["mu_size_err"])
+    assert 3.0 < ratio < 5.0  # linear error propagation in the small-noise limit
+    zero = size_magnification(t1 * u.arcsec, t2 * u.arcsec, sigma_pos=0 * u.arcsec,
+                              n_bootstrap=5, seed=1)
+    np.testing.assert_allclose(zero["mu_size_err"], 0, atol=1e-12)
+
+
+def test_seed_reproducible_and_generator_accepted(constellation):
+    t1, t2 = constellation
+    a = size_magnification(t1 * u.arcsec, t2 * u.arcsec, n_bootstrap=30, seed=5)
+    b = size_magnification(t1 * u.arcsec, t2 * u.arcsec, n_bootstrap=30,
+                           seed=np.random.default_rng(5))
+    c = size_magnification(t1 * u.arcsec, t2 * u.arcsec, n_bootstrap=30, seed=6)
+    np.testing.assert_array_equal(a["mu_size_err"], b["mu_size_err"])
+    assert not np.array_equal(a["mu_size_err"], c["mu_size_err"])
+
+
+def test_per_pair_sigma(constellation):
+    t1, t2 = constellation
+    n = len(t1)
+    sig = np.full(n, 0.01)
+    sig[0] = 0.0
+    sig2 = np.vstack([sig, sig])
+    a = size_magnification(t1 * u.arcsec, t2 * u.arcsec, sigma_pos=sig * u.arcsec,
+                           n_bootstrap=30, seed=2)
+    b = size_magnification(t1 * u.arcsec, t2 * u.arcsec, sigma_pos=sig2 * u.arcsec,
+                           n_bootstrap=30, seed=2)
+    np.testing.assert_array_equal(a["mu_size_err"], b["mu_size_err"])
+    with pytest.raises(ValueError, match="sigma_pos must be a scalar, shape"):
+        size_magnification(t1 * u.arcsec, t2 * u.arcsec, sigma_pos=[0.1, 0.2] * u.arcsec)
+
+
+def test_chunked_bootstrap_is_consistent(monkeypatch, constellation):
+    """Chunking the bootstrap (for memory) does not change its statistics."""
+    from lensdual.estimators import core
+
+    t1, t2 = constellation
+    a = size_magnification(t1 * u.arcsec, t2 * u.arcsec, n_bootstrap=2000, seed=4,
+                           sigma_pos=0.01 * u.arcsec)
+    monkeypatch.setattr(core, "_CHUNK_ENTRIES", 7 * len(t1))
+    b = size_magnification(t1 * u.arcsec, t2 * u.arcsec, n_bootstrap=2000, seed=4,
+                           sigma_pos=0.01 * u.arcsec)
+    np.testing.assert_allclose(b["mu_size_err"], a["mu_size_err"], rtol=0.15)
+
+
+# --------------------------------------------------------------------------- 2v details
+
+
+def test_2v_skips_collinear_nearest_neighbours():
+    # a's two nearest neighbours are collinear with it; the third closes a triangle.
+    t2 = np.array([[0.0, 0.0], [0.1, 0.0], [-0.12, 0.0], [0.0, 0.5], [0.3, 0.4]])
+    A = np.array([[1.5, 0.2], [-0.3, 0.7]])
+    t1 = t2 @ A.T
+    J = relative_jacobian(t1 * u.arcsec, t2 * u.arcsec, "2v")
+    np.testing.assert_allclose(J[0], A, atol=1e-12)
+
+
+def test_2v_nan_and_warning_when_no_triangle():
+    t2 = np.column_stack([np.arange(5.0), np.zeros(5)])  # all collinear
+    t1 = t2 * 2
+    with pytest.warns(EstimatorWarning, match="no well-conditioned triangle for pair"):
+        J = relative_jacobian(t1 * u.arcsec, t2 * u.arcsec, "2v")
+    assert np.isnan(J).all()
+
+
+def test_quad_nan_and_warning_when_collinear():
+    t2 = np.column_stack([np.arange(5.0), np.zeros(5)])
+    t1 = t2 * 2
+    with pytest.warns(EstimatorWarning, match="ill-conditioned least squares"):
+        tab = size_magnification(t1 * u.arcsec, t2 * u.arcsec, sigma_pos=0 * u.arcsec,
+                                 n_bootstrap=3)
+    assert np.isnan(tab["mu_size"]).all()
+    assert (tab["parity"] == 0).all()
+    assert (tab["n_bootstrap_valid"] == 0).all()
+
+
+def test_quad2_beats_quad_on_curved_map():
+    """The second-order fit removes the curvature bias of the first-order one."""
+    rng = np.random.default_rng(1)
+    t2 = rng.normal(scale=1.0, size=(30, 2))
+    t1 = nonlinear_map(t2)
+    x, y = t2.T
+    # analytic Jacobian of nonlinear_map
+    true = np.empty((30, 2, 2))
+    true[:, 0, 0] = 1.3 + 0.05 * y
+    true[:, 0, 1] = -0.4 + 0.05 * x + 0.06 * np.cos(3 * y)
+    true[:, 1, 0] = -0.3 + 0.08 * x
+    true[:, 1, 1] = -0.9 - 0.06 * y
+    mu_true = np.abs(np.linalg.det(true))
+    err = {}
+    for method in ALL_METHODS:
+        J = relative_jacobian(t1 * u.arcsec, t2 * u.arcsec, method)
+        err[method] = np.median(np.abs(np.abs(np.linalg.det(J)) / mu_true - 1))
+    assert err["quad2"] < 0.5 * err["quad"]
+    assert err["quad"] < 0.05
+
+
+# --------------------------------------------------------------------------- bad input
+
+
+GOOD = np.array([[0.0, 0.0], [1.0, 0.1], [0.2, 1.0], [1.3, 1.2]])
+
+
+@pytest.mark.parametrize(
+    ("t1", "t2", "kwargs", "exc", "match"),
+    [
+        (GOOD, GOOD * u.arcsec, {}, TypeError, "theta1 must be an astropy Quantity"),
+        (GOOD * u.arcsec, GOOD * u.m, {}, TypeError, "theta2 must have angular units"),
+        (GOOD[:, 0] * u.arcsec, GOOD * u.arcsec, {}, ValueError, r"theta1 must have shape \(N, 2\)"),
+        (GOOD * u.arcsec, np.ones((4, 3)) * u.arcsec, {}, ValueError, "theta2 must have shape"),
+        (GOOD * u.arcsec, GOOD[:3] * u.arcsec, {}, ValueError, "same number of pairs, got 4 and 3"),
+        (GOOD[:2] * u.arcsec, GOOD[:2] * u.arcsec, {}, ValueError, "needs at least 3 pairs, got 2"),
+        (GOOD * u.arcsec, GOOD * u.arcsec, {"method": "quad2"}, ValueError,
+         "'quad2' needs at least 6 pairs"),
+        (np.where(GOOD == 0.1, np.nan, GOOD) * u.arcsec, GOOD * u.arcsec, {}, ValueError,
+         r"theta1 contains NaN or infinite positions at row\(s\) \[1\]"),
+        (GOOD * u.arcsec, np.where(GOOD == 1.2, np.inf, GOOD) * u.arcsec, {}, ValueError,
+         "theta2 contains NaN or infinite"),
+        (np.vstack([GOOD, GOOD[:1]]) * u.arcsec, np.vstack([GOOD, [[5, 5]]]) * u.arcsec, {},
+         ValueError, r"theta1 contains duplicate positions \(rows \[0, 4\]\)"),
+        (GOOD * u.arcsec, GOOD * u.arcsec, {"method": "svd"}, ValueError, "method must be one of"),
+        (GOOD * u.arcsec, GOOD * u.arcsec, {"method": None}, ValueError, "method must be one of"),
+        (GOOD * u.arcsec, GOOD * u.arcsec, {"weight_power": -1}, ValueError,
+         "weight_power must be >= 0"),
+        (GOOD * u.arcsec, GOOD * u.arcsec, {"min_angle": 5}, TypeError, "min_angle must be an angle"),
+        (GOOD * u.arcsec, GOOD * u.arcsec, {"min_angle": 95 * u.deg}, ValueError,
+         r"min_angle must be in \[0, 90\) deg"),
+    ],
+)
+def test_bad_input(t1, t2, kwargs, exc, match):
+    with pytest.raises(exc, match=match):
+        relative_jacobian(t1, t2, **kwargs)
+    with pytest.raises(exc, match=match):
+        size_magnification(t1, t2, **kwargs)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "exc", "match"),
+    [
+        ({"sigma_pos": -0.1 * u.arcsec}, ValueError, "sigma_pos must be finite and >= 0"),
+        ({"sigma_pos": 0.06}, TypeError, "sigma_pos must be a Quantity with angular units"),
+        ({"sigma_pos": 0.06 * u.s}, TypeError, "sigma_pos must be a Quantity with angular units"),
+        ({"sigma_pos": [0.1, -1, 0.1, 0.1] * u.arcsec}, ValueError, "sigma_pos must be finite"),
+        ({"n_bootstrap": 0}, ValueError, "n_bootstrap must be >= 1"),
+        ({"n_bootstrap": 10.5}, TypeError, "n_bootstrap must be an integer"),
+    ],
+)
+def test_bad_bootstrap_input(kwargs, exc, match):
+    with pytest.raises(exc, match=match):
+        size_magnification(GOOD * u.arcsec, GOOD * u.arcsec, **kwargs)
