@@ -358,3 +358,19 @@ def test_bad_input(t1, t2, kwargs, exc, match):
 def test_bad_bootstrap_input(kwargs, exc, match):
     with pytest.raises(exc, match=match):
         size_magnification(GOOD * u.arcsec, GOOD * u.arcsec, **kwargs)
+
+
+def test_nan_percentiles_match_numpy():
+    from lensdual.estimators.core import _nan_percentiles
+
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=(57, 6))
+    x[rng.random(x.shape) < 0.3] = np.nan
+    x[:, 2] = np.nan  # no finite value at all
+    x[:56, 3] = np.nan  # a single finite value
+    n_valid = np.isfinite(x).sum(axis=0)
+    got = _nan_percentiles(x, n_valid, (16.0, 50.0, 84.0))
+    ok = n_valid > 0
+    expected = np.nanpercentile(x[:, ok], [16, 50, 84], axis=0)
+    np.testing.assert_allclose(got[:, ok], expected, rtol=1e-14)
+    assert np.isnan(got[:, 2]).all()

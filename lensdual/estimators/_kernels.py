@@ -111,45 +111,70 @@ _NORMAL_COND_MAX = 1e6
 
 
 @njit(**JIT_OPTIONS)
-def _jacobian_quad_normal(t1, t2, a, weight_power, out):
-    """First-order Quad Jacobian from the closed-form 2x2 normal equations.
+def _normal_sums(t1, t2, weight_power, acc):
+    """Weighted normal-equation sums of the first-order Quad fit, for every pair.
 
-    ``J = T S^-1`` with ``S = sum w D2 D2^T`` and ``T = sum w D1 D2^T``. Returns
-    False, leaving ``out`` untouched, when ``S`` is too badly conditioned for
-    the normal equations to be accurate; the caller then uses the QR path.
+    ``acc[a]`` receives ``(Sxx, Sxy, Syy, Txx, Txy, Tyx, Tyy)`` with
+    ``S = sum_b w D2 D2^T`` and ``T = sum_b w D1 D2^T``. The baseline from
+    ``a`` to ``b`` is minus the one from ``b`` to ``a`` on both arcs and has
+    the same weight, so it adds the same products to both pairs: each
+    unordered pair is visited once.
     """
     n = t1.shape[0]
-    sxx = 0.0
-    sxy = 0.0
-    syy = 0.0
-    txx = 0.0
-    txy = 0.0
-    tyx = 0.0
-    tyy = 0.0
     square = weight_power == 2.0
-    for b in range(n):
-        if b == a:
-            continue
-        dx = t2[b, 0] - t2[a, 0]
-        dy = t2[b, 1] - t2[a, 1]
-        ex = t1[b, 0] - t1[a, 0]
-        ey = t1[b, 1] - t1[a, 1]
-        r2 = dx * dx + dy * dy
-        w = 1.0 / r2 if square else r2 ** (-0.5 * weight_power)
-        wx = w * dx
-        wy = w * dy
-        sxx += wx * dx
-        sxy += wx * dy
-        syy += wy * dy
-        txx += ex * wx
-        txy += ex * wy
-        tyx += ey * wx
-        tyy += ey * wy
+    for a in range(n):
+        for k in range(7):
+            acc[a, k] = 0.0
+    for a in range(n):
+        for b in range(a + 1, n):
+            dx = t2[b, 0] - t2[a, 0]
+            dy = t2[b, 1] - t2[a, 1]
+            ex = t1[b, 0] - t1[a, 0]
+            ey = t1[b, 1] - t1[a, 1]
+            r2 = dx * dx + dy * dy
+            w = 1.0 / r2 if square else r2 ** (-0.5 * weight_power)
+            wx = w * dx
+            wy = w * dy
+            c0 = wx * dx
+            c1 = wx * dy
+            c2 = wy * dy
+            c3 = ex * wx
+            c4 = ex * wy
+            c5 = ey * wx
+            c6 = ey * wy
+            acc[a, 0] += c0
+            acc[a, 1] += c1
+            acc[a, 2] += c2
+            acc[a, 3] += c3
+            acc[a, 4] += c4
+            acc[a, 5] += c5
+            acc[a, 6] += c6
+            acc[b, 0] += c0
+            acc[b, 1] += c1
+            acc[b, 2] += c2
+            acc[b, 3] += c3
+            acc[b, 4] += c4
+            acc[b, 5] += c5
+            acc[b, 6] += c6
+
+
+# Largest condition number of the 2x2 weighted normal matrix for which the
+# closed-form solution is used (its relative error is about cond * eps, i.e.
+# below 1e-10); worse-conditioned fits go through the QR path instead.
+_NORMAL_COND_MAX = 1e6
+
+
+@njit(**JIT_OPTIONS)
+def _solve_normal(s, out):
+    """``J = T S^-1`` from the sums of :func:`_normal_sums` for one pair.
+
+    Returns False, leaving ``out`` untouched, when ``S`` is too badly
+    conditioned for the normal equations to be accurate.
+    """
+    sxx, sxy, syy, txx, txy, tyx, tyy = s[0], s[1], s[2], s[3], s[4], s[5], s[6]
     half_tr = 0.5 * (sxx + syy)
     disc = np.sqrt(0.25 * (sxx - syy) ** 2 + sxy * sxy)
-    lam_max = half_tr + disc
-    lam_min = half_tr - disc
-    if not lam_min * _NORMAL_COND_MAX > lam_max:
+    if not (half_tr - disc) * _NORMAL_COND_MAX > half_tr + disc:
         return False
     det = sxx * syy - sxy * sxy
     # S^-1 = [[syy, -sxy], [-sxy, sxx]] / det
@@ -170,8 +195,6 @@ def _jacobian_quad(t1, t2, a, order, weight_power, cond_max, A, Y, sol, out):
     enter the squared residuals, so rows are scaled by their square root.
     """
     n = t1.shape[0]
-    if order == 1 and _jacobian_quad_normal(t1, t2, a, weight_power, out):
-        return STATUS_OK
     ncol = 2 if order == 1 else 5
     half_power = 0.5 * weight_power
     m = 0
@@ -304,14 +327,25 @@ def relative_jacobians(t1, t2, method, weight_power, min_sin, cond_max, jac, sta
     A = np.empty((n - 1, ncol))
     Y = np.empty((n - 1, 2))
     sol = np.empty((ncol, 2))
-    dist = np.empty(n)
-    for a in range(n):
-        if method == METHOD_2V:
+    if method == METHOD_2V:
+        dist = np.empty(n)
+        for a in range(n):
             status[a] = _jacobian_2v(t1, t2, a, min_sin, dist, jac[a])
-        else:
-            order = 2 if method == METHOD_QUAD2 else 1
+    elif method == METHOD_QUAD:
+        # closed-form normal equations, QR where they are badly conditioned
+        acc = np.empty((n, 7))
+        _normal_sums(t1, t2, weight_power, acc)
+        for a in range(n):
+            if _solve_normal(acc[a], jac[a]):
+                status[a] = STATUS_OK
+            else:
+                status[a] = _jacobian_quad(
+                    t1, t2, a, 1, weight_power, cond_max, A, Y, sol, jac[a]
+                )
+    else:
+        for a in range(n):
             status[a] = _jacobian_quad(
-                t1, t2, a, order, weight_power, cond_max, A, Y, sol, jac[a]
+                t1, t2, a, 2, weight_power, cond_max, A, Y, sol, jac[a]
             )
 
 

@@ -177,14 +177,39 @@ def _bootstrap_determinants(t1, t2, code, wp, min_sin, sigma, n_bootstrap, rng):
     n = t1.shape[0]
     dets = np.empty((n_bootstrap, n))
     chunk = max(1, _CHUNK_ENTRIES // n)
+    buf1 = np.empty((min(chunk, n_bootstrap), n, 2))
+    buf2 = np.empty_like(buf1)
     for start in range(0, n_bootstrap, chunk):
         stop = min(start + chunk, n_bootstrap)
-        noise1 = rng.standard_normal((stop - start, n, 2)) * sigma[0][None, :, None]
-        noise2 = rng.standard_normal((stop - start, n, 2)) * sigma[1][None, :, None]
+        noise1, noise2 = buf1[: stop - start], buf2[: stop - start]
+        # same stream as rng.standard_normal(shape), without temporaries
+        rng.standard_normal(out=noise1)
+        noise1 *= sigma[0][None, :, None]
+        rng.standard_normal(out=noise2)
+        noise2 *= sigma[1][None, :, None]
         _kernels.bootstrap_determinants(
             t1, t2, noise1, noise2, code, wp, min_sin, _COND_MAX, dets[start:stop]
         )
     return dets
+
+
+def _nan_percentiles(values, n_valid, qs):
+    """Percentiles along axis 0 ignoring NaN (numpy's "linear" method).
+
+    Equivalent to ``np.nanpercentile(values, qs, axis=0)`` (NaN where a column
+    has no finite value), from one sort instead of a loop over columns.
+    """
+    ordered = np.sort(values, axis=0)  # NaN sort to the end
+    cols = np.arange(values.shape[1])
+    out = np.full((len(qs), values.shape[1]), np.nan)
+    ok = n_valid > 0
+    for i, q in enumerate(qs):
+        pos = q / 100.0 * (n_valid[ok] - 1)
+        lo = np.floor(pos).astype(int)
+        hi = np.minimum(lo + 1, n_valid[ok] - 1)
+        low = ordered[lo, cols[ok]]
+        out[i, ok] = low + (ordered[hi, cols[ok]] - low) * (pos - lo)
+    return out
 
 
 def size_magnification(
@@ -249,10 +274,7 @@ def size_magnification(
 
     boot = np.abs(_bootstrap_determinants(t1, t2, code, wp, min_sin, sigma, n_bootstrap, rng))
     n_valid = np.isfinite(boot).sum(axis=0)
-    pct = np.full((3, n), np.nan)
-    ok = n_valid > 0
-    if ok.any():
-        pct[:, ok] = np.nanpercentile(boot[:, ok], [16.0, 50.0, 84.0], axis=0)
+    pct = _nan_percentiles(boot, n_valid, (16.0, 50.0, 84.0))
     # pairs already NaN on the measured positions were warned about above
     partial = np.isfinite(det) & (n_valid < n_bootstrap)
     if partial.any():

@@ -1,0 +1,80 @@
+# Sphinx configuration of the lensdual documentation.
+#
+# Build with ``tox -e build_docs`` (``sphinx-build -W --keep-going -b html . _build/html``).
+# The build needs no network access: no intersphinx, no remote images.
+
+import datetime
+
+import lensdual
+
+# -- Project information -------------------------------------------------------
+
+project = "lensdual"
+author = "lensdual developers"
+copyright = f"{datetime.date.today().year}, {author}"
+
+# The full version, including alpha/beta/rc/dev tags, and the short X.Y version.
+release = lensdual.__version__
+version = ".".join(release.split(".")[:2])
+
+# -- General configuration -----------------------------------------------------
+
+extensions = [
+    "sphinx.ext.mathjax",
+    "sphinx.ext.viewcode",
+    "sphinx_automodapi.automodapi",
+    "sphinx_automodapi.smart_resolver",
+    "numpydoc",
+]
+
+exclude_patterns = ["_build", "Thumbs.db", ".DS_Store"]
+templates_path = []
+source_suffix = {".rst": "restructuredtext"}
+root_doc = "index"
+
+# Unresolved cross-references (e.g. to numpy or astropy, without intersphinx)
+# render as plain text instead of producing warnings.
+nitpicky = False
+
+# Single backticks are cross-references to Python objects.
+default_role = "obj"
+
+# -- numpydoc ------------------------------------------------------------------
+
+# automodapi writes its own member summaries; numpydoc must not add another.
+numpydoc_show_class_members = False
+numpydoc_show_inherited_class_members = False
+numpydoc_class_members_toctree = False
+# Do not let numpydoc turn every "type" in a Parameters section into a link.
+numpydoc_xref_param_type = False
+# No docstring validation during the build (that is a lint job, not a doc job).
+numpydoc_validation_checks = set()
+
+# -- sphinx-automodapi ---------------------------------------------------------
+
+automodapi_toctreedirnm = "api/generated"
+automodapi_writereprocessed = False
+automodsumm_inherited_members = False
+# graphviz is not a dependency; every automodapi uses :no-inheritance-diagram:.
+automodapi_inheritance_diagram = False
+
+# -- Options for HTML output ---------------------------------------------------
+
+try:
+    import pydata_sphinx_theme  # noqa: F401
+except ImportError:  # pragma: no cover - fallback when the docs extra is missing
+    html_theme = "alabaster"
+    html_theme_options = {}
+else:
+    html_theme = "pydata_sphinx_theme"
+    html_theme_options = {
+        "navigation_with_keys": False,
+        "show_toc_level": 2,
+        "use_edit_page_button": False,
+        # no icon links: they would fetch remote resources
+        "icon_links": [],
+    }
+
+html_title = f"{project} {release}"
+html_static_path = []
+html_show_sourcelink = False
