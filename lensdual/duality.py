@@ -11,7 +11,7 @@ import warnings
 
 import numpy as np
 from astropy import units as u
-from astropy.table import Table, QTable
+from astropy.table import QTable, Table
 from scipy.special import chdtrc
 
 from ._validation import as_real
@@ -32,7 +32,8 @@ _FLUX_KINDS = ("flux1", "flux2", "flux_err1", "flux_err2")
 def _as_qtable(pairs):
     if not isinstance(pairs, Table):
         raise TypeError(
-            f"pairs must be an astropy Table or QTable (the pairs table), got {type(pairs).__name__}"
+            "pairs must be an astropy Table or QTable (the pairs table), got "
+            f"{type(pairs).__name__}"
         )
     return QTable(pairs, copy=True)
 
@@ -43,7 +44,7 @@ def pair_bands(pairs):
     Parameters
     ----------
     pairs : `~astropy.table.Table`
-        A pairs table (DESIGN.md Sect. 1).
+        A pairs table (see :ref:`pairs-table` in the docs).
 
     Returns
     -------
@@ -204,7 +205,7 @@ def check_duality(
     Parameters
     ----------
     pairs : `~astropy.table.Table` or `~astropy.table.QTable`
-        The pairs table (DESIGN.md Sect. 1): positions ``x1, y1, x2, y2``
+        The pairs table (:ref:`pairs-table`): positions ``x1, y1, x2, y2``
         (angles, one common frame) and, for every band, ``flux1_<band>``,
         ``flux2_<band>``, ``flux_err1_<band>``, ``flux_err2_<band>``. The
         bands are ``meta['bands']`` or, without it, every ``flux1_<band>``.

@@ -33,7 +33,10 @@ def jacobian_quad(t1, t2, weight_power=2.0, order=1):
     return out
 
 
-def jacobian_2v(t1, t2, min_sin=np.sin(np.deg2rad(5.0))):
+MIN_SIN_5DEG = np.sin(np.deg2rad(5.0))
+
+
+def jacobian_2v(t1, t2, min_sin=MIN_SIN_5DEG):
     """2v Jacobian: exact solution on the first well-conditioned triangle.
 
     Neighbours are ranked by distance in L2; triangles (a, i, j) are tried in

@@ -39,9 +39,22 @@ def test_columns_and_values_on_exact_duality():
     pairs = make_pairs(noise=False)
     res = check_duality(pairs, sigma_pos=0.005 * u.arcsec, n_bootstrap=200, seed=1)
     expected = [
-        "jacobian", "parity", "mu_size", "mu_size_err", "mu_flux_F150W", "mu_flux_err_F150W",
-        "mu_flux_F200W", "mu_flux_err_F200W", "mu_flux", "mu_flux_err", "duality_ratio",
-        "snr", "snr_paper", "anomalous", "chromatic_chi2", "chromatic_pvalue",
+        "jacobian",
+        "parity",
+        "mu_size",
+        "mu_size_err",
+        "mu_flux_F150W",
+        "mu_flux_err_F150W",
+        "mu_flux_F200W",
+        "mu_flux_err_F200W",
+        "mu_flux",
+        "mu_flux_err",
+        "duality_ratio",
+        "snr",
+        "snr_paper",
+        "anomalous",
+        "chromatic_chi2",
+        "chromatic_pvalue",
     ]
     for name in expected:
         assert name in res.colnames, name
@@ -52,8 +65,9 @@ def test_columns_and_values_on_exact_duality():
     np.testing.assert_allclose(res["snr"], 0.0, atol=1e-8)
     assert not res["anomalous"].any()
     # the per-band errors: 2 % on each flux -> sqrt(2) * 2 % on the ratio
-    np.testing.assert_allclose(res["mu_flux_err_F150W"] / res["mu_flux_F150W"],
-                               np.sqrt(2) * 0.02, rtol=1e-10)
+    np.testing.assert_allclose(
+        res["mu_flux_err_F150W"] / res["mu_flux_F150W"], np.sqrt(2) * 0.02, rtol=1e-10
+    )
     # two equal-error bands combined: error shrinks by sqrt(2)
     np.testing.assert_allclose(res["mu_flux_err"] / res["mu_flux"], 0.02, rtol=1e-10)
     assert res.meta["bands"] == list(BANDS)
@@ -140,8 +154,14 @@ def test_snr_definitions():
     )
     np.testing.assert_allclose(R[0], 1 / 3, rtol=1e-8)
     assert res["anomalous"][0] and res["anomalous"].sum() == 1
-    paper = check_duality(pairs, sigma_pos=0.02 * u.arcsec, n_bootstrap=300, seed=2,
-                          snr_definition="paper", snr_threshold=1e6)
+    paper = check_duality(
+        pairs,
+        sigma_pos=0.02 * u.arcsec,
+        n_bootstrap=300,
+        seed=2,
+        snr_definition="paper",
+        snr_threshold=1e6,
+    )
     assert not paper["anomalous"].any()
     assert paper.meta["duality"]["snr_definition"] == "paper"
 
@@ -151,8 +171,9 @@ def test_mu_size_matches_estimator():
     res = check_duality(pairs, method="2v", sigma_pos=0.01 * u.arcsec, n_bootstrap=50, seed=4)
     theta1 = np.column_stack([pairs["x1"], pairs["y1"]])
     theta2 = np.column_stack([pairs["x2"], pairs["y2"]])
-    ref = size_magnification(theta1, theta2, "2v", sigma_pos=0.01 * u.arcsec, n_bootstrap=50,
-                             seed=4)
+    ref = size_magnification(
+        theta1, theta2, "2v", sigma_pos=0.01 * u.arcsec, n_bootstrap=50, seed=4
+    )
     np.testing.assert_array_equal(res["mu_size"], ref["mu_size"])
     np.testing.assert_array_equal(res["mu_size_err"], ref["mu_size_err"])
 
@@ -168,25 +189,48 @@ def test_flux_units_converted():
 @pytest.mark.parametrize(
     ("change", "exc", "match"),
     [
-        (lambda t: t.remove_column("flux_err2_F200W"), ValueError,
-         r"lacks the column\(s\) \['flux_err2_F200W'\] of band 'F200W'"),
+        (
+            lambda t: t.remove_column("flux_err2_F200W"),
+            ValueError,
+            r"lacks the column\(s\) \['flux_err2_F200W'\] of band 'F200W'",
+        ),
         (lambda t: t.remove_column("y2"), ValueError, r"lacks the position column\(s\) \['y2'\]"),
-        (lambda t: t.__setitem__("x1", t["x1"].value), TypeError,
-         "pairs column 'x1' must have angular units"),
-        (lambda t: t.__setitem__("x2", t["x2"].value * u.m), TypeError,
-         "pairs column 'x2' must have angular units"),
-        (lambda t: t["flux1_F150W"].__setitem__(3, -1 * u.nJy), ValueError,
-         r"flux1_F150W must be positive for a flux ratio; non-positive at row\(s\) \[3\]"),
-        (lambda t: t["flux2_F200W"].__setitem__(0, 0 * u.nJy), ValueError,
-         "flux2_F200W must be positive"),
-        (lambda t: t["flux_err1_F150W"].__setitem__(1, 0 * u.nJy), ValueError,
-         r"flux_err1_F150W must be finite and positive; bad at row\(s\) \[1\]"),
-        (lambda t: t.__setitem__("flux2_F150W", t["flux2_F150W"].value * u.s), ValueError,
-         "flux units of band 'F150W' do not match"),
-        (lambda t: t.__setitem__("flux2_F150W", t["flux2_F150W"].value), ValueError,
-         "flux units of band 'F150W' do not match"),
-        (lambda t: t.meta.__setitem__("bands", ["F150W", "F444W"]), ValueError,
-         "of band 'F444W'"),
+        (
+            lambda t: t.__setitem__("x1", t["x1"].value),
+            TypeError,
+            "pairs column 'x1' must have angular units",
+        ),
+        (
+            lambda t: t.__setitem__("x2", t["x2"].value * u.m),
+            TypeError,
+            "pairs column 'x2' must have angular units",
+        ),
+        (
+            lambda t: t["flux1_F150W"].__setitem__(3, -1 * u.nJy),
+            ValueError,
+            r"flux1_F150W must be positive for a flux ratio; non-positive at row\(s\) \[3\]",
+        ),
+        (
+            lambda t: t["flux2_F200W"].__setitem__(0, 0 * u.nJy),
+            ValueError,
+            "flux2_F200W must be positive",
+        ),
+        (
+            lambda t: t["flux_err1_F150W"].__setitem__(1, 0 * u.nJy),
+            ValueError,
+            r"flux_err1_F150W must be finite and positive; bad at row\(s\) \[1\]",
+        ),
+        (
+            lambda t: t.__setitem__("flux2_F150W", t["flux2_F150W"].value * u.s),
+            ValueError,
+            "flux units of band 'F150W' do not match",
+        ),
+        (
+            lambda t: t.__setitem__("flux2_F150W", t["flux2_F150W"].value),
+            ValueError,
+            "flux units of band 'F150W' do not match",
+        ),
+        (lambda t: t.meta.__setitem__("bands", ["F150W", "F444W"]), ValueError, "of band 'F444W'"),
         (lambda t: t.meta.__setitem__("bands", []), ValueError, "the pairs table names no bands"),
     ],
 )

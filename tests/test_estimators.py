@@ -1,13 +1,12 @@
 """Tests of lensdual.estimators against closed forms and plain-numpy references."""
 
+import _reference as ref
 import numpy as np
 import pytest
 from astropy import units as u
 from astropy.table import QTable
 
-import _reference as ref
-from lensdual.estimators import METHODS, relative_jacobian, size_magnification
-from lensdual.estimators import _kernels
+from lensdual.estimators import METHODS, _kernels, relative_jacobian, size_magnification
 from lensdual.exceptions import EstimatorWarning
 
 ALL_METHODS = sorted(METHODS)
@@ -56,7 +55,9 @@ def test_affine_maps_recovered_exactly(method, det):
         t1 = t2 @ A.T + rng.normal(size=2) * 10
         J = relative_jacobian(t1 * u.arcsec, t2 * u.arcsec, method)
         assert J.shape == (20, 2, 2)
-        np.testing.assert_allclose(J, np.broadcast_to(A, J.shape), rtol=0, atol=1e-10 * np.abs(A).max())
+        np.testing.assert_allclose(
+            J, np.broadcast_to(A, J.shape), rtol=0, atol=1e-10 * np.abs(A).max()
+        )
         np.testing.assert_allclose(np.linalg.det(J), det, rtol=1e-10)
 
 
@@ -204,22 +205,26 @@ def test_size_magnification_matches_reference(method, constellation):
 
 def test_bootstrap_error_scales_with_sigma(constellation):
     t1, t2 = constellation
-    small = size_magnification(t1 * u.arcsec, t2 * u.arcsec, sigma_pos=1 * u.mas,
-                               n_bootstrap=400, seed=1)
-    large = size_magnification(t1 * u.arcsec, t2 * u.arcsec, sigma_pos=4 * u.mas,
-                               n_bootstrap=400, seed=1)
+    small = size_magnification(
+        t1 * u.arcsec, t2 * u.arcsec, sigma_pos=1 * u.mas, n_bootstrap=400, seed=1
+    )
+    large = size_magnification(
+        t1 * u.arcsec, t2 * u.arcsec, sigma_pos=4 * u.mas, n_bootstrap=400, seed=1
+    )
     ratio = np.median(large["mu_size_err"] / small["mu_size_err"])
     assert 3.0 < ratio < 5.0  # linear error propagation in the small-noise limit
-    zero = size_magnification(t1 * u.arcsec, t2 * u.arcsec, sigma_pos=0 * u.arcsec,
-                              n_bootstrap=5, seed=1)
+    zero = size_magnification(
+        t1 * u.arcsec, t2 * u.arcsec, sigma_pos=0 * u.arcsec, n_bootstrap=5, seed=1
+    )
     np.testing.assert_allclose(zero["mu_size_err"], 0, atol=1e-12)
 
 
 def test_seed_reproducible_and_generator_accepted(constellation):
     t1, t2 = constellation
     a = size_magnification(t1 * u.arcsec, t2 * u.arcsec, n_bootstrap=30, seed=5)
-    b = size_magnification(t1 * u.arcsec, t2 * u.arcsec, n_bootstrap=30,
-                           seed=np.random.default_rng(5))
+    b = size_magnification(
+        t1 * u.arcsec, t2 * u.arcsec, n_bootstrap=30, seed=np.random.default_rng(5)
+    )
     c = size_magnification(t1 * u.arcsec, t2 * u.arcsec, n_bootstrap=30, seed=6)
     np.testing.assert_array_equal(a["mu_size_err"], b["mu_size_err"])
     assert not np.array_equal(a["mu_size_err"], c["mu_size_err"])
@@ -231,10 +236,12 @@ def test_per_pair_sigma(constellation):
     sig = np.full(n, 0.01)
     sig[0] = 0.0
     sig2 = np.vstack([sig, sig])
-    a = size_magnification(t1 * u.arcsec, t2 * u.arcsec, sigma_pos=sig * u.arcsec,
-                           n_bootstrap=30, seed=2)
-    b = size_magnification(t1 * u.arcsec, t2 * u.arcsec, sigma_pos=sig2 * u.arcsec,
-                           n_bootstrap=30, seed=2)
+    a = size_magnification(
+        t1 * u.arcsec, t2 * u.arcsec, sigma_pos=sig * u.arcsec, n_bootstrap=30, seed=2
+    )
+    b = size_magnification(
+        t1 * u.arcsec, t2 * u.arcsec, sigma_pos=sig2 * u.arcsec, n_bootstrap=30, seed=2
+    )
     np.testing.assert_array_equal(a["mu_size_err"], b["mu_size_err"])
     with pytest.raises(ValueError, match="sigma_pos must be a scalar, shape"):
         size_magnification(t1 * u.arcsec, t2 * u.arcsec, sigma_pos=[0.1, 0.2] * u.arcsec)
@@ -245,11 +252,13 @@ def test_chunked_bootstrap_is_consistent(monkeypatch, constellation):
     from lensdual.estimators import core
 
     t1, t2 = constellation
-    a = size_magnification(t1 * u.arcsec, t2 * u.arcsec, n_bootstrap=2000, seed=4,
-                           sigma_pos=0.01 * u.arcsec)
+    a = size_magnification(
+        t1 * u.arcsec, t2 * u.arcsec, n_bootstrap=2000, seed=4, sigma_pos=0.01 * u.arcsec
+    )
     monkeypatch.setattr(core, "_CHUNK_ENTRIES", 7 * len(t1))
-    b = size_magnification(t1 * u.arcsec, t2 * u.arcsec, n_bootstrap=2000, seed=4,
-                           sigma_pos=0.01 * u.arcsec)
+    b = size_magnification(
+        t1 * u.arcsec, t2 * u.arcsec, n_bootstrap=2000, seed=4, sigma_pos=0.01 * u.arcsec
+    )
     np.testing.assert_allclose(b["mu_size_err"], a["mu_size_err"], rtol=0.15)
 
 
@@ -277,8 +286,9 @@ def test_quad_nan_and_warning_when_collinear():
     t2 = np.column_stack([np.arange(5.0), np.zeros(5)])
     t1 = t2 * 2
     with pytest.warns(EstimatorWarning, match="ill-conditioned least squares"):
-        tab = size_magnification(t1 * u.arcsec, t2 * u.arcsec, sigma_pos=0 * u.arcsec,
-                                 n_bootstrap=3)
+        tab = size_magnification(
+            t1 * u.arcsec, t2 * u.arcsec, sigma_pos=0 * u.arcsec, n_bootstrap=3
+        )
     assert np.isnan(tab["mu_size"]).all()
     assert (tab["parity"] == 0).all()
     assert (tab["n_bootstrap_valid"] == 0).all()
@@ -316,25 +326,67 @@ GOOD = np.array([[0.0, 0.0], [1.0, 0.1], [0.2, 1.0], [1.3, 1.2]])
     [
         (GOOD, GOOD * u.arcsec, {}, TypeError, "theta1 must be an astropy Quantity"),
         (GOOD * u.arcsec, GOOD * u.m, {}, TypeError, "theta2 must have angular units"),
-        (GOOD[:, 0] * u.arcsec, GOOD * u.arcsec, {}, ValueError, r"theta1 must have shape \(N, 2\)"),
+        (
+            GOOD[:, 0] * u.arcsec,
+            GOOD * u.arcsec,
+            {},
+            ValueError,
+            r"theta1 must have shape \(N, 2\)",
+        ),
         (GOOD * u.arcsec, np.ones((4, 3)) * u.arcsec, {}, ValueError, "theta2 must have shape"),
         (GOOD * u.arcsec, GOOD[:3] * u.arcsec, {}, ValueError, "same number of pairs, got 4 and 3"),
         (GOOD[:2] * u.arcsec, GOOD[:2] * u.arcsec, {}, ValueError, "needs at least 3 pairs, got 2"),
-        (GOOD * u.arcsec, GOOD * u.arcsec, {"method": "quad2"}, ValueError,
-         "'quad2' needs at least 6 pairs"),
-        (np.where(GOOD == 0.1, np.nan, GOOD) * u.arcsec, GOOD * u.arcsec, {}, ValueError,
-         r"theta1 contains NaN or infinite positions at row\(s\) \[1\]"),
-        (GOOD * u.arcsec, np.where(GOOD == 1.2, np.inf, GOOD) * u.arcsec, {}, ValueError,
-         "theta2 contains NaN or infinite"),
-        (np.vstack([GOOD, GOOD[:1]]) * u.arcsec, np.vstack([GOOD, [[5, 5]]]) * u.arcsec, {},
-         ValueError, r"theta1 contains duplicate positions \(rows \[0, 4\]\)"),
+        (
+            GOOD * u.arcsec,
+            GOOD * u.arcsec,
+            {"method": "quad2"},
+            ValueError,
+            "'quad2' needs at least 6 pairs",
+        ),
+        (
+            np.where(GOOD == 0.1, np.nan, GOOD) * u.arcsec,
+            GOOD * u.arcsec,
+            {},
+            ValueError,
+            r"theta1 contains NaN or infinite positions at row\(s\) \[1\]",
+        ),
+        (
+            GOOD * u.arcsec,
+            np.where(GOOD == 1.2, np.inf, GOOD) * u.arcsec,
+            {},
+            ValueError,
+            "theta2 contains NaN or infinite",
+        ),
+        (
+            np.vstack([GOOD, GOOD[:1]]) * u.arcsec,
+            np.vstack([GOOD, [[5, 5]]]) * u.arcsec,
+            {},
+            ValueError,
+            r"theta1 contains duplicate positions \(rows \[0, 4\]\)",
+        ),
         (GOOD * u.arcsec, GOOD * u.arcsec, {"method": "svd"}, ValueError, "method must be one of"),
         (GOOD * u.arcsec, GOOD * u.arcsec, {"method": None}, ValueError, "method must be one of"),
-        (GOOD * u.arcsec, GOOD * u.arcsec, {"weight_power": -1}, ValueError,
-         "weight_power must be >= 0"),
-        (GOOD * u.arcsec, GOOD * u.arcsec, {"min_angle": 5}, TypeError, "min_angle must be an angle"),
-        (GOOD * u.arcsec, GOOD * u.arcsec, {"min_angle": 95 * u.deg}, ValueError,
-         r"min_angle must be in \[0, 90\) deg"),
+        (
+            GOOD * u.arcsec,
+            GOOD * u.arcsec,
+            {"weight_power": -1},
+            ValueError,
+            "weight_power must be >= 0",
+        ),
+        (
+            GOOD * u.arcsec,
+            GOOD * u.arcsec,
+            {"min_angle": 5},
+            TypeError,
+            "min_angle must be an angle",
+        ),
+        (
+            GOOD * u.arcsec,
+            GOOD * u.arcsec,
+            {"min_angle": 95 * u.deg},
+            ValueError,
+            r"min_angle must be in \[0, 90\) deg",
+        ),
     ],
 )
 def test_bad_input(t1, t2, kwargs, exc, match):

@@ -4,7 +4,7 @@ Everything here is unit-free: positions are plain ``float64`` arrays in one
 angular unit (the public wrappers use arcsec), the Jacobians are dimensionless.
 No input validation happens here; :mod:`lensdual.estimators.core` does it.
 
-Conventions (DESIGN.md, Sect. 2): at pair ``a`` the baselines are
+Conventions (the "pairs table" page of the docs): at pair ``a`` the baselines are
 ``D_ab = theta_b - theta_a`` on each arc, and the relative Jacobian ``J_a``
 satisfies ``D1_ab ~= J_a D2_ab`` (column vectors).
 
@@ -22,7 +22,7 @@ from numba import njit
 
 __all__ = []
 
-# One place for the numba flags of the package (see DESIGN.md, Sect. 6).
+# One place for the numba flags of the package: cached, no fastmath (it mishandles NaN).
 JIT_OPTIONS = {"cache": True, "fastmath": False, "nogil": True}
 
 STATUS_OK = 0
