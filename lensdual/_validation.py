@@ -2,8 +2,13 @@
 
 import numpy as np
 from astropy import units as u
+from astropy.cosmology import Cosmology, FlatLambdaCDM
 
 __all__ = []
+
+#: The paper's cosmology (flat LambdaCDM, H0 = 70 km/s/Mpc, Om0 = 0.3), used
+#: wherever ``cosmology=None``.
+DEFAULT_COSMOLOGY = FlatLambdaCDM(H0=70, Om0=0.3)
 
 
 def as_positions(value, name, *, unit=u.arcsec):
@@ -84,3 +89,43 @@ def check_unique_rows(arr, name):
             f"{name} contains duplicate positions (rows {dup.tolist()}); every point "
             "source of an arc must have its own position"
         )
+
+
+def as_mass(mass, name="mass"):
+    """Validate a (scalar or array) mass Quantity > 0; return it in Msun (Quantity)."""
+    if not isinstance(mass, u.Quantity):
+        raise TypeError(
+            f"{name} must be an astropy Quantity with mass units (e.g. 1e8 * u.Msun), got "
+            f"{type(mass).__name__}"
+        )
+    if mass.unit.physical_type != "mass":
+        raise TypeError(f"{name} must have mass units (e.g. u.Msun), got unit {mass.unit!s}")
+    value = np.asarray(mass.to_value(u.Msun), dtype=np.float64)
+    if not (np.isfinite(value) & (value > 0)).all():
+        raise ValueError(f"{name} must be finite and positive, got {mass}")
+    return value * u.Msun
+
+
+def as_cosmology(cosmology):
+    """``cosmology``, or :data:`DEFAULT_COSMOLOGY` for None; TypeError otherwise."""
+    if cosmology is None:
+        return DEFAULT_COSMOLOGY
+    if not isinstance(cosmology, Cosmology):
+        raise TypeError(
+            "cosmology must be an astropy.cosmology.Cosmology instance (e.g. "
+            f"astropy.cosmology.Planck18) or None, got {type(cosmology).__name__}"
+        )
+    return cosmology
+
+
+def as_redshifts(z_lens, z_source):
+    """Validate lens and source redshifts, 0 < z_lens < z_source."""
+    zl = as_real(z_lens, "z_lens")
+    zs = as_real(z_source, "z_source")
+    if zl <= 0:
+        raise ValueError(f"z_lens must be > 0, got {z_lens}")
+    if zs <= zl:
+        raise ValueError(
+            f"z_source must be larger than z_lens, got z_source={z_source} <= z_lens={z_lens}"
+        )
+    return zl, zs

@@ -17,9 +17,8 @@ spread of sub-halo masses.
 import numpy as np
 from astropy import constants as const
 from astropy import units as u
-from astropy.cosmology import Cosmology, FlatLambdaCDM
 
-from ._validation import as_int, as_real
+from ._validation import as_cosmology, as_int, as_mass, as_real, as_redshifts
 
 __all__ = [
     "einstein_radius",
@@ -28,55 +27,14 @@ __all__ = [
     "surface_density_limit",
 ]
 
-#: Cosmology used when ``cosmology=None``.
-_DEFAULT_COSMOLOGY = FlatLambdaCDM(H0=70, Om0=0.3)
-
 _METHODS = ("paper", "exact")
-
-
-def _as_mass(mass):
-    """Validate a (scalar or array) mass Quantity > 0 and return it in Msun."""
-    if not isinstance(mass, u.Quantity):
-        raise TypeError(
-            "mass must be an astropy Quantity with mass units (e.g. 1e8 * u.Msun), got "
-            f"{type(mass).__name__}"
-        )
-    if mass.unit.physical_type != "mass":
-        raise TypeError(f"mass must have mass units (e.g. u.Msun), got unit {mass.unit!s}")
-    value = np.asarray(mass.to_value(u.Msun), dtype=np.float64)
-    if not (np.isfinite(value) & (value > 0)).all():
-        raise ValueError(f"mass must be finite and positive, got {mass}")
-    return value * u.Msun
-
-
-def _as_cosmology(cosmology):
-    if cosmology is None:
-        return _DEFAULT_COSMOLOGY
-    if not isinstance(cosmology, Cosmology):
-        raise TypeError(
-            "cosmology must be an astropy.cosmology.Cosmology instance (e.g. "
-            f"astropy.cosmology.Planck18) or None, got {type(cosmology).__name__}"
-        )
-    return cosmology
-
-
-def _as_redshifts(z_lens, z_source):
-    zl = as_real(z_lens, "z_lens")
-    zs = as_real(z_source, "z_source")
-    if zl <= 0:
-        raise ValueError(f"z_lens must be > 0, got {z_lens}")
-    if zs <= zl:
-        raise ValueError(
-            f"z_source must be larger than z_lens, got z_source={z_source} <= z_lens={z_lens}"
-        )
-    return zl, zs
 
 
 def _einstein_radius_rad(mass, z_lens, z_source, cosmology):
     """Validated inputs -> (theta_E in radians as a float array, D_l)."""
-    mass = _as_mass(mass)
-    zl, zs = _as_redshifts(z_lens, z_source)
-    cosmo = _as_cosmology(cosmology)
+    mass = as_mass(mass)
+    zl, zs = as_redshifts(z_lens, z_source)
+    cosmo = as_cosmology(cosmology)
     d_l = cosmo.angular_diameter_distance(zl)
     d_s = cosmo.angular_diameter_distance(zs)
     d_ls = cosmo.angular_diameter_distance(zl, zs)
