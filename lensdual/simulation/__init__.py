@@ -1,0 +1,15 @@
+"""Lens simulations on lenstronomy: the truth machine of lensdual.
+
+Lens systems built from physical parameters (truncated NFW haloes, cluster
+members, sub-haloes), exact image finding for point-source constellations,
+and the SMACS0723 analogue of the paper's Table 1.
+"""
+
+from .halos import *  # noqa: F403
+from .halos import __all__ as _halos_all
+from .lens_system import *  # noqa: F403
+from .lens_system import __all__ as _system_all
+from .scenarios import *  # noqa: F403
+from .scenarios import __all__ as _scenarios_all
+
+__all__ = _halos_all + _system_all + _scenarios_all

@@ -1,0 +1,212 @@
+"""Tests of lensdual.simulation: haloes, LensSystem, the SMACS0723 analogue."""
+
+import numpy as np
+import pytest
+from astropy import constants as const
+from astropy import units as u
+from astropy.cosmology import FlatLambdaCDM, Planck18
+
+from lensdual.simulation import (
+    LensComponent,
+    LensSystem,
+    elliptical_nfw_halo,
+    mass_concentration,
+    nfw_angular_parameters,
+    tnfw_halo,
+)
+
+ZL, ZS = 0.39, 2.2
+COSMO = FlatLambdaCDM(H0=70, Om0=0.3)
+
+
+# --------------------------------------------------------------------------- haloes
+
+
+@pytest.mark.parametrize(("mass", "c_table"), [(2e12, 9.7), (1e11, 13.5), (1e9, 22.2),
+                                                (1e8, 28.6)])
+def test_mass_concentration_reproduces_table1(mass, c_table):
+    assert mass_concentration(mass * u.Msun) == pytest.approx(c_table, abs=0.05)
+
+
+def test_mass_concentration_array_and_errors():
+    c = mass_concentration([1e8, 1e12] * u.Msun)
+    np.testing.assert_allclose(c, [10**1.020 * 1e-4**-0.109, 10**1.020])
+    with pytest.raises(TypeError, match="mass must be an astropy Quantity"):
+        mass_concentration(1e8)
+    with pytest.raises(ValueError, match="mass must be finite and positive"):
+        mass_concentration(-1e8 * u.Msun)
+
+
+@pytest.mark.parametrize(("mass", "c"), [(5e14, 9.6), (1e8, 100.0), (2e12, 9.7)])
+def test_nfw_angles_closed_form(mass, c):
+    """Rs and alpha_Rs against the NFW closed form, written out independently."""
+    rs, alpha_rs = nfw_angular_parameters(mass * u.Msun, c, z_lens=ZL, z_source=ZS)
+    rho_c = COSMO.critical_density(ZL)
+    r200 = (3 * mass * u.Msun / (4 * np.pi * 200 * rho_c)) ** (1 / 3)
+    r_s = (r200 / c).to(u.Mpc)
+    d_l = COSMO.angular_diameter_distance(ZL)
+    d_s = COSMO.angular_diameter_distance(ZS)
+    d_ls = COSMO.angular_diameter_distance(ZL, ZS)
+    rs_angle = (r_s / d_l).to(u.arcsec, u.dimensionless_angles())
+    rho_s = 200 / 3 * rho_c * c**3 / (np.log(1 + c) - c / (1 + c))
+    sigma_cr = const.c**2 * d_s / (4 * np.pi * const.G * d_l * d_ls)
+    kappa_s = (rho_s * r_s / sigma_cr).decompose()
+    alpha = 4 * kappa_s * rs_angle * (1 + np.log(0.5))
+    assert rs.to_value(u.arcsec) == pytest.approx(rs_angle.value, rel=1e-6)
+    # lenstronomy carries its own values of G, c and the Mpc (3e-4 from astropy's)
+    assert alpha_rs.to_value(u.arcsec) == pytest.approx(alpha.value, rel=1e-3)
+
+
+def test_tnfw_component():
+    comp = tnfw_halo(1e8 * u.Msun, position=(1.0, -2.0) * u.arcsec, z_lens=ZL, z_source=ZS)
+    assert comp.profile == "TNFW"
+    assert comp.kwargs["r_trunc"] == pytest.approx(30 * comp.kwargs["Rs"])
+    assert comp.kwargs["center_x"] == 1.0 and comp.kwargs["center_y"] == -2.0
+    assert comp.meta["concentration"] == pytest.approx(28.6, abs=0.05)
+    over = tnfw_halo(1e8 * u.Msun, 100, z_lens=ZL, z_source=ZS)
+    assert over.kwargs["Rs"] < comp.kwargs["Rs"]
+    other = tnfw_halo(1e8 * u.Msun, z_lens=ZL, z_source=ZS, cosmology=Planck18)
+    assert other.kwargs["alpha_Rs"] != comp.kwargs["alpha_Rs"]
+
+
+def test_elliptical_halo_axis_ratio():
+    from lenstronomy.Util.param_util import ellipticity2phi_q
+
+    comp = elliptical_nfw_halo(5e14 * u.Msun, 9.6, axis_ratio=0.85,
+                               position_angle=30 * u.deg, z_lens=ZL, z_source=ZS)
+    phi, q = ellipticity2phi_q(comp.kwargs["e1"], comp.kwargs["e2"])
+    assert q == pytest.approx(0.85)
+    assert np.rad2deg(phi) == pytest.approx(30.0)
+    assert comp.profile == "NFW_ELLIPSE_CSE"
+
+
+@pytest.mark.parametrize(
+    ("call", "exc", "match"),
+    [
+        (lambda: tnfw_halo(1e8 * u.Msun, -3, z_lens=ZL, z_source=ZS), ValueError,
+         "concentration must be > 0"),
+        (lambda: tnfw_halo(0 * u.Msun, z_lens=ZL, z_source=ZS), ValueError,
+         "mass must be finite and positive"),
+        (lambda: tnfw_halo(1e8 * u.kpc, z_lens=ZL, z_source=ZS), TypeError,
+         "mass must have mass units"),
+        (lambda: tnfw_halo(1e8 * u.Msun, z_lens=2.2, z_source=0.39), ValueError,
+         "z_source must be larger than z_lens"),
+        (lambda: tnfw_halo(1e8 * u.Msun, z_lens=0.5, z_source=0.5), ValueError,
+         "z_source must be larger than z_lens"),
+        (lambda: tnfw_halo(1e8 * u.Msun, position=(1, 2), z_lens=ZL, z_source=ZS), TypeError,
+         "position must be an angle Quantity"),
+        (lambda: tnfw_halo(1e8 * u.Msun, truncation=0, z_lens=ZL, z_source=ZS), ValueError,
+         "truncation must be > 0"),
+        (lambda: elliptical_nfw_halo(5e14 * u.Msun, axis_ratio=1.5, z_lens=ZL, z_source=ZS),
+         ValueError, "axis_ratio must be <= 1"),
+        (lambda: elliptical_nfw_halo(5e14 * u.Msun, position_angle=30, z_lens=ZL, z_source=ZS),
+         TypeError, "position_angle must be an angle Quantity"),
+    ],
+)
+def test_halo_bad_input(call, exc, match):
+    with pytest.raises(exc, match=match):
+        call()
+
+
+# --------------------------------------------------------------------------- LensSystem
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    main = elliptical_nfw_halo(5e14 * u.Msun, 9.6, axis_ratio=0.85, z_lens=ZL, z_source=ZS)
+    member = tnfw_halo(2e12 * u.Msun, position=(3.0, -6.5) * u.arcsec, z_lens=ZL, z_source=ZS)
+    return LensSystem([main, member], z_lens=ZL, z_source=ZS)
+
+
+def test_lens_system_matches_lenstronomy(cluster):
+    from lenstronomy.LensModel.lens_model import LensModel
+
+    rng = np.random.default_rng(0)
+    theta = rng.uniform(-20, 20, (50, 2))
+    model = LensModel(["NFW_ELLIPSE_CSE", "TNFW"])
+    kw = [c.kwargs for c in cluster.components]
+    bx, by = model.ray_shooting(theta[:, 0], theta[:, 1], kw)
+    np.testing.assert_allclose(cluster.ray_shoot(theta * u.arcsec).value,
+                               np.column_stack([bx, by]), rtol=1e-12)
+    np.testing.assert_allclose(cluster.deflection(theta * u.arcsec).value,
+                               theta - np.column_stack([bx, by]), atol=1e-10)
+    np.testing.assert_allclose(cluster.magnification(theta * u.arcsec),
+                               model.magnification(theta[:, 0], theta[:, 1], kw), rtol=1e-10)
+
+
+def test_jacobian_is_derivative_of_ray_shoot(cluster):
+    """The analytic Jacobian against central finite differences of beta(theta)."""
+    rng = np.random.default_rng(1)
+    theta = rng.uniform(-15, 15, (20, 2))
+    h = 1e-5
+    jac = cluster.jacobian(theta * u.arcsec)
+    for j, step in enumerate(np.eye(2) * h):
+        plus = cluster.ray_shoot((theta + step) * u.arcsec).value
+        minus = cluster.ray_shoot((theta - step) * u.arcsec).value
+        np.testing.assert_allclose(jac[:, :, j], (plus - minus) / (2 * h), atol=1e-6)
+
+
+def test_critical_curve_of_sis_is_einstein_ring():
+    sis = LensSystem([LensComponent("SIS", {"theta_E": 1.5, "center_x": 0.2,
+                                            "center_y": -0.1})], z_lens=ZL, z_source=ZS)
+    curves = sis.critical_curves(half_width=3 * u.arcsec, grid_spacing=0.02 * u.arcsec)
+    assert len(curves) == 1
+    r = np.hypot(curves[0][:, 0].value - 0.2, curves[0][:, 1].value + 0.1)
+    np.testing.assert_allclose(r, 1.5, atol=2e-3)
+    np.testing.assert_allclose(curves[0][0].value, curves[0][-1].value)  # closed
+    caustic = sis.caustics(half_width=3 * u.arcsec, grid_spacing=0.02 * u.arcsec)[0]
+    np.testing.assert_allclose(caustic.value, [[0.2, -0.1]] * len(caustic), atol=2e-3)
+
+
+def test_critical_curves_have_vanishing_determinant(cluster):
+    curves = cluster.critical_curves(half_width=25 * u.arcsec, grid_spacing=0.1 * u.arcsec)
+    assert len(curves) >= 2  # radial and tangential
+    for curve in curves:
+        mu = cluster.magnification(curve)
+        assert np.median(np.abs(mu)) > 50  # det A ~ 0 on the curve
+
+
+@pytest.mark.parametrize(
+    ("make", "exc", "match"),
+    [
+        (lambda: LensSystem([], z_lens=ZL, z_source=ZS), ValueError, "at least one component"),
+        (lambda: LensSystem([("SIS", {})], z_lens=ZL, z_source=ZS), TypeError,
+         "component 0 must be a LensComponent"),
+        (lambda: LensSystem([LensComponent("NOPE", {})], z_lens=ZL, z_source=ZS), ValueError,
+         "unknown lenstronomy profile 'NOPE'"),
+        (lambda: LensSystem([LensComponent("SIS", {"theta_E": 1.0, "center_x": 0})],
+                            z_lens=ZL, z_source=ZS), ValueError,
+         r"missing keyword\(s\) \['center_y'\]"),
+        (lambda: LensSystem([LensComponent("SIS", {"theta_E": 1.0, "center_x": 0,
+                                                   "center_y": 0, "q": 1})],
+                            z_lens=ZL, z_source=ZS), ValueError,
+         r"unknown keyword\(s\) \['q'\]"),
+        (lambda: LensSystem([LensComponent("SIS", {"theta_E": np.nan, "center_x": 0,
+                                                   "center_y": 0})],
+                            z_lens=ZL, z_source=ZS), ValueError, "non-finite value"),
+        (lambda: LensSystem([LensComponent("SIS", {"theta_E": 1.0, "center_x": 0,
+                                                   "center_y": 0})],
+                            z_lens=1.0, z_source=0.5), ValueError,
+         "z_source must be larger than z_lens"),
+    ],
+)
+def test_lens_system_bad_input(make, exc, match):
+    with pytest.raises(exc, match=match):
+        make()
+
+
+def test_lens_system_positions_need_units(cluster):
+    with pytest.raises(TypeError, match="theta must be an astropy Quantity"):
+        cluster.ray_shoot(np.zeros((3, 2)))
+    with pytest.raises(ValueError, match=r"theta must have shape \(N, 2\)"):
+        cluster.magnification(np.zeros(3) * u.arcsec)
+
+
+def test_add_returns_new_system(cluster):
+    sub = tnfw_halo(1e8 * u.Msun, 100, (1.0, 1.0) * u.arcsec, z_lens=ZL, z_source=ZS,
+                    label="sub")
+    bigger = cluster.add(sub)
+    assert len(bigger.components) == len(cluster.components) + 1
+    assert "sub" in repr(bigger)
+    theta = [[1.05, 1.0]] * u.arcsec
+    assert not np.allclose(bigger.deflection(theta), cluster.deflection(theta))
