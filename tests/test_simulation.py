@@ -210,3 +210,14 @@ def test_add_returns_new_system(cluster):
     assert "sub" in repr(bigger)
     theta = [[1.05, 1.0]] * u.arcsec
     assert not np.allclose(bigger.deflection(theta), cluster.deflection(theta))
+
+
+def test_from_model_wraps_any_lenstronomy_like_model(cluster):
+    wrapped = LensSystem.from_model(cluster.lens_model, cluster.kwargs_lens, z_lens=ZL,
+                                    z_source=ZS)
+    theta = np.random.default_rng(3).uniform(-10, 10, (10, 2)) * u.arcsec
+    np.testing.assert_array_equal(wrapped.magnification(theta), cluster.magnification(theta))
+    with pytest.raises(TypeError, match="add\\(\\) needs a system built from LensComponents"):
+        wrapped.add(tnfw_halo(1e8 * u.Msun, z_lens=ZL, z_source=ZS))
+    with pytest.raises(TypeError, match="model must have a ray_shooting"):
+        LensSystem.from_model(object(), z_lens=ZL, z_source=ZS)

@@ -61,6 +61,7 @@ class LensSystem:
                                 f"{type(comp).__name__}")
             self._check_component(i, comp)
         self.components = tuple(components)
+        self.label = "lenstronomy model"
         self.lens_model = LensModel([c.profile for c in components])
         self.kwargs_lens = [dict(c.kwargs) for c in components]
         self.sources = None if sources is None else as_positions(sources, "sources") * u.arcsec
@@ -84,13 +85,42 @@ class LensSystem:
 
     # ------------------------------------------------------------------ building
 
+    @classmethod
+    def from_model(cls, model, kwargs_lens=None, *, z_lens, z_source, cosmology=None,
+                   sources=None, label="custom model"):
+        """A system around any object with lenstronomy's ``LensModel`` interface.
+
+        ``model`` must provide ``ray_shooting(x, y, kwargs)``,
+        ``alpha(x, y, kwargs)`` and ``hessian(x, y, kwargs)`` on float arrays
+        in arcsec (e.g. a lenstronomy ``LensModel``, or the Numba dPIE model
+        of a Lenstool file); ``kwargs_lens`` is passed through unchanged.
+        Such a system has no components, so :meth:`add` is not available.
+        """
+        for name in ("ray_shooting", "alpha", "hessian"):
+            if not callable(getattr(model, name, None)):
+                raise TypeError(f"model must have a {name}(x, y, kwargs) method like "
+                                f"lenstronomy's LensModel; {type(model).__name__} has none")
+        self = cls.__new__(cls)
+        self.z_lens, self.z_source = as_redshifts(z_lens, z_source)
+        self.cosmology = as_cosmology(cosmology)
+        self.components = ()
+        self.label = label
+        self.lens_model = model
+        self.kwargs_lens = kwargs_lens
+        self.sources = None if sources is None else as_positions(sources, "sources") * u.arcsec
+        self._finders = {}
+        return self
+
     def add(self, *components):
         """A new system with ``components`` appended (this one is unchanged)."""
+        if not self.components:
+            raise TypeError("add() needs a system built from LensComponents; this one wraps "
+                            f"a {type(self.lens_model).__name__}")
         return LensSystem(self.components + tuple(components), z_lens=self.z_lens,
                           z_source=self.z_source, cosmology=self.cosmology, sources=self.sources)
 
     def __repr__(self):
-        parts = ", ".join(f"{c.label or c.profile}" for c in self.components)
+        parts = ", ".join(f"{c.label or c.profile}" for c in self.components) or self.label
         return (f"<LensSystem z_lens={self.z_lens} z_source={self.z_source} "
                 f"components=[{parts}]>")
 
