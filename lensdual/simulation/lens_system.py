@@ -421,22 +421,35 @@ def _link_arcs(theta, parity, link):
 
 
 def _fold_arcs(images, n_sources):
-    """Labels (L1, L2) of the opposite-parity arcs imaging the most sources."""
+    """Labels (L1, L2) of the fold pair of arcs of a constellation.
+
+    The pair of opposite-parity arcs that images the most sources; among
+    equals, the pair whose images of the same source lie closest together
+    (the two images of a fold pair straddle one critical curve).
+    """
     best = None
     arcs = np.unique(np.asarray(images["arc"]))
+    src = np.asarray(images["source"])
+    xy = np.column_stack([images["x"].to_value(u.arcsec), images["y"].to_value(u.arcsec)])
+    parity = np.asarray(images["parity"])
+    arc_of = np.asarray(images["arc"])
     info = {}
     for k in arcs:
-        sel = images["arc"] == k
-        info[k] = (int(images["parity"][sel][0]), set(np.asarray(images["source"][sel])),
-                   float(np.median(np.abs(images["magnification"][sel]))))
+        sel = np.flatnonzero(arc_of == k)
+        # one position per source on this arc (its first image)
+        _, first = np.unique(src[sel], return_index=True)
+        info[k] = (int(parity[sel[0]]), dict(zip(src[sel][first], xy[sel][first], strict=True)))
     for a in arcs:
         for b in arcs:
             if info[a][0] <= 0 or info[b][0] >= 0:
                 continue
-            score = (len(info[a][1] & info[b][1]), info[a][2] + info[b][2])
+            common = sorted(set(info[a][1]) & set(info[b][1]))
+            if not common:
+                continue
+            sep = np.median([np.hypot(*(info[a][1][s] - info[b][1][s])) for s in common])
+            score = (len(common), -sep)
             if best is None or score > best[0]:
                 best = (score, a, b)
     if best is None:
-        raise ValueError("no pair of opposite-parity arcs found for the constellation")
+        raise ValueError("no pair of opposite-parity arcs images a common source")
     return best[1], best[2]
-

@@ -21,8 +21,8 @@ SMACS0723 = {
     "source_sigma": 0.06 * u.arcsec,
     # (mass, concentration, image-plane position) of the two cluster members
     "members": (
-        (2e12 * u.Msun, 9.7, (3.0, -6.5) * u.arcsec),
-        (1e11 * u.Msun, 13.5, (-2.6, -5.4) * u.arcsec),
+        (2e12 * u.Msun, 9.7, (4.1, -6.4) * u.arcsec),
+        (1e11 * u.Msun, 13.5, (-3.8, -6.8) * u.arcsec),
     ),
 }
 
