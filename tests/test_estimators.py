@@ -337,13 +337,6 @@ GOOD = np.array([[0.0, 0.0], [1.0, 0.1], [0.2, 1.0], [1.3, 1.2]])
         (GOOD * u.arcsec, GOOD[:3] * u.arcsec, {}, ValueError, "same number of pairs, got 4 and 3"),
         (GOOD[:2] * u.arcsec, GOOD[:2] * u.arcsec, {}, ValueError, "needs at least 3 pairs, got 2"),
         (
-            GOOD * u.arcsec,
-            GOOD * u.arcsec,
-            {"method": "quad2"},
-            ValueError,
-            "'quad2' needs at least 6 pairs",
-        ),
-        (
             np.where(GOOD == 0.1, np.nan, GOOD) * u.arcsec,
             GOOD * u.arcsec,
             {},
@@ -426,3 +419,17 @@ def test_nan_percentiles_match_numpy():
     expected = np.nanpercentile(x[:, ok], [16, 50, 84], axis=0)
     np.testing.assert_allclose(got[:, ok], expected, rtol=1e-14)
     assert np.isnan(got[:, 2]).all()
+
+
+def test_quad2_falls_back_to_quad_with_few_pairs():
+    rng = np.random.default_rng(12)
+    t2 = rng.normal(size=(5, 2))
+    t1 = nonlinear_map(t2)
+    with pytest.warns(EstimatorWarning, match=r"the first-order quad Jacobian is used"):
+        J2 = relative_jacobian(t1 * u.arcsec, t2 * u.arcsec, "quad2")
+    J1 = relative_jacobian(t1 * u.arcsec, t2 * u.arcsec, "quad")
+    np.testing.assert_allclose(J2, J1, rtol=1e-10)
+    # and the bootstrap of such a constellation is complete, not NaN
+    with pytest.warns(EstimatorWarning, match="first-order quad"):
+        tab = size_magnification(t1 * u.arcsec, t2 * u.arcsec, "quad2", n_bootstrap=20, seed=0)
+    assert (tab["n_bootstrap_valid"] == 20).all()

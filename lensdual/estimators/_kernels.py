@@ -15,6 +15,9 @@ Status codes returned per pair:
   whose baselines are separated by at least the minimum angle.
 * ``STATUS_ILL_CONDITIONED`` (2): the weighted least-squares design matrix
   is (numerically) rank deficient, e.g. all baselines collinear.
+* ``STATUS_FALLBACK`` (3): quad2 only, the second-order fit was not possible
+  (fewer than 5 baselines, or rank deficient) and the first-order Quad
+  Jacobian was used; the Jacobian is finite.
 """
 
 import numpy as np
@@ -28,6 +31,7 @@ JIT_OPTIONS = {"cache": True, "fastmath": False, "nogil": True}
 STATUS_OK = 0
 STATUS_NO_TRIANGLE = 1
 STATUS_ILL_CONDITIONED = 2
+STATUS_FALLBACK = 3
 
 METHOD_2V = 0
 METHOD_QUAD = 1
@@ -344,9 +348,14 @@ def relative_jacobians(t1, t2, method, weight_power, min_sin, cond_max, jac, sta
                 )
     else:
         for a in range(n):
-            status[a] = _jacobian_quad(
-                t1, t2, a, 2, weight_power, cond_max, A, Y, sol, jac[a]
-            )
+            st = STATUS_ILL_CONDITIONED
+            if n - 1 >= 5:
+                st = _jacobian_quad(t1, t2, a, 2, weight_power, cond_max, A, Y, sol, jac[a])
+            if st != STATUS_OK:
+                # not enough (or degenerate) baselines for the curvature terms
+                st = _jacobian_quad(t1, t2, a, 1, weight_power, cond_max, A, Y, sol, jac[a])
+                st = STATUS_FALLBACK if st == STATUS_OK else st
+            status[a] = st
 
 
 @njit(**JIT_OPTIONS)

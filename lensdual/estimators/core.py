@@ -20,7 +20,7 @@ __all__ = ["METHODS", "relative_jacobian", "size_magnification"]
 
 #: Estimators known to :func:`relative_jacobian`, with the smallest number of
 #: pairs each one needs.
-METHODS = {"2v": 3, "quad": 3, "quad2": 6}
+METHODS = {"2v": 3, "quad": 3, "quad2": 3}
 
 _METHOD_CODES = {
     "2v": _kernels.METHOD_2V,
@@ -88,6 +88,15 @@ def _warn_status(status, method):
             EstimatorWarning,
             stacklevel=3,
         )
+    fallback = np.flatnonzero(status == _kernels.STATUS_FALLBACK)
+    if fallback.size:
+        warnings.warn(
+            f"quad2 Jacobian: too few or degenerate baselines for the second-order fit of "
+            f"pair(s) {fallback.tolist()} (it needs at least 6 pairs); the first-order quad "
+            "Jacobian is used there",
+            EstimatorWarning,
+            stacklevel=3,
+        )
     if ill.size:
         warnings.warn(
             f"{method} Jacobian: ill-conditioned least squares for pair(s) {ill.tolist()} "
@@ -119,8 +128,10 @@ def relative_jacobian(theta1, theta2, method="quad", *, weight_power=2, min_angl
         closes a triangle whose two baselines are at least ``min_angle``
         apart. ``"quad2"``: as ``"quad"``, but the fit includes the
         second-order terms of the Taylor expansion of the image-to-image map
-        (needs N >= 6); this removes the bias the first-order fit picks up
-        from the curvature of the map on long baselines.
+        (three second derivatives per component); this removes the bias the
+        first-order fit picks up from the curvature of the map on long
+        baselines. With fewer than 6 pairs, or degenerate baselines, it
+        falls back to ``"quad"`` for the pairs concerned (with a warning).
     weight_power : float, optional
         Power of the baseline weights of the Quad estimators (default 2,
         as in the paper).
