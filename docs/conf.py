@@ -25,7 +25,15 @@ extensions = [
     "sphinx_automodapi.automodapi",
     "sphinx_automodapi.smart_resolver",
     "numpydoc",
+    "matplotlib.sphinxext.plot_directive",
 ]
+
+# Figures are computed during the build (``.. plot::``), never downloaded.
+plot_include_source = True
+plot_html_show_source_link = False
+plot_html_show_formats = False
+plot_formats = [("png", 100)]
+plot_rcparams = {"figure.dpi": 100}
 
 exclude_patterns = ["_build", "Thumbs.db", ".DS_Store"]
 templates_path = []

@@ -221,3 +221,138 @@ def test_from_model_wraps_any_lenstronomy_like_model(cluster):
         wrapped.add(tnfw_halo(1e8 * u.Msun, z_lens=ZL, z_source=ZS))
     with pytest.raises(TypeError, match="model must have a ray_shooting"):
         LensSystem.from_model(object(), z_lens=ZL, z_source=ZS)
+
+
+# --------------------------------------------------------------------------- constellations
+
+
+@pytest.fixture(scope="module")
+def analog():
+    from lensdual.simulation import smacs0723_analog
+
+    system = smacs0723_analog(seed=1)
+    return system, system.constellation(seed=2)
+
+
+def test_smacs0723_analog_components():
+    from lensdual.simulation import SMACS0723, smacs0723_analog
+
+    plain = smacs0723_analog(seed=0)
+    assert [c.profile for c in plain.components] == ["NFW_ELLIPSE_CSE"]
+    assert plain.sources.shape == (16, 2)
+    centre = SMACS0723["source_centre"].to_value(u.arcsec)
+    assert np.allclose(plain.sources.value.mean(axis=0), centre, atol=0.06)
+    members = smacs0723_analog(perturbers=True, seed=0, n_sources=5)
+    assert [c.profile for c in members.components] == ["NFW_ELLIPSE_CSE", "TNFW", "TNFW"]
+    assert members.components[1].meta["mass"] == 2e12 * u.Msun
+    np.testing.assert_array_equal(smacs0723_analog(seed=3).sources,
+                                  smacs0723_analog(seed=3).sources)
+
+
+def test_smacs0723_analog_subhalo_sits_on_l2_image():
+    from lensdual.simulation import smacs0723_analog
+
+    base = smacs0723_analog(seed=4)
+    with_sub = smacs0723_analog(seed=4, subhalo="overconcentrated", subhalo_source=2)
+    sub = with_sub.components[-1]
+    assert sub.profile == "TNFW" and sub.meta["concentration"] == 100.0
+    pairs = base.constellation()
+    row = np.flatnonzero(np.asarray(pairs["source"]) == 2)[0]
+    assert sub.kwargs["center_x"] == pytest.approx(pairs["x2"][row].value)
+    assert sub.kwargs["center_y"] == pytest.approx(pairs["y2"][row].value)
+    massive = smacs0723_analog(seed=4, subhalo="massive").components[-1]
+    assert massive.meta["concentration"] == pytest.approx(22.2, abs=0.05)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "exc", "match"),
+    [
+        ({"subhalo": "huge"}, ValueError, "subhalo must be None, a LensComponent or one of"),
+        ({"n_sources": 2}, ValueError, "n_sources must be >= 3"),
+        ({"perturbers": "yes"}, TypeError, "perturbers must be True or False"),
+        ({"subhalo": "small", "subhalo_source": 16}, ValueError,
+         "subhalo_source must be < n_sources"),
+    ],
+)
+def test_smacs0723_analog_bad_input(kwargs, exc, match):
+    from lensdual.simulation import smacs0723_analog
+
+    with pytest.raises(exc, match=match):
+        smacs0723_analog(**kwargs)
+
+
+def test_constellation_schema_and_truth(analog):
+    system, pairs = analog
+    for name in ("pair_id", "x1", "y1", "x2", "y2", "mu_true", "mu1", "mu2",
+                 "flux1_F150W", "flux2_F200W", "flux_err1_F150W", "flux_err2_F200W"):
+        assert name in pairs.colnames
+    assert pairs.meta["bands"] == ["F150W", "F200W"]
+    assert len(pairs) == 16
+    assert (pairs["mu1"] > 0).all() and (pairs["mu2"] < 0).all()
+    np.testing.assert_array_equal(pairs["pair_id"], np.arange(1, 17))
+    beta = np.column_stack([pairs["beta_x"], pairs["beta_y"]])
+    for arc in ("1", "2"):
+        theta = np.column_stack([pairs[f"x{arc}"], pairs[f"y{arc}"]])
+        np.testing.assert_allclose(system.ray_shoot(theta).value, beta.value, atol=1e-7)
+        np.testing.assert_allclose(system.magnification(theta), pairs[f"mu{arc}"], rtol=1e-8)
+    np.testing.assert_allclose(pairs["mu_true"], np.abs(pairs["mu1"] / pairs["mu2"]))
+    for band in pairs.meta["bands"]:
+        ratio = pairs[f"flux1_{band}"] / pairs[f"flux2_{band}"]
+        np.testing.assert_allclose(ratio, pairs["mu_true"], rtol=1e-10)
+    colour1 = pairs["flux1_F150W"] / pairs["flux1_F200W"]
+    colour2 = pairs["flux2_F150W"] / pairs["flux2_F200W"]
+    np.testing.assert_allclose(colour1, colour2, rtol=1e-10)  # same colour on both arcs
+
+
+def test_constellation_passes_duality_and_estimators(analog):
+    from lensdual.duality import check_duality
+
+    _, pairs = analog
+    res = check_duality(pairs, method="quad2", sigma_pos=0.005 * u.arcsec, n_bootstrap=100,
+                        seed=0)
+    assert not res["anomalous"].any()
+    assert (res["parity"] == -1).all()
+    err = np.abs(res["mu_size"] / pairs["mu_true"] - 1)
+    assert np.median(err) < 0.01
+
+
+def test_solve_images_table(analog):
+    system, _ = analog
+    beta = system.sources[:3]
+    images = system.solve_images(beta)
+    assert set(images.colnames) >= {"source", "x", "y", "magnification", "parity", "arc"}
+    assert set(np.asarray(images["source"])) == {0, 1, 2}
+    theta = np.column_stack([images["x"], images["y"]])
+    np.testing.assert_allclose(system.ray_shoot(theta).value,
+                               beta.value[np.asarray(images["source"])], atol=1e-7)
+    # odd number of images for a non-singular lens
+    assert all(np.sum(images["source"] == k) % 2 == 1 for k in range(3))
+
+
+def test_merge_images_sums_unresolved_micro_images():
+    from astropy.table import QTable
+
+    from lensdual.simulation.lens_system import _merge_images
+
+    tab = QTable()
+    tab["source"] = [0, 0, 0, 1]
+    tab["x"] = [0.0, 0.01, 3.0, 5.0] * u.arcsec
+    tab["y"] = [0.0, 0.0, 0.0, 5.0] * u.arcsec
+    tab["magnification"] = [-6.0, 2.0, -1.0, -4.0]
+    merged = _merge_images(tab, 0.05)
+    x, y, mu, n = merged[0]
+    assert mu == pytest.approx(-8.0) and n == 2
+    assert x == pytest.approx(0.01 * 2 / 8)
+    assert merged[1][2] == -4.0 and merged[1][3] == 1
+
+
+def test_constellation_drops_sources_off_the_arcs(analog):
+    from lensdual.exceptions import LensdualWarning
+
+    system, _ = analog
+    far = np.vstack([system.sources.value, [[30.0, 30.0]]]) * u.arcsec  # singly imaged
+    with pytest.warns(LensdualWarning, match=r"source\(s\) \[16\] have no image"):
+        pairs = system.constellation(far)
+    assert 16 not in pairs["source"]
+    with pytest.raises(ValueError, match="no source positions"):
+        LensSystem(system.components, z_lens=ZL, z_source=ZS).constellation()

@@ -276,7 +276,7 @@ class LensSystem:
 
     def constellation(self, beta=None, *, bands=("F150W", "F200W"), intrinsic_flux=None,
                       flux_unit=u.nJy, flux_rel_err=0.02, add_flux_noise=False, seed=None,
-                      merge_radius=0.05 * u.arcsec, **solve_kwargs):
+                      merge_radius=0.05 * u.arcsec, reference=None, **solve_kwargs):
         """The pairs table of the fold pair of arcs for a constellation of point sources.
 
         The two arcs are the pair of opposite-parity arcs that hold an image
@@ -306,6 +306,11 @@ class LensSystem:
             Seed of the random fluxes and noise.
         merge_radius : `~astropy.units.Quantity`
             Images closer than this count as one (default 0.05 arcsec).
+        reference : `~astropy.units.Quantity`, shape (2, 2), optional
+            Image-plane positions near arc L1 (row 0) and arc L2 (row 1):
+            the arcs holding the images nearest to them are used instead of
+            the automatic choice of the fold pair (for example a pair of arcs
+            next to a cusp). Row 0 must point at a positive-parity arc.
         **solve_kwargs
             Passed to :meth:`solve_images`.
 
@@ -340,7 +345,10 @@ class LensSystem:
             raise ValueError(f"intrinsic_flux lacks band(s) {missing}")
 
         images = self.solve_images(b * u.arcsec, **solve_kwargs)
-        arc1, arc2 = _fold_arcs(images, m)
+        if reference is None:
+            arc1, arc2 = _fold_arcs(images, m)
+        else:
+            arc1, arc2 = _reference_arcs(images, reference)
         rows = {label: _merge_images(images[images["arc"] == label], merge)
                 for label in (arc1, arc2)}
         common = sorted(set(rows[arc1]) & set(rows[arc2]))
@@ -418,6 +426,24 @@ def _link_arcs(theta, parity, link):
     pairs = cKDTree(pts).query_pairs(link, output_type="ndarray")
     graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
     return connected_components(graph, directed=False)[1]
+
+
+def _reference_arcs(images, reference):
+    """Labels of the arcs with the images nearest to the two reference positions."""
+    ref = np.asarray(u.Quantity(reference, u.arcsec).value, dtype=float)
+    if ref.shape != (2, 2) or not np.isfinite(ref).all():
+        raise ValueError(f"reference must be a (2, 2) angle Quantity, got shape {ref.shape}")
+    xy = np.column_stack([images["x"].to_value(u.arcsec), images["y"].to_value(u.arcsec)])
+    labels = []
+    for r in ref:
+        k = int(np.argmin(np.hypot(*(xy - r).T)))
+        labels.append(int(images["arc"][k]))
+    parities = [int(images["parity"][np.asarray(images["arc"]) == lab][0]) for lab in labels]
+    if labels[0] == labels[1] or parities != [1, -1]:
+        raise ValueError("reference must point at a positive-parity arc (row 0) and a "
+                         f"different, negative-parity arc (row 1); got arcs {labels} with "
+                         f"parities {parities}")
+    return labels[0], labels[1]
 
 
 def _fold_arcs(images, n_sources):
