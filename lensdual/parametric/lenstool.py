@@ -1,0 +1,864 @@
+"""Read Lenstool parameter files (``best.par``) and multiple-image catalogues.
+
+Lenstool (Jullo et al. 2007) writes its best-fit model as a ``.par`` file made
+of blocks (``runmode``, ``potential``, ``cosmology``, ...), one ``key value``
+per line, each block closed by ``end``. :func:`read_lenstool` reads the
+potentials of such a file into a :class:`LenstoolModel`, which evaluates the
+deflection and the Hessian with Numba kernels (:class:`DPIELensModel`, a
+drop-in for lenstronomy's ``LensModel``) and builds a
+`~lensdual.simulation.LensSystem`. :func:`read_lenstool_images` reads the
+multiple-image catalogue (``arcs.dat``) the model was fitted to.
+
+Conventions (Lenstool's, verified on the SMACS0723 model of Mahler et al.
+2023, see the "Lenstool models" page of the documentation):
+
+* model frame: ``x = -(RA - RA0) cos(Dec0) * 3600``, ``y = (Dec - Dec0) *
+  3600`` arcsec (x grows to the West), linear in RA and Dec around the
+  ``runmode`` ``reference``;
+* ``angle_pos``: degrees, counter-clockwise from the x axis, to the major axis;
+* ``ellipticite`` of profile 81: ``e = (A^2 - B^2) / (A^2 + B^2)`` of the
+  surface density, used through ``epsilon = (1 - sqrt(1 - e^2)) / e``;
+* ``v_disp``: ``b0 = 6 pi (v_disp / c)^2`` (radians; the Einstein radius of
+  the singular isothermal limit), times ``D_ls / D_s``;
+* ``core_radius_kpc`` / ``cut_radius_kpc`` take precedence over the arcsec
+  values when both are given (as in Lenstool), converted with the angular
+  diameter distance of the lens in the file's cosmology.
+"""
+
+import math
+import os
+import re
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import numpy as np
+from astropy import constants as const
+from astropy import units as u
+from astropy.coordinates import SkyCoord
+from astropy.cosmology import FlatLambdaCDM, LambdaCDM, w0waCDM
+from astropy.table import QTable
+
+from .._validation import DEFAULT_COSMOLOGY, as_cosmology, as_int, as_positions, as_real
+from . import _kernels
+
+__all__ = ["LenstoolModel", "DPIELensModel", "read_lenstool", "read_lenstool_images"]
+
+_ARCSEC_PER_RAD = 180.0 / math.pi * 3600.0
+_C_KMS = const.c.to_value(u.km / u.s)
+
+# Sections of a Lenstool .par file. Any other section name is an error: a key
+# line left outside its block would otherwise open a "section" and silently
+# swallow the lines up to the next "end".
+_SECTIONS = {
+    "runmode", "image", "source", "shapemodel", "shapelimit", "grille", "grid",
+    "potentiel", "potential", "limit", "limite", "potfile", "cline", "grande", "observ",
+    "champ", "field", "frame", "cosmologie", "cosmology", "dynfile", "msgrid", "sourcelimit",
+}
+_END_OF_FILE = {"fini", "finish"}
+# Words that open a section and are never keys of another section: seeing one of
+# them inside a block means that block lacks its "end".
+_OPENERS = {
+    "runmode", "grille", "potentiel", "potential", "limit", "limite", "potfile", "cline",
+    "grande", "champ", "cosmologie", "cosmology",
+} | _END_OF_FILE
+_POTENTIAL_SECTIONS = {"potentiel", "potential"}
+
+# Keys of a potential block. Profile 81 uses these; "mag" and "lum" (the
+# galaxy's magnitude and luminosity, written by Lenstool for scaled members)
+# and "name" are kept but play no role in the lensing.
+_KEY_ALIASES = {
+    "profil": "profile",
+    "ellipticite": "ellipticity",
+    "ellipticitymass": "ellipticity",
+    "ellipticite_pot": "ellip_pot",
+}
+_NUMERIC_KEYS = {
+    "profile", "x_centre", "y_centre", "x_centre_wcs", "y_centre_wcs", "ellipticity",
+    "ellip_pot", "angle_pos", "core_radius", "core_radius_kpc", "cut_radius",
+    "cut_radius_kpc", "v_disp", "z_lens", "mag", "lum",
+}
+_TEXT_KEYS = {"name"}
+_PROFILE_NAMES = {
+    1: "SIS", 8: "PIEMD (not truncated)", 12: "NFW", 13: "Sersic", 14: "external shear",
+    15: "Einasto", 16: "Hernquist", 81: "dPIE",
+}
+_SUPPORTED_PROFILES = {81}
+
+_COSMO_KEYS = {
+    "model", "h0", "omegam", "omega", "omegax", "lambda", "omegak", "wx", "q", "wa",
+}
+
+_FITTED_Z = re.compile(
+    r"^#\s*(\S+)\s+z:\s*([-+0-9.eEdD]+)\s+dlsds:\s*([-+0-9.eEdD]+)\s*$")
+_CHI2 = re.compile(r"^#\s*Chi2tot\(dof=(\d+)\):\s*([-+0-9.eE]+)")
+
+
+def _as_path(path, name="path"):
+    if not isinstance(path, (str, os.PathLike)):
+        raise TypeError(f"{name} must be a str or os.PathLike, got {type(path).__name__}")
+    return Path(path)
+
+
+def _number(token, where, key):
+    try:
+        value = float(token)
+    except ValueError:
+        raise ValueError(f"{where}: the value {token!r} of key {key!r} is not a number") from None
+    if not math.isfinite(value):
+        raise ValueError(f"{where}: the value of key {key!r} must be finite, got {token!r}")
+    return value
+
+
+def _system_key(name):
+    """Lenstool writes the family of image '4.1' as '4.0' in best.par's header."""
+    return name[:-2] if name.endswith(".0") else name
+
+
+def _split_image_id(ident):
+    """'4.1' -> ('4', '1'); 'B200.2a' -> ('B200', '2a'); '1a' -> ('1', 'a')."""
+    if "." in ident:
+        system, image = ident.rsplit(".", 1)
+        return system, image
+    m = re.fullmatch(r"(.*?\d)([A-Za-z]+)", ident)
+    if m:
+        return m.group(1), m.group(2)
+    return ident, ""
+
+
+# --------------------------------------------------------------------------- tokenising
+
+
+def _blocks(path, lines):
+    """Split a .par file into blocks.
+
+    Returns ``(blocks, header)``: ``blocks`` is a list of dicts with ``section``,
+    ``label``, ``line`` (1-based line of the section name) and ``items``, a
+    list of ``(line, key, tokens)``; ``header`` the comment lines before the
+    first block.
+    """
+    blocks = []
+    header = []
+    current = None
+    for number, raw in enumerate(lines, start=1):
+        text = raw.split("#", 1)[0].strip()
+        if not text:
+            if current is None and not blocks and raw.lstrip().startswith("#"):
+                header.append(raw.strip())
+            continue
+        tokens = text.split()
+        word = tokens[0].lower()
+        where = f"{path}, line {number}"
+        if current is None:
+            if word in _END_OF_FILE:
+                return blocks, header
+            if word == "end":
+                raise ValueError(f"{where}: 'end' outside of any block")
+            if word not in _SECTIONS:
+                raise ValueError(
+                    f"{where}: {tokens[0]!r} is not a Lenstool section (expected one of "
+                    f"{', '.join(sorted(_SECTIONS))}); a key line outside its block?")
+            current = {"section": word, "label": " ".join(tokens[1:]), "line": number,
+                       "items": []}
+            continue
+        if word == "end":
+            blocks.append(current)
+            current = None
+            continue
+        if word in _OPENERS:
+            raise ValueError(
+                f"{where}: {tokens[0]!r} inside block '{current['section']} "
+                f"{current['label']}'".rstrip() + f" opened at line {current['line']}: "
+                "that block has no 'end'")
+        current["items"].append((number, word, tokens[1:]))
+    if current is not None:
+        raise ValueError(
+            f"{path}, line {len(lines)}: end of file inside block '{current['section']} "
+            f"{current['label']}'".rstrip() + f" opened at line {current['line']}: "
+            "the block has no 'end' (truncated file?)")
+    return blocks, header
+
+
+def _reference(path, blocks):
+    runmode = [b for b in blocks if b["section"] == "runmode"]
+    if not runmode:
+        raise ValueError(f"{path}: no runmode block, so no 'reference' (the sky position of "
+                         "the model's origin); read the best.par written by Lenstool")
+    for block in runmode:
+        for number, key, tokens in block["items"]:
+            if key != "reference":
+                continue
+            where = f"{path}, line {number}, block 'runmode', key 'reference'"
+            if len(tokens) != 3:
+                raise ValueError(f"{where}: expected 'reference MODE RA DEC', got "
+                                 f"{' '.join(tokens)!r}")
+            mode = tokens[0]
+            if mode == "3":
+                ra = _number(tokens[1], where, "reference")
+                dec = _number(tokens[2], where, "reference")
+                return SkyCoord(ra * u.deg, dec * u.deg, frame="icrs"), 3
+            if mode == "1":
+                try:
+                    sky = SkyCoord(tokens[1], tokens[2], unit=(u.hourangle, u.deg),
+                                   frame="icrs")
+                except ValueError as exc:
+                    raise ValueError(f"{where}: cannot read the sexagesimal position "
+                                     f"{tokens[1]} {tokens[2]}: {exc}") from None
+                return sky, 1
+            raise ValueError(f"{where}: reference mode {mode!r} is not supported (1: "
+                             "sexagesimal RA DEC, 3: RA DEC in degrees)")
+    raise ValueError(f"{path}, line {runmode[0]['line']}: the runmode block has no "
+                     "'reference' (the sky position of the model's origin)")
+
+
+def _cosmology(path, blocks):
+    found = [b for b in blocks if b["section"] in ("cosmology", "cosmologie")]
+    if not found:
+        return None
+    block = found[-1]
+    values = {}
+    for number, key, tokens in block["items"]:
+        where = f"{path}, line {number}, block '{block['section']}'"
+        if key not in _COSMO_KEYS:
+            raise ValueError(f"{where}: unknown key {key!r} (known: "
+                             f"{', '.join(sorted(_COSMO_KEYS))})")
+        if len(tokens) != 1:
+            raise ValueError(f"{where}: key {key!r} needs one value, got {len(tokens)}")
+        values[key] = (_number(tokens[0], where, key), number)
+    where = f"{path}, line {block['line']}, block '{block['section']}'"
+
+    def get(names, default):
+        for name in names:
+            if name in values:
+                return values[name][0]
+        return default
+
+    h0 = get(("h0",), None)
+    if h0 is None:
+        raise ValueError(f"{where}: no 'H0'")
+    om = get(("omegam", "omega"), 0.3)
+    ox = get(("omegax", "lambda"), 0.7)
+    w0 = get(("wx", "q"), -1.0)
+    wa = get(("wa",), 0.0)
+    if "omegak" in values:
+        ok = values["omegak"][0]
+        if ok != 0.0 and abs(ok - (1.0 - om - ox)) > 1e-6:
+            raise ValueError(f"{path}, line {values['omegak'][1]}, block "
+                             f"'{block['section']}': omegaK = {ok} is not 1 - omegaM - omegaX "
+                             f"= {1.0 - om - ox}")
+    if h0 <= 0 or om < 0:
+        raise ValueError(f"{where}: H0 must be > 0 and omegaM >= 0, got H0={h0}, omegaM={om}")
+    if w0 == -1.0 and wa == 0.0:
+        if abs(om + ox - 1.0) < 1e-12:
+            return FlatLambdaCDM(H0=h0, Om0=om, Tcmb0=0.0)
+        return LambdaCDM(H0=h0, Om0=om, Ode0=ox, Tcmb0=0.0)
+    return w0waCDM(H0=h0, Om0=om, Ode0=ox, w0=w0, wa=wa, Tcmb0=0.0)
+
+
+def _check_nlens(path, blocks, n_potentials):
+    for block in blocks:
+        if block["section"] not in ("grille", "grid"):
+            continue
+        for number, key, tokens in block["items"]:
+            if key == "nlens" and tokens:
+                nlens = _number(tokens[0], f"{path}, line {number}, block "
+                                f"'{block['section']}'", key)
+                if nlens < n_potentials:
+                    raise ValueError(
+                        f"{path}, line {number}: nlens = {int(nlens)} but the file has "
+                        f"{n_potentials} potential blocks; Lenstool would use only the first "
+                        f"{int(nlens)}, which this reader does not emulate")
+
+
+def _potential(path, block):
+    """The keys of one potential block, validated; returns a dict."""
+    label = f"{block['section']} {block['label']}".strip()
+    values = {}
+    lines = {}
+    for number, key, tokens in block["items"]:
+        where = f"{path}, line {number}, block '{label}'"
+        key = _KEY_ALIASES.get(key, key)
+        if key not in _NUMERIC_KEYS and key not in _TEXT_KEYS:
+            raise ValueError(f"{where}: unknown key {key!r} in a potential block (known: "
+                             f"{', '.join(sorted(_NUMERIC_KEYS | _TEXT_KEYS))})")
+        if key in values:
+            raise ValueError(f"{where}: key {key!r} given twice (first at line {lines[key]})")
+        if len(tokens) != 1:
+            raise ValueError(f"{where}: key {key!r} needs one value, got "
+                             f"{len(tokens)} ({' '.join(tokens)!r})")
+        values[key] = tokens[0] if key in _TEXT_KEYS else _number(tokens[0], where, key)
+        lines[key] = number
+    where = f"{path}, line {block['line']}, block '{label}'"
+    if "profile" not in values:
+        raise ValueError(f"{where}: no 'profile'")
+    profile = values["profile"]
+    pwhere = f"{path}, line {lines['profile']}, block '{label}', key 'profile'"
+    if profile != int(profile):
+        raise ValueError(f"{pwhere}: the profile must be an integer, got {profile}")
+    profile = int(profile)
+    if profile not in _SUPPORTED_PROFILES:
+        if profile == 12:
+            raise ValueError(f"{pwhere}: profile 12 (NFW) is not supported yet (only "
+                             "profile 81, the dPIE)")
+        name = _PROFILE_NAMES.get(profile)
+        what = f"profile {profile} ({name})" if name else f"unknown profile {profile}"
+        raise ValueError(f"{pwhere}: {what} is not supported (only profile 81, the dPIE)")
+    for key in ("v_disp", "z_lens"):
+        if key not in values:
+            raise ValueError(f"{where}: no {key!r}")
+    for pair in (("x_centre", "x_centre_wcs"), ("y_centre", "y_centre_wcs")):
+        if sum(k in values for k in pair) != 1:
+            raise ValueError(f"{where}: give exactly one of {pair[0]!r} and {pair[1]!r}")
+    for pair in (("core_radius", "core_radius_kpc"), ("cut_radius", "cut_radius_kpc")):
+        if not any(k in values for k in pair):
+            raise ValueError(f"{where}: no {pair[0]!r} (nor {pair[1]!r})")
+    if "ellipticity" in values and "ellip_pot" in values:
+        raise ValueError(f"{path}, line {lines['ellip_pot']}, block '{label}': give "
+                         "'ellipticite' or 'ellip_pot', not both")
+
+    def check(key, ok, cond):
+        if key in values and not ok(values[key]):
+            raise ValueError(f"{path}, line {lines[key]}, block '{label}', key {key!r}: "
+                             f"must be {cond}, got {values[key]}")
+
+    check("ellipticity", lambda v: 0.0 <= v < 1.0, "in [0, 1)")
+    check("ellip_pot", lambda v: 0.0 <= v < 1.0, "in [0, 1)")
+    check("v_disp", lambda v: v >= 0.0, ">= 0")
+    check("z_lens", lambda v: v > 0.0, "> 0")
+    for key in ("core_radius", "core_radius_kpc", "cut_radius", "cut_radius_kpc"):
+        check(key, lambda v: v >= 0.0, ">= 0")
+    values["_lines"] = lines
+    values["_label"] = label
+    values["_name"] = str(values.get("name", block["label"] or f"#{block['line']}"))
+    values["_line"] = block["line"]
+    return values
+
+
+# --------------------------------------------------------------------------- public API
+
+
+def read_lenstool(path, *, cosmology=None):
+    """Read a Lenstool parameter file (``best.par``) made of dPIE potentials.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The ``.par`` file.
+    cosmology : `~astropy.cosmology.Cosmology`, optional
+        Overrides the file's ``cosmology`` block. Without either,
+        ``lensdual``'s default (flat LambdaCDM, H0 = 70, Om0 = 0.3).
+
+    Returns
+    -------
+    model : `LenstoolModel`
+
+    Raises
+    ------
+    ValueError
+        Anything that cannot be read unambiguously, with the file, line, block
+        and key: a block without ``end`` (truncated file), a non-numeric value,
+        an unknown key in a potential block, a profile other than 81 (the
+        dPIE; profile 12, NFW, is not supported yet), no ``runmode``
+        ``reference``, a ``potfile`` block (scaling-relation members: the
+        ``best.par`` written by Lenstool lists every member as a potential), or
+        potentials at different redshifts.
+
+    Notes
+    -----
+    Only the ``runmode`` (``reference``), ``grille`` (``nlens``),
+    ``cosmology`` and ``potential`` blocks are interpreted; the others
+    (``image``, ``limit``, ``cline``, ``champ``, ...) are checked for their
+    ``end`` and skipped. The fitted redshifts Lenstool writes in the header of
+    ``best.par`` (``#4.0 z:2.174644 dlsds:0.720273``) are kept in
+    `LenstoolModel.fitted_redshifts`.
+    """
+    path = _as_path(path)
+    cosmo_override = None if cosmology is None else as_cosmology(cosmology)
+    lines = path.read_text(encoding="utf-8", errors="replace").splitlines()
+    blocks, header = _blocks(path, lines)
+    origin, ref_mode = _reference(path, blocks)
+    file_cosmology = _cosmology(path, blocks)
+    if cosmo_override is not None:
+        cosmo = cosmo_override
+    else:
+        cosmo = file_cosmology if file_cosmology is not None else DEFAULT_COSMOLOGY
+
+    for block in blocks:
+        if block["section"] == "potfile":
+            raise ValueError(
+                f"{path}, line {block['line']}: potfile blocks (members from a galaxy "
+                "catalogue and scaling relations) are not supported; read the best.par "
+                "written by Lenstool, which lists every member as a potential")
+    pots = [_potential(path, b) for b in blocks if b["section"] in _POTENTIAL_SECTIONS]
+    if not pots:
+        raise ValueError(f"{path}: no potential block")
+    _check_nlens(path, blocks, len(pots))
+
+    z_values = sorted({p["z_lens"] for p in pots})
+    if len(z_values) > 1:
+        other = next(p for p in pots if p["z_lens"] != pots[0]["z_lens"])
+        raise ValueError(
+            f"{path}, line {other['_lines']['z_lens']}, block '{other['_label']}': z_lens = "
+            f"{other['z_lens']} differs from {pots[0]['z_lens']} (line "
+            f"{pots[0]['_lines']['z_lens']}); models with several lens planes are not "
+            "supported")
+    z_lens = z_values[0]
+    kpc_per_arcsec = (cosmo.angular_diameter_distance(z_lens).to_value(u.kpc)
+                      / _ARCSEC_PER_RAD)
+
+    cosd0 = math.cos(origin.dec.radian)
+    rows = []
+    for p in pots:
+        where = f"{path}, line {p['_line']}, block '{p['_label']}'"
+        if "x_centre_wcs" in p:
+            dra = (p["x_centre_wcs"] - origin.ra.deg + 180.0) % 360.0 - 180.0
+            x = -dra * cosd0 * 3600.0
+        else:
+            x = p["x_centre"]
+        if "y_centre_wcs" in p:
+            y = (p["y_centre_wcs"] - origin.dec.deg) * 3600.0
+        else:
+            y = p["y_centre"]
+        core = (p["core_radius_kpc"] / kpc_per_arcsec if "core_radius_kpc" in p
+                else p["core_radius"])
+        cut = (p["cut_radius_kpc"] / kpc_per_arcsec if "cut_radius_kpc" in p
+               else p["cut_radius"])
+        if not cut > core:
+            raise ValueError(f"{where}: the cut radius ({cut:.6g} arcsec) must be larger than "
+                             f"the core radius ({core:.6g} arcsec)")
+        if "ellip_pot" in p:
+            eps = p["ellip_pot"]
+            emass = 2.0 * eps / (1.0 + eps * eps)
+        else:
+            emass = p.get("ellipticity", 0.0)
+            eps = (1.0 - math.sqrt(1.0 - emass * emass)) / emass if emass > 0 else 0.0
+        if eps > _kernels.EPS_MAX:
+            raise ValueError(f"{where}: ellipticity {emass} (epsilon {eps:.6g}) is too close "
+                             f"to 1: epsilon must be <= {_kernels.EPS_MAX} (axis ratio "
+                             "1:2000)")
+        b0 = 6.0 * math.pi * (p["v_disp"] / _C_KMS) ** 2 * _ARCSEC_PER_RAD
+        rows.append((p["_name"], p["_line"], int(p["profile"]), x, y, emass, eps,
+                     p.get("angle_pos", 0.0), core, cut, core * kpc_per_arcsec,
+                     cut * kpc_per_arcsec, p["v_disp"], p["z_lens"], p.get("mag", np.nan), b0))
+    names = ("name", "line", "profile", "x_centre", "y_centre", "ellipticity", "epsilon",
+             "angle_pos", "core_radius", "cut_radius", "core_radius_kpc", "cut_radius_kpc",
+             "v_disp", "z_lens", "mag", "b0")
+    units = (None, None, None, u.arcsec, u.arcsec, None, None, u.deg, u.arcsec, u.arcsec,
+             u.kpc, u.kpc, u.km / u.s, None, None, u.arcsec)
+    cols = list(zip(*rows, strict=True))
+    table = QTable()
+    for name, col, unit in zip(names, cols, units, strict=True):
+        table[name] = np.array(col) * unit if unit is not None else np.array(col)
+    table["b0"].description = "6 pi (v_disp / c)^2 for D_ls / D_s = 1"
+
+    fitted = {}
+    meta = {}
+    for line in header:
+        m = _FITTED_Z.match(line)
+        if m:
+            fitted[_system_key(m.group(1))] = float(m.group(2))
+            continue
+        m = _CHI2.match(line)
+        if m:
+            meta["chi2"] = float(m.group(2))
+            meta["dof"] = int(m.group(1))
+    return LenstoolModel(path=path, origin=origin, cosmology=cosmo, z_lens=z_lens,
+                         potentials=table, fitted_redshifts=fitted, reference_mode=ref_mode,
+                         meta=meta)
+
+
+class LenstoolModel:
+    """A Lenstool model: dPIE potentials around a sky reference.
+
+    Made by :func:`read_lenstool`; not meant to be built by hand.
+
+    Attributes
+    ----------
+    path : `~pathlib.Path`
+        The file it was read from.
+    origin : `~astropy.coordinates.SkyCoord`
+        The ``runmode`` ``reference``: the origin of the model frame (ICRS).
+    cosmology : `~astropy.cosmology.Cosmology`
+        The file's cosmology (or the override given to :func:`read_lenstool`).
+    z_lens : float
+        Redshift of the potentials.
+    potentials : `~astropy.table.QTable`
+        One row per potential, in file order: ``name``, ``line`` (of the
+        block in the file), ``profile``, ``x_centre``, ``y_centre`` (arcsec,
+        model frame), ``ellipticity`` (Lenstool's mass ellipticity
+        ``(A^2 - B^2) / (A^2 + B^2)``), ``epsilon`` (the ellipticity parameter
+        of the kernels, ``(A - B) / (A + B)``), ``angle_pos`` (deg),
+        ``core_radius``, ``cut_radius`` (arcsec, the values used),
+        ``core_radius_kpc``, ``cut_radius_kpc``, ``v_disp`` (km/s),
+        ``z_lens``, ``mag`` (NaN if absent) and ``b0`` (arcsec, for
+        ``D_ls / D_s = 1``).
+    fitted_redshifts : dict
+        System name -> best-fit redshift, from the header of ``best.par``
+        (systems whose redshift Lenstool optimised).
+    reference_mode : int
+        The ``reference`` mode of the file: 3 (degrees) or 1 (sexagesimal).
+    meta : dict
+        ``chi2`` and ``dof`` from the header, when present.
+    """
+
+    def __init__(self, *, path, origin, cosmology, z_lens, potentials, fitted_redshifts,
+                 reference_mode, meta):
+        self.path = path
+        self.origin = origin
+        self.cosmology = cosmology
+        self.z_lens = z_lens
+        self.potentials = potentials
+        self.fitted_redshifts = dict(fitted_redshifts)
+        self.reference_mode = reference_mode
+        self.meta = dict(meta)
+
+    def __len__(self):
+        return len(self.potentials)
+
+    def __repr__(self):
+        return (f"<LenstoolModel {self.path.name!r}: {len(self)} dPIE potentials at "
+                f"z_lens={self.z_lens}, origin RA={self.origin.ra.deg:.6f} "
+                f"Dec={self.origin.dec.deg:.6f} deg>")
+
+    # ------------------------------------------------------------------ frames
+
+    def to_model_frame(self, sky):
+        """Model-frame positions (arcsec) of sky coordinates.
+
+        Lenstool's frame: ``x = -(RA - RA0) cos(Dec0) * 3600``,
+        ``y = (Dec - Dec0) * 3600`` (x to the West, y to the North).
+
+        Parameters
+        ----------
+        sky : `~astropy.coordinates.SkyCoord`
+            Scalar or 1-d.
+
+        Returns
+        -------
+        xy : `~astropy.units.Quantity`, shape (N, 2)
+        """
+        if not isinstance(sky, SkyCoord):
+            raise TypeError(f"sky must be a SkyCoord, got {type(sky).__name__}")
+        icrs = sky.icrs
+        ra = np.atleast_1d(icrs.ra.deg)
+        dec = np.atleast_1d(icrs.dec.deg)
+        if ra.ndim != 1:
+            raise ValueError(f"sky must be scalar or 1-d, got shape {sky.shape}")
+        dra = (ra - self.origin.ra.deg + 180.0) % 360.0 - 180.0
+        x = -dra * math.cos(self.origin.dec.radian) * 3600.0
+        y = (dec - self.origin.dec.deg) * 3600.0
+        return np.column_stack([x, y]) * u.arcsec
+
+    def to_sky(self, xy):
+        """Sky coordinates (ICRS) of model-frame positions; inverse of `to_model_frame`.
+
+        Parameters
+        ----------
+        xy : `~astropy.units.Quantity`, shape (N, 2)
+            Angles in the model frame.
+        """
+        arr = as_positions(xy, "xy")
+        ra = self.origin.ra.deg - arr[:, 0] / (3600.0 * math.cos(self.origin.dec.radian))
+        dec = self.origin.dec.deg + arr[:, 1] / 3600.0
+        return SkyCoord(ra % 360.0 * u.deg, dec * u.deg, frame="icrs")
+
+    # ------------------------------------------------------------------ lensing
+
+    def dls_ds(self, z_source):
+        """``D_ls / D_s`` for a source at ``z_source`` (> ``z_lens``)."""
+        zs = as_real(z_source, "z_source")
+        if not zs > self.z_lens:
+            raise ValueError(f"z_source must be larger than z_lens = {self.z_lens}, got "
+                             f"z_source={z_source}")
+        d_ls = self.cosmology.angular_diameter_distance(self.z_lens, zs)
+        d_s = self.cosmology.angular_diameter_distance(zs)
+        return float((d_ls / d_s).to_value(u.dimensionless_unscaled))
+
+    def kernel_parameters(self, z_source=None):
+        """The (M, 7) float array the kernels take.
+
+        Columns ``x_centre, y_centre, theta (rad), epsilon, core, cut, b0``
+        (arcsec), ``b0`` scaled by ``D_ls / D_s`` (not scaled when
+        ``z_source`` is None).
+        """
+        scale = 1.0 if z_source is None else self.dls_ds(z_source)
+        t = self.potentials
+        params = np.column_stack([
+            t["x_centre"].to_value(u.arcsec), t["y_centre"].to_value(u.arcsec),
+            t["angle_pos"].to_value(u.rad), np.asarray(t["epsilon"], dtype=float),
+            t["core_radius"].to_value(u.arcsec), t["cut_radius"].to_value(u.arcsec),
+            t["b0"].to_value(u.arcsec) * scale,
+        ])
+        return np.ascontiguousarray(params, dtype=np.float64)
+
+    def lens_model(self, z_source, *, n_threads=1):
+        """The deflection model for sources at ``z_source``.
+
+        Parameters
+        ----------
+        z_source : float
+            Source redshift, > ``z_lens``.
+        n_threads : int
+            Threads the Numba kernels run on for large inputs (the kernels
+            release the GIL).
+
+        Returns
+        -------
+        model : `DPIELensModel`
+            lenstronomy ``LensModel``-like (``ray_shooting``, ``alpha``,
+            ``hessian``, ``magnification``, ``kappa``), model-frame arcsec.
+        """
+        return DPIELensModel(self.kernel_parameters(z_source), n_threads=n_threads,
+                             z_source=float(z_source))
+
+    def lens_system(self, z_source, *, sources=None, n_threads=1):
+        """A `~lensdual.simulation.LensSystem` of this model for ``z_source``.
+
+        Positions of the system are in the model frame (arcsec); use
+        `to_model_frame` and `to_sky` to go to and from the sky. Its
+        ``kwargs_lens`` list the centres of the potentials (``center_x``,
+        ``center_y``): the model ignores them, the image finder refines its
+        grid around them.
+
+        Parameters
+        ----------
+        z_source : float
+            Source redshift, > ``z_lens``.
+        sources : `~astropy.units.Quantity`, shape (M, 2), optional
+            Source-plane positions of a constellation (see
+            `~lensdual.simulation.LensSystem`).
+        n_threads : int
+            See `lens_model`.
+        """
+        from ..simulation.lens_system import LensSystem
+
+        model = self.lens_model(z_source, n_threads=n_threads)
+        kwargs = [{"center_x": float(x), "center_y": float(y)} for x, y in
+                  zip(model.params[:, _kernels.P_X], model.params[:, _kernels.P_Y],
+                      strict=True)]
+        return LensSystem.from_model(model, kwargs, z_lens=self.z_lens, z_source=z_source,
+                                     cosmology=self.cosmology, sources=sources,
+                                     label=f"Lenstool model {self.path.name}")
+
+
+class DPIELensModel:
+    """Sum of dPIE potentials with lenstronomy's ``LensModel`` interface.
+
+    Positions are plain float arrays (any shape, broadcast together) in
+    arcsec in the model frame; every method takes lenstronomy's ``kwargs``
+    argument and ignores it. Evaluated by the Numba kernels of
+    ``lensdual.parametric._kernels``.
+
+    Parameters
+    ----------
+    params : numpy.ndarray, shape (M, 7)
+        ``x_centre, y_centre, theta (rad), epsilon, core, cut, b0`` per
+        component (see `LenstoolModel.kernel_parameters`).
+    n_threads : int
+        Threads used for inputs of more than 65536 points.
+    z_source : float or None
+        Kept for reference.
+    """
+
+    _MIN_POINTS_PER_THREAD = 32768
+
+    def __init__(self, params, *, n_threads=1, z_source=None):
+        arr = np.ascontiguousarray(params, dtype=np.float64)
+        if arr.ndim != 2 or arr.shape[1] != _kernels.N_PARAMS or arr.shape[0] == 0:
+            raise ValueError(f"params must have shape (M >= 1, {_kernels.N_PARAMS}), got "
+                             f"{np.shape(params)}")
+        if not np.isfinite(arr).all():
+            raise ValueError("params must be finite")
+        eps = arr[:, _kernels.P_EPS]
+        core = arr[:, _kernels.P_CORE]
+        cut = arr[:, _kernels.P_CUT]
+        if (eps < 0).any() or (eps > _kernels.EPS_MAX).any():
+            raise ValueError(f"epsilon (column 3) must be in [0, {_kernels.EPS_MAX}]")
+        if (core < 0).any() or not (cut > core).all():
+            raise ValueError("the radii must satisfy 0 <= core < cut (columns 4 and 5)")
+        self.params = arr
+        self.params.flags.writeable = False
+        self.n_threads = as_int(n_threads, "n_threads", minimum=1)
+        self.z_source = z_source
+
+    def __repr__(self):
+        return f"<DPIELensModel {len(self.params)} components, z_source={self.z_source}>"
+
+    def _run(self, kernel, x, y):
+        if isinstance(x, u.Quantity) or isinstance(y, u.Quantity):
+            raise TypeError("x and y are plain float arrays in arcsec (lenstronomy's "
+                            "interface); use LensSystem for Quantities")
+        xb, yb = np.broadcast_arrays(np.asarray(x, dtype=np.float64),
+                                     np.asarray(y, dtype=np.float64))
+        shape = xb.shape
+        xf = np.ascontiguousarray(xb.ravel())
+        yf = np.ascontiguousarray(yb.ravel())
+        n = xf.size
+        chunks = min(self.n_threads, max(1, n // self._MIN_POINTS_PER_THREAD))
+        if chunks <= 1:
+            out = kernel(xf, yf, self.params)
+        else:
+            edges = np.linspace(0, n, chunks + 1).astype(int)
+            with ThreadPoolExecutor(max_workers=chunks) as pool:
+                parts = list(pool.map(
+                    lambda k: kernel(xf[edges[k]:edges[k + 1]], yf[edges[k]:edges[k + 1]],
+                                     self.params), range(chunks)))
+            out = np.concatenate(parts)
+        return out, shape
+
+    @staticmethod
+    def _shaped(col, shape):
+        res = col.reshape(shape)
+        return res[()] if shape == () else res
+
+    def alpha(self, x, y, kwargs=None, k=None):
+        """Deflection ``(alpha_x, alpha_y)`` at ``(x, y)``, arcsec."""
+        out, shape = self._run(_kernels.dpie_deflection, x, y)
+        return self._shaped(out[:, 0], shape), self._shaped(out[:, 1], shape)
+
+    def ray_shooting(self, x, y, kwargs=None, k=None):
+        """Source-plane positions ``(x - alpha_x, y - alpha_y)``, arcsec."""
+        ax, ay = self.alpha(x, y)
+        return np.subtract(x, ax), np.subtract(y, ay)
+
+    def hessian(self, x, y, kwargs=None, k=None, diff=None):
+        """Second derivatives of the potential, ``(f_xx, f_xy, f_yx, f_yy)``."""
+        out, shape = self._run(_kernels.dpie_hessian, x, y)
+        fxy = self._shaped(out[:, 1], shape)
+        return self._shaped(out[:, 0], shape), fxy, fxy, self._shaped(out[:, 2], shape)
+
+    def alpha_hessian(self, x, y, kwargs=None):
+        """Deflection and Hessian in one pass: ``alpha_x, alpha_y, f_xx, f_xy, f_yy``."""
+        out, shape = self._run(_kernels.dpie_deflection_hessian, x, y)
+        return tuple(self._shaped(out[:, i], shape) for i in range(5))
+
+    def kappa(self, x, y, kwargs=None, k=None):
+        """Convergence at ``(x, y)`` (closed form)."""
+        out, shape = self._run(_kernels.dpie_convergence, x, y)
+        return self._shaped(out, shape)
+
+    def magnification(self, x, y, kwargs=None, k=None):
+        """Signed magnification ``1 / det(d beta / d theta)``."""
+        fxx, fxy, _, fyy = self.hessian(x, y)
+        det = (1.0 - fxx) * (1.0 - fyy) - fxy * fxy
+        with np.errstate(divide="ignore"):
+            return 1.0 / det
+
+
+def read_lenstool_images(path, *, reference):
+    """Read a Lenstool multiple-image catalogue (``arcs.dat``).
+
+    One image per line: ``id RA DEC a b theta z [mag]``. Without a header the
+    positions are absolute RA and Dec in degrees; a ``#REFERENCE 3 RA0 DEC0``
+    (or ``#REFERENCE 1`` with a sexagesimal reference) header makes them
+    arcsec relative to that reference in Lenstool's frame, ``#REFERENCE 0``
+    means absolute degrees. Other ``#`` lines are comments.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The catalogue.
+    reference : `LenstoolModel` or `~astropy.coordinates.SkyCoord`
+        Origin of the model frame of the ``x`` and ``y`` columns (a model's
+        ``origin``). A model also fills ``z_model``.
+
+    Returns
+    -------
+    images : `~astropy.table.QTable`
+        ``id``, ``system``, ``image`` (str: ``'4.1'`` is image ``'1'`` of
+        system ``'4'``), ``sky`` (SkyCoord), ``x``, ``y`` (arcsec, model
+        frame), ``a``, ``b`` (arcsec), ``theta`` (deg), ``z`` (NaN where the
+        file has 0, i.e. unknown), ``mag`` (NaN if absent) and ``z_model``:
+        ``z``, or where it is unknown the model's fitted redshift of the
+        system (NaN when there is none or ``reference`` is a SkyCoord).
+    """
+    path = _as_path(path)
+    if isinstance(reference, LenstoolModel):
+        model = reference
+        origin = reference.origin
+    elif isinstance(reference, SkyCoord) and reference.isscalar:
+        model = None
+        origin = reference.icrs
+    else:
+        raise TypeError("reference must be a LenstoolModel or a scalar SkyCoord, got "
+                        f"{type(reference).__name__}")
+    cosd0 = math.cos(origin.dec.radian)
+    file_ref = None  # None: absolute degrees; else the SkyCoord of a relative frame
+    rows = []
+    seen = {}
+    lines = path.read_text(encoding="utf-8", errors="replace").splitlines()
+    for number, raw in enumerate(lines, start=1):
+        text = raw.strip()
+        where = f"{path}, line {number}"
+        if not text:
+            continue
+        if text.startswith("#"):
+            tokens = text[1:].split()
+            if tokens and tokens[0].upper() == "REFERENCE":
+                if rows:
+                    raise ValueError(f"{where}: #REFERENCE must come before the images")
+                if len(tokens) < 2 or tokens[1] not in ("0", "1", "3"):
+                    raise ValueError(f"{where}: expected '#REFERENCE 0', '#REFERENCE 1 RA DEC' "
+                                     f"or '#REFERENCE 3 RA DEC', got {text!r}")
+                if tokens[1] == "0":
+                    file_ref = None
+                elif len(tokens) != 4:
+                    raise ValueError(f"{where}: '#REFERENCE {tokens[1]}' needs RA and DEC")
+                elif tokens[1] == "3":
+                    file_ref = SkyCoord(_number(tokens[2], where, "RA") * u.deg,
+                                        _number(tokens[3], where, "DEC") * u.deg, frame="icrs")
+                else:
+                    file_ref = SkyCoord(tokens[2], tokens[3], unit=(u.hourangle, u.deg),
+                                        frame="icrs")
+            continue
+        tokens = text.split("#", 1)[0].split()
+        if len(tokens) not in (7, 8):
+            raise ValueError(f"{where}: expected 7 or 8 columns (id RA DEC a b theta z [mag]), "
+                             f"got {len(tokens)}")
+        ident = tokens[0]
+        if ident in seen:
+            raise ValueError(f"{where}: image {ident!r} already given at line {seen[ident]}")
+        seen[ident] = number
+        cols = ("RA", "DEC", "a", "b", "theta", "z", "mag")
+        vals = [_number(tok, where, col) for tok, col in zip(tokens[1:], cols, strict=False)]
+        if len(vals) == 6:
+            vals.append(np.nan)
+        if vals[5] < 0:
+            raise ValueError(f"{where}: the redshift must be >= 0 (0: unknown), got {vals[5]}")
+        rows.append((ident, *vals, file_ref))
+    if not rows:
+        raise ValueError(f"{path}: no images")
+    ident = [r[0] for r in rows]
+    c1 = np.array([r[1] for r in rows])
+    c2 = np.array([r[2] for r in rows])
+    ref = rows[-1][-1]
+    if ref is None:
+        if ((c2 < -90) | (c2 > 90)).any():
+            raise ValueError(f"{path}: DEC outside [-90, 90] deg; a relative catalogue needs a "
+                             "'#REFERENCE 3 RA DEC' header")
+        sky = SkyCoord(c1 * u.deg, c2 * u.deg, frame="icrs")
+    else:
+        ra = ref.ra.deg - c1 / (3600.0 * math.cos(ref.dec.radian))
+        dec = ref.dec.deg + c2 / 3600.0
+        sky = SkyCoord(ra % 360.0 * u.deg, dec * u.deg, frame="icrs")
+    dra = (sky.ra.deg - origin.ra.deg + 180.0) % 360.0 - 180.0
+    table = QTable()
+    table["id"] = np.array(ident)
+    split = [_split_image_id(i) for i in ident]
+    table["system"] = np.array([s for s, _ in split])
+    table["image"] = np.array([i for _, i in split])
+    table["sky"] = sky
+    table["x"] = -dra * cosd0 * 3600.0 * u.arcsec
+    table["y"] = (sky.dec.deg - origin.dec.deg) * 3600.0 * u.arcsec
+    table["a"] = np.array([r[3] for r in rows]) * u.arcsec
+    table["b"] = np.array([r[4] for r in rows]) * u.arcsec
+    table["theta"] = np.array([r[5] for r in rows]) * u.deg
+    z = np.array([r[6] for r in rows])
+    table["z"] = np.where(z > 0, z, np.nan)
+    table["mag"] = np.array([r[7] for r in rows])
+    fitted = model.fitted_redshifts if model is not None else {}
+    table["z_model"] = np.array([
+        zi if zi > 0 else fitted.get(sys, np.nan) for zi, sys in zip(z, table["system"],
+                                                                       strict=True)])
+    table.meta["path"] = str(path)
+    table.meta["origin"] = origin
+    return table
