@@ -2,7 +2,7 @@
 
 from astropy.utils.exceptions import AstropyUserWarning
 
-__all__ = ["LensdualWarning", "EstimatorWarning"]
+__all__ = ["LensdualWarning", "EstimatorWarning", "NoDetectionsWarning"]
 
 
 class LensdualWarning(AstropyUserWarning):
@@ -14,3 +14,7 @@ class EstimatorWarning(LensdualWarning):
 
     The affected values are NaN; the message says which pairs and why.
     """
+
+
+class NoDetectionsWarning(LensdualWarning):
+    """A source finder found nothing in the data; it returns None."""
