@@ -209,25 +209,31 @@ class LensSystem:
     # ------------------------------------------------------------------ images
 
     def image_finder(self, *, center=(0.0, 0.0) * u.arcsec, half_width=50 * u.arcsec,
-                     grid_spacing=0.1 * u.arcsec):
-        """The (cached) image finder for one image-plane grid."""
+                     grid_spacing=0.5 * u.arcsec, refine=5):
+        """The (cached) image finder for one image-plane grid.
+
+        The base grid of ``grid_spacing`` is subdivided ``refine`` times per
+        side around critical curves and lens centres, and recursively where
+        the Jacobian varies strongly (see ``lensdual.simulation._solver``).
+        """
         from ._solver import ImageFinder
 
         c = tuple(float(v) for v in u.Quantity(center, u.arcsec).value)
         hw = float(u.Quantity(half_width, u.arcsec).value)
         h = float(u.Quantity(grid_spacing, u.arcsec).value)
-        key = (c, hw, h)
+        key = (c, hw, h, refine)
         if key not in self._finders:
             self._finders[key] = ImageFinder(self.lens_model, self.kwargs_lens, center=c,
-                                             half_width=hw, grid_spacing=h)
+                                             half_width=hw, grid_spacing=h, refine=refine)
         return self._finders[key]
 
     def solve_images(self, beta, *, center=(0.0, 0.0) * u.arcsec, half_width=50 * u.arcsec,
-                     grid_spacing=0.1 * u.arcsec, link_length=2.0 * u.arcsec):
+                     grid_spacing=0.5 * u.arcsec, refine=5, link_length=2.0 * u.arcsec):
         """All images of the point sources at ``beta``.
 
         The image plane (``center`` +- ``half_width``) is traced on a grid of
-        ``grid_spacing``, split by the sign of the Jacobian determinant and
+        ``grid_spacing`` (refined ``refine`` times per side near critical
+        curves and lens centres), split by the sign of the Jacobian determinant and
         inverted triangle by triangle; every candidate is then refined by
         Newton's method with the analytic Jacobian to 1e-8 arcsec in the
         source plane (paper App. A). The grid is built once per system and
@@ -252,7 +258,7 @@ class LensSystem:
         b = as_positions(beta, "beta")
         link = float(u.Quantity(link_length, u.arcsec).value)
         res = self.image_finder(center=center, half_width=half_width,
-                                grid_spacing=grid_spacing).solve(b)
+                                grid_spacing=grid_spacing, refine=refine).solve(b)
         theta = res["theta"]
         mu = res["magnification"]
         parity = np.sign(mu).astype(int)
