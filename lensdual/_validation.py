@@ -28,7 +28,12 @@ def as_positions(value, name, *, unit=u.arcsec):
         )
     if value.unit.physical_type != "angle":
         raise TypeError(f"{name} must have angular units, got unit {value.unit!s}")
-    arr = np.asarray(value.to_value(unit), dtype=np.float64)
+    return as_xy_array(value.to_value(unit), name)
+
+
+def as_xy_array(value, name):
+    """Validate plain (N, 2) finite positions; return a contiguous float64 array."""
+    arr = np.asarray(value, dtype=np.float64)
     if arr.ndim != 2 or arr.shape[1] != 2:
         raise ValueError(f"{name} must have shape (N, 2), got shape {arr.shape}")
     bad = ~np.isfinite(arr).all(axis=1)

@@ -492,8 +492,8 @@ def test_grid_too_large(galaxy):
 @pytest.mark.parametrize(
     ("beta", "match"),
     [
-        (np.zeros(2), r"shape \(M, 2\), got shape \(2,\)"),
-        (np.zeros((3, 3)), r"shape \(M, 2\), got shape \(3, 3\)"),
+        (np.zeros(2), r"shape \(N, 2\), got shape \(2,\)"),
+        (np.zeros((3, 3)), r"shape \(N, 2\), got shape \(3, 3\)"),
         ([[0.0, 0.0], [np.nan, 0.0]], r"NaN or infinite positions at row\(s\) \[1\]"),
         ([[0.0, 0.0], [0.0, np.inf]], r"NaN or infinite positions at row\(s\) \[1\]"),
         ([[0.0, 0.0], [0.1, 0.0], [500.0, 2.0]], r"source 2 at \(500.0, 2.0\) lies outside"),

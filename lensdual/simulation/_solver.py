@@ -60,7 +60,7 @@ import math
 
 import numpy as np
 
-from .._validation import as_int, as_real
+from .._validation import as_int, as_real, as_xy_array
 from . import _kernels
 
 __all__ = ["ImageFinder"]
@@ -403,14 +403,7 @@ class ImageFinder:
 
     # ------------------------------------------------------------------ solving
     def _check_sources(self, beta):
-        arr = np.asarray(beta, dtype=np.float64)
-        if arr.ndim != 2 or arr.shape[1] != 2:
-            raise ValueError(f"beta must have shape (M, 2), got shape {arr.shape}")
-        bad = ~np.isfinite(arr).all(axis=1)
-        if bad.any():
-            raise ValueError(
-                f"beta contains NaN or infinite positions at row(s) {np.flatnonzero(bad).tolist()}"
-            )
+        arr = as_xy_array(beta, "beta")
         x_lo, x_hi, y_lo, y_hi = self._source_box
         out = ((arr[:, 0] < x_lo) | (arr[:, 0] > x_hi) | (arr[:, 1] < y_lo)
                | (arr[:, 1] > y_hi))
