@@ -9,7 +9,9 @@ from .halos import *  # noqa: F403
 from .halos import __all__ as _halos_all
 from .lens_system import *  # noqa: F403
 from .lens_system import __all__ as _system_all
+from .mock import *  # noqa: F403
+from .mock import __all__ as _mock_all
 from .scenarios import *  # noqa: F403
 from .scenarios import __all__ as _scenarios_all
 
-__all__ = _halos_all + _system_all + _scenarios_all
+__all__ = _halos_all + _system_all + _scenarios_all + _mock_all

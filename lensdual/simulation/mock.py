@@ -1,0 +1,841 @@
+"""Mock JWST-like cutouts of the fold pair of arcs, rendered with lenstronomy.
+
+:func:`render_mock_images` paints the lensed host galaxy (a Sérsic source)
+and the point sources of a constellation on one small cutout per arc and
+band, convolves them with the band's PSF and adds sky, Poisson and read
+noise. The cutouts are `~astropy.nddata.CCDData` with a celestial WCS, an
+uncertainty and a unit, ready for :mod:`lensdual.detection`.
+:func:`write_mock_images` and :func:`read_mock_images` store them as FITS
+files.
+"""
+
+import math
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+from astropy import units as u
+from astropy.coordinates import SkyCoord
+from astropy.io import fits
+from astropy.nddata import CCDData, StdDevUncertainty
+from astropy.table import QTable
+from astropy.wcs import WCS
+from scipy.special import erf
+
+from .._validation import as_angle_scalar, as_int, as_positions, as_real
+from .lens_system import LensSystem
+
+__all__ = [
+    "DEFAULT_SKY_CENTER",
+    "MOCK_HOST",
+    "PSF_FWHM",
+    "MockImages",
+    "lens_to_sky",
+    "read_mock_images",
+    "render_mock_images",
+    "write_mock_images",
+]
+
+#: Gaussian-equivalent PSF FWHM of JWST/NIRCam wide bands (approximate, from
+#: the JWST User Documentation; F150W and F200W as used by lensdual's tests).
+#: A band that is not listed needs an explicit ``psf``.
+PSF_FWHM = {
+    "F090W": 0.030 * u.arcsec,
+    "F115W": 0.037 * u.arcsec,
+    "F150W": 0.050 * u.arcsec,
+    "F200W": 0.066 * u.arcsec,
+    "F277W": 0.092 * u.arcsec,
+    "F356W": 0.116 * u.arcsec,
+    "F444W": 0.145 * u.arcsec,
+}
+
+#: Sky position of the lens centre (the origin of the lens frame): the
+#: SMACS J0723.3-7327 cluster (ICRS).
+DEFAULT_SKY_CENTER = SkyCoord(110.8270 * u.deg, -73.4545 * u.deg, frame="icrs")
+
+#: The default host galaxy: a circular Sérsic source of index n = 0.5 (a
+#: Gaussian profile), half-light radius 0.3 arcsec and unlensed total flux
+#: 300 nJy in every band, centred on the constellation (``center=None``: the
+#: mean of the point sources' source-plane positions). Its radial arcs are
+#: smooth on the 5-pixel scale of the detection filter, so that the filter
+#: picks out the point sources rather than the arc's ridge.
+#: ``host=dict(...)`` overrides single keys.
+MOCK_HOST = {
+    "flux": 300.0 * u.nJy,
+    "R_sersic": 0.3 * u.arcsec,
+    "n_sersic": 0.5,
+    "e1": 0.0,
+    "e2": 0.0,
+    "center": None,
+}
+
+# 3631 Jy in nJy: f = _AB_NJY * 10**(-0.4 m)
+_AB_NJY = 3631e9
+_GAUSS_FWHM = 2.0 * math.sqrt(2.0 * math.log(2.0))
+_IMAGE_UNIT = u.nJy
+_ARCS = ("L1", "L2")
+_ARC_COLUMNS = {"L1": ("x1", "y1", "1"), "L2": ("x2", "y2", "2")}
+_TRUTH_FILE = "truth_pairs.ecsv"
+
+
+# ---------------------------------------------------------------------------
+# result container
+# ---------------------------------------------------------------------------
+
+
+class MockImages(Mapping):
+    """The cutouts of :func:`render_mock_images`: a mapping ``(arc, band) -> CCDData``.
+
+    Keys are ``(arc, band)`` tuples, e.g. ``("L1", "F150W")``; iteration
+    follows the arcs, then the bands. Made by :func:`render_mock_images`
+    and :func:`read_mock_images`.
+
+    Parameters
+    ----------
+    images : dict of (str, str) to `~astropy.nddata.CCDData`
+        The cutouts.
+    pairs : `~astropy.table.QTable`, optional
+        The truth table.
+    host_model, point_source_model : dict, optional
+        The noiseless components, keyed like ``images``.
+
+    Attributes
+    ----------
+    pairs : `~astropy.table.QTable` or None
+        The truth: the pairs table used for the point sources (positions in
+        the lens frame, magnifications, fluxes), plus the columns
+        ``snr1_<band>`` and ``snr2_<band>``, the PSF-weighted (optimal)
+        signal-to-noise ratio of each image on its own arc's cutout under
+        the noise model (NaN if the image lies outside the cutout). None
+        when read back from files without a truth table.
+    host_model, point_source_model : dict of tuple to `~astropy.units.Quantity`
+        Per ``(arc, band)``, the noiseless lensed, PSF-convolved host and
+        point sources (nJy per pixel, sky-subtracted). Empty when read back
+        from files.
+    """
+
+    def __init__(self, images, *, pairs=None, host_model=None, point_source_model=None):
+        self._images = dict(images)
+        for key, image in self._images.items():
+            if not (isinstance(key, tuple) and len(key) == 2
+                    and all(isinstance(k, str) for k in key)):
+                raise TypeError(f"the keys of images must be (arc, band) tuples of strings, "
+                                f"got {key!r}")
+            if not isinstance(image, CCDData):
+                raise TypeError(f"images[{key!r}] must be a CCDData, got {type(image).__name__}")
+        self.pairs = pairs
+        self.host_model = dict(host_model or {})
+        self.point_source_model = dict(point_source_model or {})
+
+    def __getitem__(self, key):
+        return self._images[key]
+
+    def __iter__(self):
+        return iter(self._images)
+
+    def __len__(self):
+        return len(self._images)
+
+    def __repr__(self):
+        shapes = sorted({im.shape for im in self._images.values()})
+        return (f"<MockImages arcs={list(self.arcs)} bands={list(self.bands)} "
+                f"shape={shapes[0] if len(shapes) == 1 else shapes}>")
+
+    @property
+    def arcs(self):
+        """tuple of str: the arcs, in order of first appearance."""
+        return tuple(dict.fromkeys(k[0] for k in self._images))
+
+    @property
+    def bands(self):
+        """tuple of str: the bands, in order of first appearance."""
+        return tuple(dict.fromkeys(k[1] for k in self._images))
+
+    def arc(self, arc):
+        """The bands of one arc, ``{band: CCDData}``, as :func:`find_point_sources` takes."""
+        out = {band: image for (a, band), image in self._images.items() if a == arc}
+        if not out:
+            raise ValueError(f"arc must be one of {list(self.arcs)}, got {arc!r}")
+        return out
+
+    def truth_pixels(self, arc):
+        """0-based pixel positions ``(x, y)`` of the true images on ``arc``'s cutouts.
+
+        Parameters
+        ----------
+        arc : {"L1", "L2"}
+
+        Returns
+        -------
+        pixels : `~numpy.ndarray`, shape (N, 2)
+            One row per row of :attr:`pairs` (all bands of an arc share the
+            pixel grid), through the cutouts' WCS.
+        """
+        if self.pairs is None:
+            raise ValueError("no truth table: these images carry no pairs")
+        image = next(iter(self.arc(arc).values()))
+        xcol, ycol, _ = _ARC_COLUMNS[arc]
+        sky = lens_to_sky(np.column_stack([self.pairs[xcol].to_value(u.arcsec),
+                                           self.pairs[ycol].to_value(u.arcsec)]) * u.arcsec,
+                          _sky_center_of(image))
+        px, py = image.wcs.world_to_pixel(sky)
+        return np.column_stack([px, py])
+
+
+# ---------------------------------------------------------------------------
+# frames
+# ---------------------------------------------------------------------------
+
+
+def lens_to_sky(xy, sky_center=DEFAULT_SKY_CENTER):
+    """Sky positions of lens-frame positions, the convention of the mock images.
+
+    The lens frame (arcsec, origin at the lens centre) is the gnomonic (TAN)
+    plane about ``sky_center`` with ``x`` pointing west and ``y`` north:
+    RA decreases with ``x``, Dec increases with ``y``.
+
+    Parameters
+    ----------
+    xy : `~astropy.units.Quantity`, shape (N, 2)
+        Lens-frame positions (angles).
+    sky_center : `~astropy.coordinates.SkyCoord`
+        Sky position of the lens centre (default :data:`DEFAULT_SKY_CENTER`).
+
+    Returns
+    -------
+    sky : `~astropy.coordinates.SkyCoord`, shape (N,)
+        ICRS positions.
+    """
+    if not isinstance(sky_center, SkyCoord) or not sky_center.isscalar:
+        raise TypeError(f"sky_center must be a scalar SkyCoord, got {sky_center!r}")
+    sky_center = sky_center.icrs
+    arr = as_positions(xy, "xy")
+    w = _tan_wcs(sky_center, 1.0, (0.0, 0.0))  # 1 arcsec "pixels", pixel 0 at the origin
+    return w.pixel_to_world(arr[:, 0], arr[:, 1])
+
+
+def _sky_center_of(image):
+    hdr = image.meta
+    return SkyCoord(float(hdr["LENSRA"]) * u.deg, float(hdr["LENSDEC"]) * u.deg, frame="icrs")
+
+
+def _tan_wcs(sky_center, scale, origin):
+    """TAN WCS: 0-based pixel (i, j) <-> lens frame (origin + scale * (i, j)) arcsec."""
+    w = WCS(naxis=2)
+    w.wcs.ctype = ["RA---TAN", "DEC--TAN"]
+    w.wcs.cunit = ["deg", "deg"]
+    w.wcs.radesys = "ICRS"
+    w.wcs.crval = [sky_center.ra.deg, sky_center.dec.deg]
+    w.wcs.cdelt = [-scale / 3600.0, scale / 3600.0]
+    # lens x = 0 at 0-based pixel -origin/scale, i.e. FITS pixel 1 - origin/scale
+    w.wcs.crpix = [1.0 - origin[0] / scale, 1.0 - origin[1] / scale]
+    w.wcs.set()
+    return w
+
+
+# ---------------------------------------------------------------------------
+# input checks
+# ---------------------------------------------------------------------------
+
+
+def _per_band(value, bands, name, convert):
+    """``{band: convert(value_for_band, label)}`` from a scalar or a dict per band."""
+    if isinstance(value, Mapping):
+        missing = [b for b in bands if b not in value]
+        if missing:
+            raise ValueError(f"{name} lacks band(s) {missing}")
+        return {b: convert(value[b], f"{name}[{b!r}]") for b in bands}
+    return {b: convert(value, name) for b in bands}
+
+
+def _as_quantity_scalar(value, name, unit, *, allow_zero=True):
+    if not isinstance(value, u.Quantity):
+        raise TypeError(f"{name} must be a scalar Quantity in units of {unit}, got {value!r}")
+    try:
+        v = value.to_value(unit)
+    except u.UnitsError:
+        raise TypeError(f"{name} must have units convertible to {unit}, got {value.unit!s}"
+                        ) from None
+    if np.ndim(v) != 0:
+        raise ValueError(f"{name} must be a scalar, got shape {np.shape(v)}")
+    v = float(v)
+    if not np.isfinite(v) or v < 0 or (not allow_zero and v == 0):
+        raise ValueError(f"{name} must be finite and {'>=' if allow_zero else '>'} 0, "
+                         f"got {value}")
+    return v
+
+
+def _check_kernel(kernel, name):
+    """A user PSF as a float array, checked and normalised to sum 1."""
+    if isinstance(kernel, (str, Path)):
+        path = Path(kernel)
+        if not path.is_file():
+            raise ValueError(f"{name}: no such FITS file {str(path)!r}")
+        with fits.open(path) as hdul:
+            hdu = next((h for h in hdul if h.data is not None), None)
+            if hdu is None:
+                raise ValueError(f"{name}: FITS file {str(path)!r} holds no image")
+            kernel = np.array(hdu.data, dtype=np.float64)
+    elif isinstance(kernel, u.Quantity):
+        kernel = kernel.value
+    if not isinstance(kernel, np.ndarray) and not isinstance(kernel, (list, tuple)):
+        raise TypeError(f"{name} must be None, a 2-D array or the path of a FITS file, got "
+                        f"{type(kernel).__name__}")
+    arr = np.asarray(kernel)
+    if arr.dtype.kind not in "iuf":
+        raise TypeError(f"{name} must hold real numbers, got dtype {arr.dtype}")
+    arr = np.array(arr, dtype=np.float64)
+    if arr.ndim != 2:
+        raise ValueError(f"{name} must be a 2-D array, got {arr.ndim} dimension(s)")
+    if arr.shape[0] != arr.shape[1] or arr.shape[0] % 2 == 0:
+        raise ValueError(f"{name} must be square with an odd number of pixels per side "
+                         f"(centred on the central pixel), got shape {arr.shape}")
+    if not np.isfinite(arr).all():
+        raise ValueError(f"{name} contains NaN or infinite values")
+    if (arr < 0).any():
+        raise ValueError(f"{name} must be non-negative, got a minimum of {arr.min():g}")
+    total = arr.sum()
+    if total <= 0:
+        raise ValueError(f"{name} must have a positive sum")
+    return arr / total
+
+
+def _gaussian_kernel(fwhm, scale, supersampling):
+    """Pixel-integrated Gaussian, sampled at ``scale / supersampling``, odd-sized, sum 1."""
+    sigma = fwhm / _GAUSS_FWHM / (scale / supersampling)
+    half = max(2, math.ceil(4.0 * fwhm / scale))  # +-4 FWHM, in pixels
+    m = (2 * half + 1) * supersampling
+    edges = np.arange(m + 1) - m / 2.0
+    w = np.diff(0.5 * erf(edges / (math.sqrt(2.0) * sigma)))
+    k = np.outer(w, w)
+    return k / k.sum()
+
+
+def _moment_fwhm(kernel):
+    """Gaussian-equivalent FWHM (pixels) from the second moments of a kernel."""
+    n = kernel.shape[0]
+    c = np.arange(n) - (n - 1) / 2.0
+    xx, yy = np.meshgrid(c, c)
+    mx = (kernel * xx).sum()
+    my = (kernel * yy).sum()
+    var = 0.5 * ((kernel * (xx - mx) ** 2).sum() + (kernel * (yy - my) ** 2).sum())
+    return _GAUSS_FWHM * math.sqrt(max(var, 0.0))
+
+
+def _check_pairs(pairs, bands):
+    if not isinstance(pairs, QTable):
+        raise TypeError(f"pairs must be an astropy QTable (e.g. from "
+                        f"LensSystem.constellation), got {type(pairs).__name__}")
+    if len(pairs) == 0:
+        raise ValueError("pairs is empty")
+    needed = ["x1", "y1", "x2", "y2"] + [f"flux{k}_{b}" for b in bands for k in "12"]
+    missing = [c for c in needed if c not in pairs.colnames]
+    if missing:
+        raise ValueError(f"pairs lacks column(s) {missing}")
+    for c in ("x1", "y1", "x2", "y2"):
+        col = pairs[c]
+        if not isinstance(col, u.Quantity) or col.unit.physical_type != "angle":
+            raise ValueError(f"pairs[{c!r}] must be an angle column (arcsec)")
+        if not np.isfinite(col.value).all():
+            raise ValueError(f"pairs[{c!r}] contains NaN or infinite values")
+    for b in bands:
+        for k in "12":
+            col = pairs[f"flux{k}_{b}"]
+            if not isinstance(col, u.Quantity):
+                raise ValueError(f"pairs['flux{k}_{b}'] must be a Quantity column (e.g. nJy)")
+            try:
+                v = col.to_value(_IMAGE_UNIT)
+            except u.UnitsError:
+                raise ValueError(f"pairs['flux{k}_{b}'] must be a flux density (e.g. nJy), "
+                                 f"got unit {col.unit!s}") from None
+            if not (np.isfinite(v).all() and (v >= 0).all()):
+                raise ValueError(f"pairs['flux{k}_{b}'] must be finite and >= 0")
+
+
+def _host_params(host, bands):
+    """None (no host), or the validated host parameters with per-band fluxes (nJy)."""
+    if host is None or host is False:
+        return None
+    if host is True:
+        host = {}
+    if not isinstance(host, Mapping):
+        raise TypeError(f"host must be True, False, None or a dict of Sérsic parameters, "
+                        f"got {type(host).__name__}")
+    unknown = sorted(set(host) - set(MOCK_HOST))
+    if unknown:
+        raise ValueError(f"host has unknown key(s) {unknown}; allowed: {sorted(MOCK_HOST)}")
+    p = {**MOCK_HOST, **host}
+    out = {
+        "flux": _per_band(p["flux"], bands, "host['flux']",
+                          lambda v, n: _as_quantity_scalar(v, n, _IMAGE_UNIT)),
+        "R_sersic": as_angle_scalar(p["R_sersic"], "host['R_sersic']", allow_zero=False),
+        "n_sersic": as_real(p["n_sersic"], "host['n_sersic']", minimum=0.2, maximum=8.0),
+        "e1": as_real(p["e1"], "host['e1']", minimum=-0.9, maximum=0.9),
+        "e2": as_real(p["e2"], "host['e2']", minimum=-0.9, maximum=0.9),
+        "center": None,
+    }
+    centre = p["center"]
+    if centre is not None:
+        if isinstance(centre, u.Quantity) and centre.shape not in ((2,), (1, 2)):
+            raise ValueError(f"host['center'] must have shape (2,), got shape {centre.shape}")
+        if isinstance(centre, u.Quantity):
+            centre = centre.reshape(1, 2)
+        out["center"] = as_positions(centre, "host['center']")[0]
+    return out
+
+
+class _LensAdapter:
+    """lenstronomy's LensModel interface over any ``LensSystem.lens_model``.
+
+    Caches the last ray-shooting (the bands of a cutout share the grid).
+    """
+
+    multi_plane = False
+
+    def __init__(self, model, kwargs):
+        self._model = model
+        self._kwargs = kwargs
+        self._cache = None
+
+    def change_source_redshift(self, z_source):  # single source plane
+        return None
+
+    def ray_shooting(self, x, y, kwargs=None, **_):
+        x = np.asarray(x, dtype=np.float64)
+        y = np.asarray(y, dtype=np.float64)
+        c = self._cache
+        if c is not None and c[0].shape == x.shape and np.array_equal(c[0], x) \
+                and np.array_equal(c[1], y):
+            return c[2], c[3]
+        bx, by = self._model.ray_shooting(x, y, self._kwargs)
+        self._cache = (x.copy(), y.copy(), np.asarray(bx), np.asarray(by))
+        return self._cache[2], self._cache[3]
+
+    def alpha(self, x, y, kwargs=None, **_):
+        return self._model.alpha(x, y, self._kwargs)
+
+    def hessian(self, x, y, kwargs=None, **_):
+        return self._model.hessian(x, y, self._kwargs)
+
+    def magnification(self, x, y, kwargs=None, **_):
+        fxx, fxy, fyx, fyy = self.hessian(x, y)
+        return 1.0 / ((1 - fxx) * (1 - fyy) - fxy * fyx)
+
+
+# ---------------------------------------------------------------------------
+# rendering
+# ---------------------------------------------------------------------------
+
+
+def render_mock_images(system, *, bands=("F150W", "F200W"), pixel_scale=0.04 * u.arcsec,
+                       cutout_size=5.0 * u.arcsec, psf=None, host=True,
+                       exposure_time=10.0 * u.ks, sky_background=0.2 * u.MJy / u.sr,
+                       read_noise=10.0 * u.electron, zero_point=28.0, noise=True,
+                       pairs=None, intrinsic_flux=None, supersampling=5,
+                       sky_center=DEFAULT_SKY_CENTER, seed=None):
+    r"""Mock images of the fold pair of arcs: one cutout per arc and band.
+
+    Each cutout is centred on one arc of the constellation's fold pair (the
+    mean position of the point-source images on it) and holds, rendered
+    with lenstronomy (``ImageModel`` on a ``PixelGrid`` with a ``PSF``):
+
+    * the lensed host galaxy: a Sérsic source (lenstronomy
+      ``SERSIC_ELLIPSE``, :data:`MOCK_HOST` by default) centred on the
+      constellation, ray-traced through ``system`` on a sub-pixel grid
+      (``supersampling`` per pixel side) and convolved with the PSF;
+    * the point sources of the pairs table at their image positions on both
+      arcs with their lensed fluxes ``|mu| x intrinsic`` (columns
+      ``flux1_<band>``, ``flux2_<band>``; lenstronomy ``LENSED_POSITION``
+      with free amplitudes);
+    * sky, Poisson and read noise (below).
+
+    Parameters
+    ----------
+    system : `~lensdual.simulation.LensSystem`
+        The lens. Any ``lens_model`` works (also ``LensSystem.from_model``).
+    bands : sequence of str
+        Band names; each needs a PSF (:data:`PSF_FWHM` or ``psf``).
+    pixel_scale : `~astropy.units.Quantity`
+        Pixel size (default 0.04 arcsec, as NIRCam's drizzled short-wave
+        mosaics).
+    cutout_size : `~astropy.units.Quantity` or int
+        Side of the square cutouts, as an angle or a number of pixels;
+        rounded up to an odd number of pixels (>= 15) so that the arc
+        centre falls on the central pixel. Default 5 arcsec (125 px).
+    psf : None, array, str, `~pathlib.Path` or dict
+        None: a Gaussian of the band's FWHM in :data:`PSF_FWHM`
+        (integrated over (sub-)pixels; a band not in the table raises
+        ValueError). A 2-D array or the path of a FITS file (first HDU with
+        data): the PSF at the pixel scale, i.e. not supersampled, square,
+        odd-sized, centred on its central pixel, non-negative; it is
+        normalised to sum 1. A dict gives one of these per band.
+    host : bool, None or dict
+        True: the default host :data:`MOCK_HOST`; False or None: no host; a
+        dict overrides keys of :data:`MOCK_HOST`: ``flux`` (unlensed total
+        flux, a Quantity or a dict per band), ``R_sersic`` (half-light
+        radius, angle), ``n_sersic``, ``e1``, ``e2`` (lenstronomy's
+        ellipticity), ``center`` (source-plane position, angle Quantity of
+        shape (2,); default the mean source position of the pairs).
+    exposure_time : `~astropy.units.Quantity`
+        Exposure time; the depth knob: the noise scales as
+        ``1 / sqrt(exposure_time)`` (default 10 ks, see Notes).
+    sky_background : `~astropy.units.Quantity` or dict
+        Sky surface brightness (e.g. MJy/sr; default 0.2 MJy/sr, the
+        zodiacal light at moderate ecliptic latitude), per band if a dict.
+    read_noise : `~astropy.units.Quantity` or dict
+        Effective read noise per pixel of the whole exposure, in electrons.
+    zero_point : float or dict
+        AB magnitude of a source that gives 1 electron/s (default 28.0,
+        i.e. 1 e-/s = 22.9 nJy), per band if a dict.
+    noise : bool
+        False gives the noiseless images (the uncertainty is still the
+        noise model's).
+    pairs : `~astropy.table.QTable`, optional
+        The truth: a pairs table with ``x1``, ``y1``, ``x2``, ``y2`` (lens
+        frame) and ``flux1_<band>``, ``flux2_<band>`` for every band.
+        Default: ``system.constellation(bands=bands,
+        intrinsic_flux=intrinsic_flux, flux_unit=u.nJy, seed=rng)``.
+    intrinsic_flux : dict, optional
+        Unlensed point-source fluxes in nJy, ``{band: array of shape (M,)}``
+        for the M sources of ``system.sources``, passed to
+        ``system.constellation`` when ``pairs`` is None. Default: drawn
+        log-uniformly between 3 and 10 nJy, times a colour of +-0.1 dex per
+        source and band.
+    supersampling : int
+        Sub-pixels per pixel side for the host and the Gaussian PSF (odd,
+        >= 1; default 5).
+    sky_center : `~astropy.coordinates.SkyCoord`
+        Sky position of the lens centre, the origin of the lens frame
+        (default :data:`DEFAULT_SKY_CENTER`, SMACS0723).
+    seed : int, `numpy.random.Generator` or None
+        Seed of the constellation's fluxes (when drawn) and of the noise.
+
+    Returns
+    -------
+    images : `MockImages`
+        A mapping ``{(arc, band): CCDData}`` for arcs ``"L1"`` and ``"L2"``
+        with the truth table in ``images.pairs`` (with the SNR columns) and
+        the noiseless components in ``images.host_model`` and
+        ``images.point_source_model``. Each `~astropy.nddata.CCDData` has
+        ``unit`` nJy (flux per pixel: sums over pixels are fluxes), a
+        `~astropy.nddata.StdDevUncertainty`, a TAN ``wcs``, the pixel-scale
+        PSF in ``psf`` and ``meta`` (a FITS header) with ``BAND``, ``ARC``,
+        ``PIXSCALE`` and ``PSFFWHM`` (arcsec), ``PSFTYPE``, ``EXPTIME`` (s),
+        ``SKYBKG`` (MJy/sr), ``RDNOISE`` (e-), ``ZEROPT``, ``NOISE``,
+        ``CENX``, ``CENY`` (lens-frame position of the central pixel,
+        arcsec) and ``LENSRA``, ``LENSDEC`` (sky position of the lens
+        centre, deg).
+
+    Raises
+    ------
+    TypeError
+        Wrong type of ``system``, ``pairs``, ``psf``, ``host`` or of a
+        Quantity argument.
+    ValueError
+        A band without PSF, a bad PSF (not 2-D, not square and odd-sized,
+        negative or non-finite), bad ``pairs`` columns or out-of-range
+        values.
+
+    Notes
+    -----
+    **Frames.** The lens frame is lenstronomy's (arcsec, origin at the lens
+    centre) with ``x`` pointing **west** and ``y`` north, taken as the
+    gnomonic (TAN) plane about ``sky_center``. Pixel ``(i, j)`` (0-based,
+    ``i`` the column, ``data[j, i]``) of a cutout lies at
+    ``x = CENX + (i - (n - 1) / 2) * pixel_scale`` and
+    ``y = CENY + (j - (n - 1) / 2) * pixel_scale``; the WCS has
+    ``CRVAL = sky_center``, ``CDELT1 = -pixel_scale`` (RA decreases with
+    ``i``: north up, east left), ``CDELT2 = +pixel_scale`` and ``CRPIX`` at
+    the lens centre. The cutout centres are snapped to a common grid whose
+    pixel centres sit at integer multiples of ``pixel_scale`` from the lens
+    centre, so the cutouts are pieces of one mosaic.
+
+    **Noise.** With ``f_e = 3631 Jy * 10**(-0.4 zero_point)`` the flux of
+    1 e-/s, a pixel of model flux ``m`` (nJy) and sky ``s`` (nJy per
+    pixel) collects ``N = (m + s) / f_e * t`` electrons; the image is
+    ``(Poisson(N) + Normal(0, read_noise)) * f_e / t - s`` (the sky is
+    subtracted exactly) and the uncertainty is
+    ``sqrt(N + read_noise**2) * f_e / t`` (from the noiseless model). With
+    the defaults the sky-limited pixel noise is 0.13 nJy, and the point
+    sources of :func:`~lensdual.simulation.smacs0723_analog` (3-50 nJy
+    after magnification) have PSF-weighted SNRs of about 20-120 (median
+    about 50); see the ``snr`` columns of ``images.pairs``.
+
+    Only the point-source images on the fold pair of arcs are painted
+    (other images of the constellation, e.g. near the tangential critical
+    curve, are far outside the cutouts) and there is no lens light.
+    """
+    from lenstronomy.Data.pixel_grid import PixelGrid
+    from lenstronomy.Data.psf import PSF
+    from lenstronomy.ImSim.image_model import ImageModel
+    from lenstronomy.LightModel.light_model import LightModel
+    from lenstronomy.PointSource.point_source import PointSource
+
+    if not isinstance(system, LensSystem):
+        raise TypeError(f"system must be a LensSystem, got {type(system).__name__}")
+    bands = [bands] if isinstance(bands, str) else list(bands)
+    if not bands or not all(isinstance(b, str) and b for b in bands):
+        raise ValueError(f"bands must be a non-empty sequence of band names, got {bands!r}")
+    if len(set(bands)) != len(bands):
+        raise ValueError(f"bands contains duplicates: {bands}")
+    scale = as_angle_scalar(pixel_scale, "pixel_scale", allow_zero=False)
+    if isinstance(cutout_size, u.Quantity):
+        n = math.ceil(as_angle_scalar(cutout_size, "cutout_size", allow_zero=False) / scale
+                      - 1e-9)
+    elif isinstance(cutout_size, (int, np.integer)) and not isinstance(cutout_size, bool):
+        n = as_int(cutout_size, "cutout_size", minimum=1)
+    else:
+        raise TypeError(f"cutout_size must be an angle Quantity or a number of pixels, got "
+                        f"{cutout_size!r}")
+    n = max(15, n + (1 - n % 2))
+    ss = as_int(supersampling, "supersampling", minimum=1)
+    if ss % 2 == 0:
+        raise ValueError(f"supersampling must be odd, got {ss}")
+    if not isinstance(noise, (bool, np.bool_)):
+        raise TypeError(f"noise must be True or False, got {noise!r}")
+    if not isinstance(sky_center, SkyCoord) or not sky_center.isscalar:
+        raise TypeError(f"sky_center must be a scalar SkyCoord, got {sky_center!r}")
+    sky_center = sky_center.icrs
+    t = _as_quantity_scalar(exposure_time, "exposure_time", u.s, allow_zero=False)
+    sky_sb = _per_band(sky_background, bands, "sky_background",
+                       lambda v, nm: _as_quantity_scalar(v, nm, u.MJy / u.sr))
+    rn = _per_band(read_noise, bands, "read_noise",
+                   lambda v, nm: _as_quantity_scalar(v, nm, u.electron))
+    zp = _per_band(zero_point, bands, "zero_point",
+                   lambda v, nm: as_real(v, nm, minimum=0.0, maximum=40.0))
+
+    # PSFs: (kernel used by lenstronomy, its supersampling, pixel-scale kernel, FWHM, type)
+    psfs = {}
+    for b in bands:
+        user = psf[b] if isinstance(psf, Mapping) and b in psf else (
+            None if isinstance(psf, Mapping) else psf)
+        if user is None:
+            if b not in PSF_FWHM:
+                raise ValueError(f"band {b!r} has no default PSF (known bands: "
+                                 f"{sorted(PSF_FWHM)}); pass psf= for it")
+            fwhm = PSF_FWHM[b].to_value(u.arcsec)
+            kernel = _gaussian_kernel(fwhm, scale, ss)
+            pixel_kernel = _gaussian_kernel(fwhm, scale, 1)
+            psfs[b] = (kernel, ss, pixel_kernel, fwhm, "GAUSSIAN")
+        else:
+            name = f"psf[{b!r}]" if isinstance(psf, Mapping) else "psf"
+            kernel = _check_kernel(user, name)
+            psfs[b] = (kernel, 1, kernel, _moment_fwhm(kernel) * scale, "USER")
+
+    rng = np.random.default_rng(seed)
+    host_p = _host_params(host, bands)
+    if pairs is None:
+        if intrinsic_flux is None:
+            if system.sources is None:
+                raise ValueError("system has no sources: pass pairs=..., or build the system "
+                                 "with sources=...")
+            n_src = len(system.sources)
+            base = 10 ** rng.uniform(np.log10(3.0), 1.0, n_src)
+            colour = 10 ** rng.uniform(-0.1, 0.1, (len(bands), n_src))
+            intrinsic_flux = {b: base * colour[k] for k, b in enumerate(bands)}
+        pairs = system.constellation(bands=bands, intrinsic_flux=intrinsic_flux,
+                                     flux_unit=_IMAGE_UNIT, seed=rng)
+    else:
+        _check_pairs(pairs, bands)
+    truth = QTable(pairs, copy=True)
+
+    pos = {arc: np.column_stack([truth[_ARC_COLUMNS[arc][0]].to_value(u.arcsec),
+                                 truth[_ARC_COLUMNS[arc][1]].to_value(u.arcsec)])
+           for arc in _ARCS}
+    flux = {(arc, b): truth[f"flux{_ARC_COLUMNS[arc][2]}_{b}"].to_value(_IMAGE_UNIT)
+            for arc in _ARCS for b in bands}
+    all_xy = np.vstack([pos[a] for a in _ARCS])
+
+    source_model = LightModel(["SERSIC_ELLIPSE"])
+    kwargs_host = None
+    if host_p is not None:
+        centre = host_p["center"]
+        if centre is None:
+            if "beta_x" in truth.colnames and "beta_y" in truth.colnames:
+                centre = np.array([np.mean(truth["beta_x"].to_value(u.arcsec)),
+                                   np.mean(truth["beta_y"].to_value(u.arcsec))])
+            else:
+                centre = system.ray_shoot(pos["L1"] * u.arcsec).to_value(u.arcsec).mean(axis=0)
+        kwargs_host = {"R_sersic": host_p["R_sersic"], "n_sersic": host_p["n_sersic"],
+                       "e1": host_p["e1"], "e2": host_p["e2"],
+                       "center_x": float(centre[0]), "center_y": float(centre[1])}
+        unit_flux = source_model.total_flux([{**kwargs_host, "amp": 1.0}])[0]
+    lens = _LensAdapter(system.lens_model, system.kwargs_lens)
+    half = (n - 1) / 2.0
+
+    images, host_models, ps_models = {}, {}, {}
+    snr = {(arc, b): np.full(len(truth), np.nan) for arc in _ARCS for b in bands}
+    for arc in _ARCS:
+        centre_pix = np.round(pos[arc].mean(axis=0) / scale)
+        cen = centre_pix * scale
+        origin = cen - half * scale  # lens frame of pixel (0, 0)
+        grid = PixelGrid(nx=n, ny=n, transform_pix2angle=np.diag([scale, scale]),
+                         ra_at_xy_0=float(origin[0]), dec_at_xy_0=float(origin[1]))
+        wcs = _tan_wcs(sky_center, scale, origin)
+        for b in bands:
+            kernel, k_ss, pixel_kernel, fwhm, ptype = psfs[b]
+            lpsf = PSF(psf_type="PIXEL", kernel_point_source=kernel,
+                       point_source_supersampling_factor=k_ss)
+            kwargs_numerics = {"supersampling_factor": ss,
+                               "supersampling_convolution": k_ss > 1,
+                               "point_source_supersampling_factor": k_ss,
+                               # scipy's fftconvolve: lenstronomy's "fft_static" calls
+                               # numpy.fft.rfftn in a way numpy 2 deprecates
+                               "convolution_type": "fft"}
+            if k_ss > 1:
+                kwargs_numerics["supersampling_kernel_size"] = kernel.shape[0] // k_ss
+            model = ImageModel(grid, lpsf, lens_model_class=lens,
+                               source_model_class=source_model,
+                               point_source_class=PointSource(["LENSED_POSITION"],
+                                                              fixed_magnification_list=[False]),
+                               kwargs_numerics=kwargs_numerics)
+            # host
+            if kwargs_host is None:
+                host_img = np.zeros((n, n))
+            else:
+                amp = host_p["flux"][b] / unit_flux
+                host_img = np.asarray(model.source_surface_brightness(
+                    [{**kwargs_host, "amp": amp}], system.kwargs_lens), dtype=np.float64)
+            # point sources of both arcs that can touch this cutout
+            reach = (half + kernel.shape[0] / k_ss) * scale
+            fl = np.concatenate([flux[(a, b)] for a in _ARCS])
+            near = (np.abs(all_xy - cen) <= reach).all(axis=1) & (fl > 0)
+            ps_img = np.zeros((n, n))
+            if near.any():
+                ps_img = np.asarray(model.point_source(
+                    [{"ra_image": all_xy[near, 0], "dec_image": all_xy[near, 1],
+                      "point_amp": fl[near]}], system.kwargs_lens), dtype=np.float64)
+            clean = np.clip(host_img + ps_img, 0.0, None)
+
+            f_e = _AB_NJY * 10 ** (-0.4 * zp[b])  # nJy per (e-/s)
+            sky_pix = (sky_sb[b] * u.MJy / u.sr * (scale * u.arcsec) ** 2).to_value(u.nJy)
+            electrons = (clean + sky_pix) / f_e * t
+            sigma = np.sqrt(electrons + rn[b] ** 2) * f_e / t
+            if noise:
+                counts = rng.poisson(electrons) + rn[b] * rng.standard_normal((n, n))
+                data = counts * f_e / t - sky_pix
+            else:
+                data = clean.copy()
+
+            # optimal SNR of this arc's images
+            fcol = flux[(arc, b)]
+            inside = (np.abs(pos[arc] - cen) <= half * scale).all(axis=1) & (fcol > 0)
+            for r in np.flatnonzero(inside):
+                one = np.asarray(model.point_source(
+                    [{"ra_image": pos[arc][r:r + 1, 0], "dec_image": pos[arc][r:r + 1, 1],
+                      "point_amp": fcol[r:r + 1]}], system.kwargs_lens))
+                snr[(arc, b)][r] = math.sqrt(float(np.sum((one / sigma) ** 2)))
+
+            meta = fits.Header()
+            meta["BAND"] = (b, "band")
+            meta["ARC"] = (arc, "arc of the fold pair")
+            meta["PIXSCALE"] = (scale, "pixel scale [arcsec]")
+            meta["PSFFWHM"] = (fwhm, "PSF FWHM (Gaussian-equivalent) [arcsec]")
+            meta["PSFTYPE"] = (ptype, "GAUSSIAN (band default) or USER")
+            meta["EXPTIME"] = (t, "exposure time [s]")
+            meta["SKYBKG"] = (sky_sb[b], "sky background [MJy/sr], subtracted")
+            meta["RDNOISE"] = (rn[b], "read noise per pixel [electron]")
+            meta["ZEROPT"] = (zp[b], "AB magnitude of 1 electron/s")
+            meta["NOISE"] = (bool(noise), "noise added")
+            meta["CENX"] = (float(cen[0]), "lens-frame x of the central pixel [arcsec]")
+            meta["CENY"] = (float(cen[1]), "lens-frame y of the central pixel [arcsec]")
+            meta["LENSRA"] = (sky_center.ra.deg, "RA of the lens centre [deg]")
+            meta["LENSDEC"] = (sky_center.dec.deg, "Dec of the lens centre [deg]")
+            images[(arc, b)] = CCDData(
+                data, unit=_IMAGE_UNIT, uncertainty=StdDevUncertainty(sigma),
+                wcs=wcs.deepcopy(), meta=meta, psf=pixel_kernel.copy())
+            host_models[(arc, b)] = host_img * _IMAGE_UNIT
+            ps_models[(arc, b)] = ps_img * _IMAGE_UNIT
+
+    for b in bands:
+        truth[f"snr1_{b}"] = snr[("L1", b)]
+        truth[f"snr2_{b}"] = snr[("L2", b)]
+    return MockImages(images, pairs=truth, host_model=host_models,
+                      point_source_model=ps_models)
+
+
+# ---------------------------------------------------------------------------
+# FITS I/O
+# ---------------------------------------------------------------------------
+
+
+def write_mock_images(images, directory, *, overwrite=False):
+    """Write mock images as FITS files, one per arc and band.
+
+    Parameters
+    ----------
+    images : `MockImages` or dict of (arc, band) to `~astropy.nddata.CCDData`
+        The cutouts. Each is written to ``<arc>_<band>.fits`` (primary HDU:
+        data, header with the WCS, ``BUNIT`` and the meta; ``UNCERT``: the
+        standard deviation; ``PSFIMAGE``: the PSF, when the image has one).
+        The truth table of a `MockImages` goes to ``truth_pairs.ecsv``.
+    directory : str or `~pathlib.Path`
+        Created if it does not exist.
+    overwrite : bool
+        Replace existing files (otherwise an existing file raises OSError).
+
+    Returns
+    -------
+    paths : list of `~pathlib.Path`
+        The files written.
+    """
+    if not isinstance(images, Mapping):
+        raise TypeError(f"images must be a MockImages or a dict {{(arc, band): CCDData}}, "
+                        f"got {type(images).__name__}")
+    if not isinstance(images, MockImages):
+        images = MockImages(images)
+    if not isinstance(directory, (str, Path)):
+        raise TypeError(f"directory must be a str or Path, got {type(directory).__name__}")
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for (arc, band), image in images.items():
+        for label, value in (("arc", arc), ("band", band)):
+            if not value or any(c in value for c in "_/\\") or value != value.strip():
+                raise ValueError(f"{label} names must be non-empty and hold no '_', '/' or "
+                                 f"spaces at the ends, got {value!r}")
+        path = directory / f"{arc}_{band}.fits"
+        image.write(path, overwrite=overwrite, hdu_mask=None)
+        paths.append(path)
+    if images.pairs is not None:
+        path = directory / _TRUTH_FILE
+        images.pairs.write(path, format="ascii.ecsv", overwrite=overwrite)
+        paths.append(path)
+    return paths
+
+
+def read_mock_images(directory):
+    """Read the FITS files of :func:`write_mock_images` back.
+
+    Parameters
+    ----------
+    directory : str or `~pathlib.Path`
+        A directory with ``<arc>_<band>.fits`` files (and optionally
+        ``truth_pairs.ecsv``).
+
+    Returns
+    -------
+    images : `MockImages`
+        ``{(arc, band): CCDData}`` with data, unit, uncertainty, WCS, PSF
+        and meta as written; ``pairs`` is the truth table if the file has
+        one; the noiseless models are not stored (empty dicts).
+    """
+    if not isinstance(directory, (str, Path)):
+        raise TypeError(f"directory must be a str or Path, got {type(directory).__name__}")
+    directory = Path(directory)
+    if not directory.is_dir():
+        raise ValueError(f"directory {str(directory)!r} does not exist")
+    images = {}
+    for path in sorted(directory.glob("*_*.fits")):
+        arc, band = path.stem.split("_", 1)
+        image = CCDData.read(path, hdu_mask=None)
+        images[(str(image.meta.get("ARC", arc)), str(image.meta.get("BAND", band)))] = image
+    if not images:
+        raise ValueError(f"no <arc>_<band>.fits files in {str(directory)!r}")
+    order = {a: k for k, a in enumerate(_ARCS)}
+    images = dict(sorted(images.items(), key=lambda kv: (order.get(kv[0][0], 99), kv[0])))
+    pairs = None
+    truth = directory / _TRUTH_FILE
+    if truth.is_file():
+        pairs = QTable.read(truth, format="ascii.ecsv")
+    return MockImages(images, pairs=pairs)
