@@ -1,0 +1,831 @@
+r"""Parametric lens models fitted to a constellation of point-source pairs.
+
+:func:`fit_parametric_lens` fits a lenstronomy lens model (a list of profile
+names) to the positions of a pairs table: the two images of every pair must
+map back to one source position. The fitted model predicts the magnification
+ratio ``mu_model = |mu(L1) / mu(L2)|`` of every pair, which
+:func:`compare_with_parametric` confronts with the model-independent size
+magnification ``mu_size`` and the flux ratio ``mu_flux`` of
+:func:`~lensdual.duality.check_duality`; :func:`plot_parametric_comparison`
+draws the three ratios. See :doc:`/parametric_fits` for the method.
+"""
+
+import numpy as np
+from astropy import units as u
+from astropy.table import QTable, Table
+
+from .._validation import (
+    as_angle_scalar,
+    as_cosmology,
+    as_int,
+    as_real,
+    as_redshifts,
+)
+
+__all__ = [
+    "PROFILE_DEFAULTS",
+    "ParametricFit",
+    "fit_parametric_lens",
+    "compare_with_parametric",
+    "plot_parametric_comparison",
+]
+
+# (lower, upper, init, log) per parameter; "R" in a string is replaced by the
+# data scale (median distance of the images from the frame origin, >= 1 arcsec).
+_SCALE = "scale"
+_E = (-0.5, 0.5, 0.0, False)
+_C = ("-2R", "2R", 0.0, False)
+
+#: Default bounds and initial values of the supported lenstronomy profiles:
+#: ``{profile: {param: (lower, upper, init, log)}}``. Strings are multiples of
+#: the data scale ``R`` (the median distance of the images from the frame
+#: origin, at least 1 arcsec); ``log`` parameters are fitted in log10.
+#: Parameters whose bounds are ``None`` are fixed at ``init`` by default
+#: (the reference point of SHEAR and CONVERGENCE, which does not change the
+#: lensing of point sources up to a constant deflection).
+PROFILE_DEFAULTS = {
+    "SIS": {"theta_E": (0.01, 200.0, "R", True), "center_x": _C, "center_y": _C},
+    "SIE": {"theta_E": (0.01, 200.0, "R", True), "e1": _E, "e2": _E,
+            "center_x": _C, "center_y": _C},
+    "EPL": {"theta_E": (0.01, 200.0, "R", True), "gamma": (1.2, 2.8, 2.0, False),
+            "e1": _E, "e2": _E, "center_x": _C, "center_y": _C},
+    "NFW": {"Rs": (0.1, 1000.0, "3R", True), "alpha_Rs": (0.01, 500.0, "R", True),
+            "center_x": _C, "center_y": _C},
+    "NFW_ELLIPSE_CSE": {"Rs": (0.1, 1000.0, "3R", True), "alpha_Rs": (0.01, 500.0, "R", True),
+                        "e1": _E, "e2": _E, "center_x": _C, "center_y": _C},
+    "SHEAR": {"gamma1": (-0.5, 0.5, 0.0, False), "gamma2": (-0.5, 0.5, 0.0, False),
+              "ra_0": (None, None, 0.0, False), "dec_0": (None, None, 0.0, False)},
+    "CONVERGENCE": {"kappa": (-1.0, 1.0, 0.0, False),
+                    "ra_0": (None, None, 0.0, False), "dec_0": (None, None, 0.0, False)},
+}
+
+CHI2_KINDS = ("source", "image")
+
+
+def _scaled(value, scale):
+    """``value``, with strings like ``"-2R"`` read as multiples of ``scale``."""
+    if isinstance(value, str):
+        factor = value[:-1]
+        factor = {"": 1.0, "-": -1.0}.get(factor, None) or float(factor)
+        return factor * scale
+    return value
+
+
+# ---------------------------------------------------------------------- inputs
+
+
+def _pair_positions(pairs):
+    from ..duality import _positions
+
+    if not isinstance(pairs, Table):
+        raise TypeError("pairs must be an astropy Table or QTable (the pairs table), got "
+                        f"{type(pairs).__name__}")
+    theta1, theta2 = _positions(QTable(pairs, copy=False))
+    t1, t2 = theta1.to_value(u.arcsec), theta2.to_value(u.arcsec)
+    bad = ~(np.isfinite(t1).all(axis=1) & np.isfinite(t2).all(axis=1))
+    if bad.any():
+        raise ValueError(f"pairs has non-finite positions at row(s) {np.flatnonzero(bad).tolist()}")
+    ids = (np.asarray(pairs["pair_id"]) if "pair_id" in pairs.colnames
+           else np.arange(1, len(pairs) + 1))
+    return t1, t2, ids
+
+
+def _model_list(model):
+    if isinstance(model, str):
+        model = (model,)
+    try:
+        model = list(model)
+    except TypeError:
+        raise TypeError(f"model must be a profile name or a sequence of names, got {model!r}") \
+            from None
+    if not model:
+        raise ValueError("model must name at least one lenstronomy profile")
+    for name in model:
+        if not isinstance(name, str):
+            raise TypeError(f"model must hold profile names (str), got {name!r}")
+        if name not in PROFILE_DEFAULTS:
+            raise ValueError(f"model: unknown or unsupported profile {name!r}; supported: "
+                             f"{sorted(PROFILE_DEFAULTS)}")
+    return model
+
+
+def _per_component(option, name, model):
+    """``{index: dict}`` from a dict keyed by profile name or index (or a list)."""
+    out = {i: {} for i in range(len(model))}
+    if option is None:
+        return out
+    if isinstance(option, (list, tuple)):
+        if len(option) != len(model):
+            raise ValueError(f"{name} as a list must have one dict per model profile "
+                             f"({len(model)}), got {len(option)}")
+        option = dict(enumerate(option))
+    if not isinstance(option, dict):
+        raise TypeError(f"{name} must be a dict keyed by profile name or index, got "
+                        f"{type(option).__name__}")
+    for key, values in option.items():
+        if isinstance(key, (int, np.integer)) and not isinstance(key, bool):
+            if not 0 <= key < len(model):
+                raise ValueError(f"{name}: component index {key} out of range for a model of "
+                                 f"{len(model)} profile(s)")
+            targets = [int(key)]
+        elif isinstance(key, str):
+            targets = [i for i, m in enumerate(model) if m == key]
+            if not targets:
+                raise ValueError(f"{name}: profile {key!r} is not in the model {model}")
+        else:
+            raise TypeError(f"{name} keys must be profile names or indices, got {key!r}")
+        if values is None:
+            continue
+        if not isinstance(values, dict):
+            raise TypeError(f"{name}[{key!r}] must be a dict of parameter values, got "
+                            f"{type(values).__name__}")
+        for i in targets:
+            allowed = PROFILE_DEFAULTS[model[i]]
+            unknown = sorted(set(values) - set(allowed))
+            if unknown:
+                raise ValueError(f"{name}[{key!r}]: unknown parameter(s) {unknown} of "
+                                 f"{model[i]}; it has {list(allowed)}")
+            out[i].update(values)
+    return out
+
+
+def _fixed_profiles(fixed):
+    from lenstronomy.LensModel.lens_model import LensModel
+
+    if fixed is None:
+        return [], []
+    if not isinstance(fixed, (list, tuple)):
+        raise TypeError("fixed must be a list of (profile, kwargs) tuples, got "
+                        f"{type(fixed).__name__}")
+    names, kwargs = [], []
+    for i, item in enumerate(fixed):
+        if hasattr(item, "profile") and hasattr(item, "kwargs"):  # a LensComponent
+            item = (item.profile, item.kwargs)
+        if not (isinstance(item, (list, tuple)) and len(item) == 2
+                and isinstance(item[0], str) and isinstance(item[1], dict)):
+            raise TypeError(f"fixed[{i}] must be a (profile name, kwargs dict) tuple, got {item!r}")
+        prof, kw = item
+        try:
+            func = LensModel([prof]).lens_model.func_list[0]
+        except Exception as exc:
+            raise ValueError(f"fixed[{i}]: unknown lenstronomy profile {prof!r}") from exc
+        pnames = list(getattr(func, "param_names", kw.keys()))
+        missing = sorted(set(pnames) - set(kw))
+        unknown = sorted(set(kw) - set(pnames))
+        if missing or unknown:
+            raise ValueError(f"fixed[{i}] ({prof}): missing keyword(s) {missing}, unknown "
+                             f"keyword(s) {unknown}")
+        bad = [k for k, v in kw.items() if not np.all(np.isfinite(v))]
+        if bad:
+            raise ValueError(f"fixed[{i}] ({prof}): non-finite value of {bad}")
+        names.append(prof)
+        kwargs.append({k: (float(v) if np.ndim(v) == 0 else v) for k, v in kw.items()})
+    return names, kwargs
+
+
+class _Parametrisation:
+    """Maps the free-parameter vector to lenstronomy kwargs (private)."""
+
+    def __init__(self, model, scale, fixed_params, bounds, init):
+        self.model = model
+        self.names = []     # (component, param)
+        self.lower, self.upper, self.start, self.log = [], [], [], []
+        self.fixed = []     # per component: dict of fixed values
+        for i, prof in enumerate(model):
+            fix = {}
+            for par, (lo, hi, ini, log) in PROFILE_DEFAULTS[prof].items():
+                lo, hi, ini = (_scaled(v, scale) if v is not None else None
+                               for v in (lo, hi, ini))
+                if par in bounds[i]:
+                    b = bounds[i][par]
+                    if not (isinstance(b, (tuple, list)) and len(b) == 2):
+                        raise ValueError(f"bounds of {prof}.{par} must be a (lower, upper) pair, "
+                                         f"got {b!r}")
+                    lo = as_real(b[0], f"bounds[{prof}][{par}][0]")
+                    hi = as_real(b[1], f"bounds[{prof}][{par}][1]")
+                    if not lo < hi:
+                        raise ValueError(f"bounds of {prof}.{par}: lower {lo} must be < upper {hi}")
+                    if log and lo <= 0:
+                        raise ValueError(f"bounds of {prof}.{par} must be > 0 (fitted in log10)")
+                if par in init[i]:
+                    ini = as_real(init[i][par], f"init[{prof}][{par}]")
+                if par in fixed_params[i]:
+                    fix[par] = as_real(fixed_params[i][par], f"fixed_params[{prof}][{par}]")
+                    continue
+                if lo is None:
+                    if par in bounds[i] or par in init[i]:
+                        raise ValueError(f"{prof}.{par} is fixed by default; pass it in "
+                                         "fixed_params to change its value")
+                    fix[par] = float(ini)
+                    continue
+                if not lo <= ini <= hi:
+                    raise ValueError(f"init of {prof}.{par} = {ini} is outside its bounds "
+                                     f"({lo}, {hi})")
+                self.names.append((i, par))
+                tr = np.log10 if log else (lambda v: v)
+                self.lower.append(tr(lo))
+                self.upper.append(tr(hi))
+                self.start.append(tr(ini))
+                self.log.append(log)
+            self.fixed.append(fix)
+        self.lower = np.array(self.lower, float)
+        self.upper = np.array(self.upper, float)
+        self.start = np.array(self.start, float)
+        self.log = np.array(self.log, bool)
+
+    @property
+    def n_free(self):
+        return len(self.names)
+
+    def kwargs(self, p):
+        out = [dict(f) for f in self.fixed]
+        values = np.where(self.log, 10.0 ** np.asarray(p), p)
+        for (i, par), v in zip(self.names, values, strict=True):
+            out[i][par] = float(v)
+        return out
+
+    def labels(self):
+        return [f"{self.model[i]}[{i}].{par}" for i, par in self.names]
+
+
+# ---------------------------------------------------------------------- lensing
+
+
+def _beta_and_jac(lens_model, kwargs, x, y):
+    bx, by = lens_model.ray_shooting(x, y, kwargs)
+    fxx, fxy, fyx, fyy = lens_model.hessian(x, y, kwargs)
+    jac = np.empty((np.size(x), 2, 2))          # d beta / d theta
+    jac[:, 0, 0] = 1 - fxx
+    jac[:, 0, 1] = -fxy
+    jac[:, 1, 0] = -fyx
+    jac[:, 1, 1] = 1 - fyy
+    return np.column_stack([bx, by]), jac
+
+
+def _source_solution(lens_model, kwargs, theta):
+    """beta, A = d theta / d beta per image, and the best source of every pair.
+
+    ``theta`` is (2N, 2): the N L1 images then the N L2 images.
+    """
+    n = len(theta) // 2
+    beta, jac = _beta_and_jac(lens_model, kwargs, theta[:, 0], theta[:, 1])
+    with np.errstate(all="ignore"):
+        amat = np.linalg.inv(jac)
+        metric = np.einsum("nki,nkj->nij", amat, amat)       # A^T A
+        msum = metric[:n] + metric[n:]
+        rhs = (np.einsum("nij,nj->ni", metric[:n], beta[:n])
+               + np.einsum("nij,nj->ni", metric[n:], beta[n:]))
+        src = np.linalg.solve(msum, rhs[..., None])[..., 0]
+    return beta, jac, amat, src
+
+
+def _newton_images(lens_model, kwargs, theta, src, n_iter=8):
+    """Images of ``src`` (per pair, repeated for both arcs) nearest to ``theta``."""
+    target = np.concatenate([src, src])
+    th = theta.copy()
+    for _ in range(n_iter):
+        beta, jac = _beta_and_jac(lens_model, kwargs, th[:, 0], th[:, 1])
+        with np.errstate(all="ignore"):
+            step = np.linalg.solve(jac, (beta - target)[..., None])[..., 0]
+        th = th - step
+    return th
+
+
+def _residuals(lens_model, kwargs, theta, sigma, kind):
+    beta, jac, amat, src = _source_solution(lens_model, kwargs, theta)
+    n = len(theta) // 2
+    if kind == "source":
+        d = np.einsum("nij,nj->ni", amat, beta - np.concatenate([src, src]))
+    else:
+        d = _newton_images(lens_model, kwargs, theta, src[:n]) - theta
+    r = d.ravel() / sigma
+    if not np.isfinite(r).all():
+        r = np.where(np.isfinite(r), r, 1e6)
+    return r
+
+
+# ---------------------------------------------------------------------- result
+
+
+class ParametricFit:
+    """The result of :func:`fit_parametric_lens`.
+
+    Attributes
+    ----------
+    model : list of str
+        The fitted lenstronomy profiles (the fixed ones follow them in
+        ``lens_model``).
+    kwargs_fitted : list of dict
+        Best-fit keyword arguments of the fitted profiles.
+    kwargs_lens : list of dict
+        Keyword arguments of every profile of ``lens_model`` (fitted, then
+        fixed).
+    lens_model : lenstronomy ``LensModel``
+        The model (fitted plus fixed profiles).
+    param_names : list of str
+        Free parameters, ``"PROFILE[index].name"``; log10 of ``theta_E``,
+        ``Rs`` and ``alpha_Rs`` are fitted, but ``best_params`` holds linear values.
+    best_params : dict
+        Best-fit values of the free parameters (linear).
+    covariance : ndarray
+        Laplace-approximation covariance of the free parameters in the fitted
+        (log10 where applicable) space, ``(J^T J)^+``.
+    chi2, dof, reduced_chi2 : float, int, float
+        Best-fit chi-square (of kind ``chi2_kind``), ``2 * n_pairs - n_free``
+        and their ratio.
+    samples : ndarray or None
+        Posterior sample of the free parameters (fitted space), shape
+        (n, n_free), when ``mcmc=True``; else None.
+    predictions : `~astropy.table.QTable`
+        Per pair: ``pair_id``, ``mu1_model``, ``mu2_model`` (signed),
+        ``mu_model = |mu1/mu2|``, ``mu_model_err`` (half the 16-84 %
+        width over the parameter sample: robust to the draws that move a
+        critical curve onto an image), ``mu_model_p16``, ``mu_model_p84``, the
+        best-fit source ``beta_x``, ``beta_y``, and the image-plane residuals
+        ``dx1, dy1, dx2, dy2`` (model image minus measured position, the
+        model image found by Newton's method from the measured one).
+    """
+
+    def __init__(self, **attrs):
+        self.__dict__.update(attrs)
+
+    def __repr__(self):
+        return (f"<ParametricFit model={self.model} chi2={self.chi2:.3g} dof={self.dof} "
+                f"n_pairs={len(self.predictions)}>")
+
+    def _param_sample(self, n, rng):
+        if self.samples is not None:
+            idx = rng.integers(0, len(self.samples), n) if len(self.samples) > n else slice(None)
+            return self.samples[idx]
+        cov = 0.5 * (self.covariance + self.covariance.T)
+        draws = rng.multivariate_normal(self._p_best, cov, size=n, method="eigh")
+        return np.clip(draws, self._param.lower, self._param.upper)
+
+    def _full_kwargs(self, p):
+        return self._param.kwargs(p) + [dict(k) for k in self._fixed_kwargs]
+
+    def magnification_ratio(self, theta1, theta2, *, n_samples=300, seed=None):
+        """Model magnifications at image positions, with sample-based errors.
+
+        Parameters
+        ----------
+        theta1, theta2 : `~astropy.units.Quantity`, shape (N, 2)
+            L1 and L2 image positions (frame of the fit).
+        n_samples : int
+            Parameter draws for the error (posterior sample when there is
+            one, else the Laplace approximation).
+        seed : int, `numpy.random.Generator` or None
+            Seed of the draws.
+
+        Returns
+        -------
+        table : `~astropy.table.QTable`
+            ``mu1_model``, ``mu2_model``, ``mu_model``, ``mu_model_err``,
+            ``mu_model_p16``, ``mu_model_p84``.
+        """
+        from .._validation import as_positions
+
+        t1 = as_positions(theta1, "theta1")
+        t2 = as_positions(theta2, "theta2")
+        if len(t1) != len(t2):
+            raise ValueError(f"theta1 and theta2 differ in length ({len(t1)} != {len(t2)})")
+        n_samples = as_int(n_samples, "n_samples", minimum=2)
+        rng = np.random.default_rng(seed)
+        theta = np.concatenate([t1, t2])
+        n = len(t1)
+
+        def mags(kwargs):
+            _, jac = _beta_and_jac(self.lens_model, kwargs, theta[:, 0], theta[:, 1])
+            with np.errstate(divide="ignore"):
+                mu = 1.0 / np.linalg.det(jac)
+            return mu[:n], mu[n:]
+
+        mu1, mu2 = mags(self.kwargs_lens)
+        ratios = np.array([np.abs(np.divide(*mags(self._full_kwargs(p))))
+                           for p in self._param_sample(n_samples, rng)])
+        tab = QTable()
+        tab["mu1_model"] = mu1
+        tab["mu2_model"] = mu2
+        tab["mu_model"] = np.abs(mu1 / mu2)
+        p16, p84 = np.percentile(ratios, [16, 84], axis=0)
+        tab["mu_model_err"] = 0.5 * (p84 - p16)
+        tab["mu_model_p16"], tab["mu_model_p84"] = p16, p84
+        return tab
+
+
+# ---------------------------------------------------------------------- fitting
+
+
+def _metropolis(logp, p0, cov, lower, upper, n_steps, rng):
+    """Adaptive-free random-walk Metropolis with a Gaussian proposal (private)."""
+    d = len(p0)
+    prop = (2.38**2 / d) * (0.5 * (cov + cov.T)) + 1e-12 * np.eye(d)
+    chol = np.linalg.cholesky(prop)
+    chain = np.empty((n_steps, d))
+    p, lp = p0.copy(), logp(p0)
+    accepted = 0
+    for k in range(n_steps):
+        q = p + chol @ rng.standard_normal(d)
+        if np.all(q >= lower) and np.all(q <= upper):
+            lq = logp(q)
+            if np.log(rng.uniform()) < lq - lp:
+                p, lp = q, lq
+                accepted += 1
+        chain[k] = p
+    return chain, accepted / n_steps
+
+
+def fit_parametric_lens(pairs, *, model=("NFW_ELLIPSE_CSE", "SHEAR"), z_lens=None,
+                        z_source=None, cosmology=None, sigma_pos=0.06 * u.arcsec, fixed=None,
+                        fixed_params=None, bounds=None, init=None, n_starts=8, max_nfev=2000,
+                        mcmc=False, n_mcmc=4000, n_samples=300, seed=None, chi2="source"):
+    r"""Fit a parametric lenstronomy lens model to a constellation of pairs.
+
+    Every pair's two images (``x1, y1`` on arc L1 and ``x2, y2`` on arc L2)
+    must map back to one source. The source positions are not free
+    parameters: for given lens parameters, the best source of each pair is
+    solved for in closed form, so each pair gives ``2`` constraints
+    (``4`` coordinates minus ``2`` source coordinates).
+
+    Parameters
+    ----------
+    pairs : `~astropy.table.Table`
+        A pairs table (:ref:`pairs-table`), positions in the frame of the
+        model (lens-centred for the default bounds).
+    model : str or sequence of str
+        lenstronomy profiles to fit, among ``SIS``, ``SIE``, ``EPL``, ``NFW``,
+        ``NFW_ELLIPSE_CSE``, ``SHEAR`` and ``CONVERGENCE`` (default
+        ``("NFW_ELLIPSE_CSE", "SHEAR")``).
+    z_lens, z_source : float
+        Lens and source redshifts (required; they set the lenstronomy
+        ``LensModel``'s distances, for physical units downstream).
+    cosmology : `~astropy.cosmology.Cosmology`, optional
+        Defaults to flat LambdaCDM, H0 = 70, Om0 = 0.3.
+    sigma_pos : `~astropy.units.Quantity`
+        Positional uncertainty of every image (default 0.06 arcsec).
+    fixed : list of (str, dict) or `~lensdual.simulation.LensComponent`, optional
+        Extra profiles with fixed parameters added to the model (e.g.
+        cluster members from a light-traces-mass model).
+    fixed_params : dict, optional
+        Parameters held fixed, ``{profile name or index: {param: value}}``,
+        e.g. ``{"NFW_ELLIPSE_CSE": {"center_x": 0.0, "center_y": 0.0}}``.
+    bounds : dict, optional
+        ``{profile name or index: {param: (lower, upper)}}`` replacing the
+        defaults of :data:`PROFILE_DEFAULTS`.
+    init : dict, optional
+        ``{profile name or index: {param: value}}``: the first start.
+    n_starts : int
+        Local optimisations: the first from ``init``, the others from points
+        drawn uniformly inside the bounds (log-uniformly for scale
+        parameters). Default 8.
+    max_nfev : int
+        Function evaluations per local optimisation (default 2000).
+    mcmc : bool
+        Sample the posterior (flat priors inside the bounds) with a
+        random-walk Metropolis sampler whose Gaussian proposal is the
+        scaled Laplace covariance (emcee is not required).
+    n_mcmc : int
+        Metropolis steps (the first quarter is discarded as burn-in).
+    n_samples : int
+        Parameter draws for the errors of ``mu_model`` when ``mcmc=False``.
+    seed : int, `numpy.random.Generator` or None
+        Seed of the starting points, the sampler and the error draws.
+    chi2 : {"source", "image"}
+        Chi-square (see Notes).
+
+    Returns
+    -------
+    fit : `ParametricFit`
+
+    Raises
+    ------
+    TypeError
+        Wrong argument types (e.g. positions without units).
+    ValueError
+        Unknown profile names, missing redshifts, bad bounds, or fewer
+        constraints (``2 * n_pairs``) than free parameters + 1 -- all before
+        any fitting starts.
+
+    Notes
+    -----
+    **Chi-square.** The default, ``chi2="source"``, is the
+    magnification-weighted source-plane chi-square
+
+    .. math::
+
+        \chi^2 = \sum_{a}\sum_{i=1,2}
+        \frac{|A_{a,i}\,(\beta_{a,i} - \hat\beta_a)|^2}{\sigma_{\rm pos}^2},
+
+    with :math:`\beta_{a,i}` the ray-traced position of image :math:`i` of
+    pair :math:`a`, :math:`A = \partial\theta/\partial\beta` the local
+    magnification matrix, and :math:`\hat\beta_a` the source minimising it,
+    :math:`\hat\beta_a = (\sum_i M_i)^{-1}\sum_i M_i\beta_{a,i}`,
+    :math:`M_i = A_i^T A_i`. Since :math:`\theta_{\rm model} - \theta
+    \approx A(\hat\beta - \beta)` to first order, this is the image-plane
+    chi-square without solving the lens equation: it is as cheap as a plain
+    source-plane chi-square (one ray-shooting and one Hessian per image)
+    but, unlike it, does not reward models that shrink the source plane
+    (highly magnifying models), and it weights the images by their
+    measured, image-plane, errors. It is accurate while the residuals are
+    small compared with the scale over which ``A`` varies, i.e. near a good
+    fit and away from critical curves. ``chi2="image"`` refines each model
+    image with Newton's method (8 steps) from the measured position towards
+    the source :math:`\hat\beta_a`, and uses the true image-plane offsets:
+    about 8 times slower; it only finds the image nearest to the measured one
+    (no global image search, so a model that loses an image is not
+    penalised beyond the Newton failure, which gets a large residual).
+
+    **Optimiser.** `scipy.optimize.least_squares` (trust-region reflective,
+    central finite-difference Jacobian -- the forward one stalls -- within
+    the bounds) on the residual vector, from ``n_starts`` starting points;
+    the lowest chi-square wins.
+
+    **Errors.** The covariance of the free parameters is the Laplace
+    approximation ``(J^T J)^+`` at the best fit (``J`` the Jacobian of the
+    normalised residuals); ``mu_model_err`` is half the 16-84 % width of
+    ``|mu1/mu2|`` over ``n_samples`` parameter vectors drawn from it (or
+    over the Metropolis sample with ``mcmc=True``).
+
+    **Degeneracies.** Positions only constrain the lens up to the
+    mass-sheet degeneracy: a ``CONVERGENCE`` sheet together with a rescaling
+    of the rest of the model leaves every position unchanged (the sources
+    are free), so a model with ``CONVERGENCE`` has one exactly degenerate
+    direction (its magnification *ratios* are invariant, so
+    ``mu_model`` is not affected). A single fold pair of arcs
+    constrains the deflection field only locally (the relative Jacobian
+    between the arcs and its gradient): the lens centre, and the trade-off
+    between the halo's scale radius and normalisation, are poorly
+    constrained; fix the centre (``fixed_params``) when it is known, e.g.
+    from the BCG. The reference points ``ra_0, dec_0`` of SHEAR and
+    CONVERGENCE are always fixed.
+    """
+    from lenstronomy.LensModel.lens_model import LensModel
+    from scipy.optimize import least_squares
+
+    # ---- validation, all before fitting
+    if z_lens is None or z_source is None:
+        raise ValueError("z_lens and z_source are required (got "
+                         f"z_lens={z_lens!r}, z_source={z_source!r})")
+    zl, zs = as_redshifts(z_lens, z_source)
+    cosmo = as_cosmology(cosmology)
+    sigma = as_angle_scalar(sigma_pos, "sigma_pos", allow_zero=False)
+    if not isinstance(chi2, str) or chi2 not in CHI2_KINDS:
+        raise ValueError(f"chi2 must be one of {list(CHI2_KINDS)}, got {chi2!r}")
+    if not isinstance(mcmc, bool):
+        raise TypeError(f"mcmc must be True or False, got {mcmc!r}")
+    n_starts = as_int(n_starts, "n_starts", minimum=1)
+    max_nfev = as_int(max_nfev, "max_nfev", minimum=10)
+    n_mcmc = as_int(n_mcmc, "n_mcmc", minimum=100)
+    n_samples = as_int(n_samples, "n_samples", minimum=2)
+    profiles = _model_list(model)
+    t1, t2, ids = _pair_positions(pairs)
+    n_pairs = len(t1)
+    fixed_names, fixed_kwargs = _fixed_profiles(fixed)
+    theta = np.concatenate([t1, t2])
+    scale = max(1.0, float(np.median(np.hypot(theta[:, 0], theta[:, 1])))) if n_pairs else 1.0
+    param = _Parametrisation(
+        profiles, scale,
+        _per_component(fixed_params, "fixed_params", profiles),
+        _per_component(bounds, "bounds", profiles),
+        _per_component(init, "init", profiles),
+    )
+    n_free = param.n_free
+    if n_free == 0:
+        raise ValueError("no free parameters: everything is fixed")
+    if 2 * n_pairs <= n_free:
+        raise ValueError(
+            f"too few pairs: {n_pairs} pair(s) give {2 * n_pairs} constraints (2 per pair "
+            f"after eliminating its source position) for {n_free} free parameter(s) "
+            f"({param.labels()}); need 2 * n_pairs > n_free: add pairs or fix parameters "
+            "(fixed_params)"
+        )
+    rng = np.random.default_rng(seed)
+
+    # ---- fitting
+    lens_model = LensModel(profiles + fixed_names, z_lens=zl, z_source=zs, cosmo=cosmo)
+
+    def resid(p):
+        return _residuals(lens_model, param.kwargs(p) + fixed_kwargs, theta, sigma, chi2)
+
+    starts = [np.clip(param.start, param.lower, param.upper)]
+    for _ in range(n_starts - 1):
+        starts.append(rng.uniform(param.lower, param.upper))
+    best = None
+    for p0 in starts:
+        # keep away from the bounds, where least_squares' trust region stalls
+        p0 = np.clip(p0, param.lower + 1e-6 * (param.upper - param.lower),
+                     param.upper - 1e-6 * (param.upper - param.lower))
+        res = least_squares(resid, p0, bounds=(param.lower, param.upper), method="trf",
+                            jac="3-point", x_scale="jac", max_nfev=max_nfev, xtol=1e-12, ftol=1e-12,
+                            gtol=1e-12)
+        if best is None or res.cost < best.cost:
+            best = res
+    p_best = best.x
+    chi2_best = float(2 * best.cost)
+    jtj = best.jac.T @ best.jac
+    cov = np.linalg.pinv(jtj, rcond=1e-12, hermitian=True)
+
+    samples, acceptance = None, None
+    if mcmc:
+        def logp(p):
+            return -0.5 * float(np.sum(resid(p) ** 2))
+        cov_prop = cov if np.all(np.isfinite(cov)) and np.trace(cov) > 0 else \
+            np.diag(((param.upper - param.lower) * 1e-3) ** 2)
+        chain, acceptance = _metropolis(logp, p_best, cov_prop, param.lower, param.upper,
+                                        n_mcmc, rng)
+        samples = chain[n_mcmc // 4:]
+
+    kwargs_fitted = param.kwargs(p_best)
+    values = np.where(param.log, 10.0 ** p_best, p_best)
+    fit = ParametricFit(
+        model=profiles, kwargs_fitted=kwargs_fitted,
+        kwargs_lens=kwargs_fitted + [dict(k) for k in fixed_kwargs],
+        lens_model=lens_model, param_names=param.labels(),
+        best_params=dict(zip(param.labels(), values.tolist(), strict=True)),
+        covariance=cov, chi2=chi2_best, dof=2 * n_pairs - n_free,
+        reduced_chi2=chi2_best / (2 * n_pairs - n_free), chi2_kind=chi2, samples=samples,
+        acceptance=acceptance, success=bool(best.success), z_lens=zl, z_source=zs,
+        cosmology=cosmo, sigma_pos=sigma * u.arcsec, fixed_profiles=fixed_names,
+        _param=param, _p_best=p_best, _fixed_kwargs=fixed_kwargs, predictions=None,
+    )
+
+    # ---- predictions
+    pred = fit.magnification_ratio(t1 * u.arcsec, t2 * u.arcsec, n_samples=n_samples, seed=rng)
+    _, _, _, src = _source_solution(lens_model, fit.kwargs_lens, theta)
+    model_theta = _newton_images(lens_model, fit.kwargs_lens, theta, src)
+    d = model_theta - theta
+    tab = QTable()
+    tab["pair_id"] = ids
+    for name in pred.colnames:
+        tab[name] = pred[name]
+    tab["beta_x"] = src[:, 0] * u.arcsec
+    tab["beta_y"] = src[:, 1] * u.arcsec
+    tab["dx1"], tab["dy1"] = d[:n_pairs, 0] * u.arcsec, d[:n_pairs, 1] * u.arcsec
+    tab["dx2"], tab["dy2"] = d[n_pairs:, 0] * u.arcsec, d[n_pairs:, 1] * u.arcsec
+    tab.meta["model"] = profiles
+    tab.meta["chi2"] = chi2_best
+    tab.meta["dof"] = fit.dof
+    fit.predictions = tab
+    return fit
+
+
+# ---------------------------------------------------------------------- comparison
+
+
+def _ln_err(tab, name):
+    """Error of ln(name) from its p16/p84 columns, else from name_err."""
+    value = np.asarray(tab[name], dtype=float)
+    if f"{name}_p16" in tab.colnames and f"{name}_p84" in tab.colnames:
+        with np.errstate(all="ignore"):
+            return 0.5 * (np.log(np.asarray(tab[f"{name}_p84"], float))
+                          - np.log(np.asarray(tab[f"{name}_p16"], float)))
+    with np.errstate(all="ignore"):
+        return np.asarray(tab[f"{name}_err"], dtype=float) / value
+
+
+def compare_with_parametric(duality_table, fit, *, z_source=None, snr_threshold=3.0,
+                            n_samples=300, seed=None):
+    r"""Compare flux ratios with the size magnification and a parametric model.
+
+    Parameters
+    ----------
+    duality_table : `~astropy.table.Table`
+        Output of :func:`~lensdual.duality.check_duality` (needs the
+        positions, ``mu_flux``, ``mu_flux_err``, ``mu_size``, ``mu_size_err``).
+    fit : `ParametricFit` or `~lensdual.parametric.LenstoolModel`
+        The parametric model. It is evaluated at the table's positions, which
+        must be in the model's frame (for a Lenstool model: its model frame,
+        see :meth:`~lensdual.parametric.LenstoolModel.to_model_frame`).
+    z_source : float, optional
+        Source redshift; required for a Lenstool model, ignored (must be None
+        or equal) for a `ParametricFit`.
+    snr_threshold : float
+        A pair is anomalous when its SNR exceeds this (default 3).
+    n_samples : int
+        Parameter draws for ``mu_model_err`` of a `ParametricFit`.
+    seed : int, `numpy.random.Generator` or None
+        Seed of those draws.
+
+    Returns
+    -------
+    table : `~astropy.table.QTable`
+        ``pair_id``, ``mu_flux``, ``mu_flux_err``, ``mu_size``,
+        ``mu_size_err``, ``mu_model``, ``mu_model_err``, ``ratio_size =
+        mu_flux / mu_size``, ``snr_size``, ``anomalous_size``, ``ratio_model
+        = mu_flux / mu_model``, ``snr_model``, ``anomalous_model`` (and
+        ``mu_true`` when the input has it). The SNRs follow the ``"log"``
+        definition of :func:`~lensdual.duality.check_duality`:
+        :math:`|\ln R| / \sqrt{\sigma_{\ln F}^2 + \sigma_{\ln M}^2}`. A
+        Lenstool model has no uncertainty here (``mu_model_err = 0``): its
+        SNR counts the flux error only.
+    """
+    from .._validation import as_positions
+    from ..duality import _positions
+    from .lenstool import LenstoolModel
+
+    if not isinstance(duality_table, Table):
+        raise TypeError("duality_table must be an astropy Table (check_duality output), got "
+                        f"{type(duality_table).__name__}")
+    tab = QTable(duality_table, copy=False)
+    need = ["mu_flux", "mu_flux_err", "mu_size", "mu_size_err"]
+    missing = [c for c in need if c not in tab.colnames]
+    if missing:
+        raise ValueError(f"duality_table lacks the column(s) {missing}: pass the output of "
+                         "check_duality")
+    snr_threshold = as_real(snr_threshold, "snr_threshold", minimum=0.0)
+    theta1, theta2 = _positions(tab)
+    t1 = as_positions(theta1, "duality_table positions (x1, y1)")
+    t2 = as_positions(theta2, "duality_table positions (x2, y2)")
+    if isinstance(fit, ParametricFit):
+        if z_source is not None and as_real(z_source, "z_source") != fit.z_source:
+            raise ValueError(f"z_source={z_source} differs from the fit's z_source="
+                             f"{fit.z_source}; leave it None for a ParametricFit")
+        pred = fit.magnification_ratio(theta1, theta2, n_samples=n_samples, seed=seed)
+        mu_model = np.asarray(pred["mu_model"], float)
+        mu_model_err = np.asarray(pred["mu_model_err"], float)
+        ln_model = _ln_err(pred, "mu_model")
+    elif isinstance(fit, LenstoolModel):
+        if z_source is None:
+            raise ValueError("z_source is required to compare with a LenstoolModel")
+        lm = fit.lens_model(as_real(z_source, "z_source"))
+        with np.errstate(divide="ignore"):
+            mu1 = np.asarray(lm.magnification(t1[:, 0], t1[:, 1]), float)
+            mu2 = np.asarray(lm.magnification(t2[:, 0], t2[:, 1]), float)
+        mu_model = np.abs(mu1 / mu2)
+        mu_model_err = np.zeros_like(mu_model)
+        ln_model = mu_model_err
+    else:
+        raise TypeError("fit must be a ParametricFit or a LenstoolModel, got "
+                        f"{type(fit).__name__}")
+
+    out = QTable()
+    out["pair_id"] = (np.asarray(tab["pair_id"]) if "pair_id" in tab.colnames
+                      else np.arange(1, len(tab) + 1))
+    for c in need:
+        out[c] = np.asarray(tab[c], dtype=float)
+    out["mu_model"] = mu_model
+    out["mu_model_err"] = mu_model_err
+    if "mu_true" in tab.colnames:
+        out["mu_true"] = np.asarray(tab["mu_true"], dtype=float)
+    ln_flux = _ln_err(tab, "mu_flux")
+    ln_size = _ln_err(tab, "mu_size")
+    mu_flux = out["mu_flux"]
+    with np.errstate(all="ignore"):
+        for key, mu, ln in (("size", out["mu_size"], ln_size), ("model", mu_model, ln_model)):
+            ratio = mu_flux / mu
+            snr = np.abs(np.log(ratio)) / np.hypot(ln_flux, ln)
+            out[f"ratio_{key}"] = ratio
+            out[f"snr_{key}"] = snr
+            out[f"anomalous_{key}"] = np.isfinite(snr) & (snr > snr_threshold)
+    out.meta["snr_threshold"] = snr_threshold
+    out.meta["model"] = (fit.model if isinstance(fit, ParametricFit)
+                         else f"Lenstool model {getattr(fit, 'path', '')}")
+    return out
+
+
+def plot_parametric_comparison(table, ax=None):
+    """Plot ``mu_flux``, ``mu_size`` and ``mu_model`` per pair, with error bars.
+
+    Parameters
+    ----------
+    table : `~astropy.table.Table`
+        Output of :func:`compare_with_parametric`.
+    ax : `matplotlib.axes.Axes`, optional
+        Axes to draw on (default: a new figure).
+
+    Returns
+    -------
+    ax : `matplotlib.axes.Axes`
+    """
+    import matplotlib.pyplot as plt
+
+    if not isinstance(table, Table):
+        raise TypeError(f"table must be an astropy Table, got {type(table).__name__}")
+    missing = [c for c in ("pair_id", "mu_flux", "mu_size", "mu_model") if c not in table.colnames]
+    if missing:
+        raise ValueError(f"table lacks the column(s) {missing}: pass compare_with_parametric's "
+                         "output")
+    if ax is None:
+        _, ax = plt.subplots(figsize=(7, 4))
+    x = np.asarray(table["pair_id"], dtype=float)
+    series = [("mu_flux", r"$\mu_{\rm flux}$ (flux ratio)", "o", -0.2),
+              ("mu_size", r"$\mu_{\rm size}$ (model-independent)", "s", 0.0),
+              ("mu_model", r"$\mu_{\rm model}$ (parametric)", "D", 0.2)]
+    for name, label, marker, dx in series:
+        err = (np.asarray(table[f"{name}_err"], float) if f"{name}_err" in table.colnames
+               else None)
+        ax.errorbar(x + dx, np.asarray(table[name], float), yerr=err, fmt=marker, ms=4,
+                    capsize=2, label=label)
+    if "mu_true" in table.colnames:
+        ax.scatter(x, np.asarray(table["mu_true"], float), marker="_", s=200, color="k",
+                   label="truth", zorder=3)
+    for flag, col in (("anomalous_size", "C1"), ("anomalous_model", "C2")):
+        if flag in table.colnames:
+            sel = np.asarray(table[flag], bool)
+            ax.scatter(x[sel], np.asarray(table["mu_flux"], float)[sel], s=120,
+                       facecolors="none", edgecolors=col, label=f"{flag.replace('_', ' ')}")
+    ax.set_yscale("log")
+    ax.set_xlabel("pair id")
+    ax.set_ylabel(r"$|\mu(L1)/\mu(L2)|$")
+    ax.legend(fontsize="small")
+    return ax

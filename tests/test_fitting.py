@@ -1,0 +1,226 @@
+"""Tests of lensdual.parametric.fitting (parametric lens fits to a constellation)."""
+
+import warnings
+
+import numpy as np
+import pytest
+from astropy import units as u
+from astropy.table import QTable
+
+from lensdual.duality import check_duality
+from lensdual.parametric.fitting import (
+    ParametricFit,
+    compare_with_parametric,
+    fit_parametric_lens,
+    plot_parametric_comparison,
+)
+from lensdual.simulation import LensComponent, LensSystem
+
+TRUTH = [
+    {"theta_E": 1.5, "e1": 0.1, "e2": -0.05, "center_x": 0.0, "center_y": 0.0},
+    {"gamma1": 0.04, "gamma2": 0.02, "ra_0": 0.0, "dec_0": 0.0},
+]
+ZL, ZS = 0.5, 2.0
+FIXED_CENTRE = {"SIE": {"center_x": 0.0, "center_y": 0.0}}
+
+
+@pytest.fixture(scope="module")
+def system():
+    return LensSystem([LensComponent("SIE", TRUTH[0]), LensComponent("SHEAR", TRUTH[1])],
+                      z_lens=ZL, z_source=ZS)
+
+
+@pytest.fixture(scope="module")
+def pairs(system):
+    """16 noiseless pairs on the fold pair of arcs of an SIE + shear lens."""
+    rng = np.random.default_rng(3)
+    beta = (np.array([0.0, 0.25]) + rng.uniform(-0.06, 0.06, (16, 2))) * u.arcsec
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # a source may miss one arc: not under test here
+        tab = system.constellation(beta, half_width=4 * u.arcsec, grid_spacing=0.1 * u.arcsec,
+                                   seed=1)
+    assert len(tab) >= 10
+    return tab
+
+
+@pytest.fixture(scope="module")
+def fit(pairs):
+    return fit_parametric_lens(pairs, model=("SIE", "SHEAR"), z_lens=ZL, z_source=ZS,
+                               fixed_params=FIXED_CENTRE, n_starts=2, n_samples=50, seed=1)
+
+
+def test_recovers_truth(fit, pairs):
+    # fixed: the SIE centre (0, 0) and the shear reference point; free: theta_E, e1, e2,
+    # gamma1, gamma2
+    assert isinstance(fit, ParametricFit)
+    assert fit.dof == 2 * len(pairs) - 5
+    assert fit.chi2 < 1e-6
+    assert len(fit.param_names) == 5
+    for key in ("theta_E", "e1", "e2"):
+        assert fit.kwargs_fitted[0][key] == pytest.approx(TRUTH[0][key], rel=0.01, abs=1e-4)
+    for key in ("gamma1", "gamma2"):
+        assert fit.kwargs_fitted[1][key] == pytest.approx(TRUTH[1][key], rel=0.01, abs=1e-4)
+    assert fit.kwargs_fitted[0]["center_x"] == 0.0
+
+
+def test_predictions_match_lenstronomy(fit, pairs, system):
+    from lenstronomy.LensModel.lens_model import LensModel
+
+    pred = fit.predictions
+    assert isinstance(pred, QTable)
+    for col in ("pair_id", "mu1_model", "mu2_model", "mu_model", "mu_model_err", "dx1", "dy2"):
+        assert col in pred.colnames
+    lm = LensModel(["SIE", "SHEAR"])
+    mu1 = lm.magnification(pairs["x1"].value, pairs["y1"].value, TRUTH)
+    mu2 = lm.magnification(pairs["x2"].value, pairs["y2"].value, TRUTH)
+    np.testing.assert_allclose(pred["mu1_model"], mu1, rtol=1e-3)
+    np.testing.assert_allclose(pred["mu2_model"], mu2, rtol=1e-3)
+    np.testing.assert_allclose(pred["mu_model"], np.abs(mu1 / mu2), rtol=1e-3)
+    assert np.all(np.sign(pred["mu1_model"]) == -np.sign(pred["mu2_model"]))
+    assert np.all(np.asarray(pred["mu_model_err"]) > 0)
+    assert np.max(np.abs(pred["dx1"].to_value(u.arcsec))) < 1e-3
+
+
+def test_image_chi2_agrees(pairs):
+    fit = fit_parametric_lens(pairs, model=["SIE", "SHEAR"], z_lens=ZL, z_source=ZS,
+                              fixed_params=FIXED_CENTRE, n_starts=1, n_samples=10, seed=2,
+                              chi2="image")
+    assert fit.chi2 < 1e-6
+    assert fit.kwargs_fitted[0]["theta_E"] == pytest.approx(1.5, rel=0.01)
+
+
+def test_fixed_profiles_and_reproducible(pairs):
+    # a far, light fixed perturber changes little; the same seed gives the same fit
+    fixed = [("SIS", {"theta_E": 0.01, "center_x": 10.0, "center_y": 10.0})]
+    kw = dict(model=("SIE", "SHEAR"), z_lens=ZL, z_source=ZS, fixed_params=FIXED_CENTRE,
+              fixed=fixed, n_starts=1, n_samples=10, max_nfev=200, seed=5)
+    a = fit_parametric_lens(pairs, **kw)
+    b = fit_parametric_lens(pairs, **kw)
+    assert len(a.kwargs_lens) == 3
+    assert a.kwargs_fitted == b.kwargs_fitted
+    np.testing.assert_array_equal(a.predictions["mu_model_err"], b.predictions["mu_model_err"])
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "exc", "match"),
+    [
+        ({"model": ("SIE", "NOT_A_PROFILE")}, ValueError, "unknown or unsupported profile"),
+        ({"model": ()}, ValueError, "at least one"),
+        ({"model": (3,)}, TypeError, "profile names"),
+        ({"z_lens": None}, ValueError, "z_lens and z_source are required"),
+        ({"z_source": None}, ValueError, "z_lens and z_source are required"),
+        ({"z_source": 0.3}, ValueError, "z_source must be larger"),
+        ({"sigma_pos": 0.06}, TypeError, "sigma_pos"),
+        ({"chi2": "pixels"}, ValueError, "chi2 must be one of"),
+        ({"fixed_params": {"EPL": {"gamma": 2.0}}}, ValueError, "fixed_params.*not in the model"),
+        ({"fixed_params": {"SIE": {"q": 0.5}}}, ValueError, "unknown parameter"),
+        ({"bounds": {"SIE": {"theta_E": (2.0, 1.0)}}}, ValueError, "lower"),
+        ({"init": {"SIE": {"theta_E": 500.0}}}, ValueError, "outside its bounds"),
+        ({"fixed": [("NOPE", {})]}, ValueError, "fixed\\[0\\]: unknown"),
+        ({"n_starts": 0}, ValueError, "n_starts"),
+        ({"mcmc": "yes"}, TypeError, "mcmc"),
+    ],
+)
+def test_bad_arguments(pairs, monkeypatch, kwargs, exc, match):
+    import scipy.optimize
+
+    def boom(*args, **kw):
+        raise AssertionError("fitting started")
+
+    monkeypatch.setattr(scipy.optimize, "least_squares", boom)
+    base = dict(model=("SIE", "SHEAR"), z_lens=ZL, z_source=ZS, fixed_params=FIXED_CENTRE)
+    base.update(kwargs)
+    with pytest.raises(exc, match=match):
+        fit_parametric_lens(pairs, **base)
+
+
+def test_too_few_pairs(pairs, monkeypatch):
+    import scipy.optimize
+
+    monkeypatch.setattr(scipy.optimize, "least_squares",
+                        lambda *a, **k: (_ for _ in ()).throw(AssertionError("fitting started")))
+    # EPL (6 free) + SHEAR (2 free) = 8 free parameters > 2 * 3 constraints
+    with pytest.raises(ValueError, match="too few pairs.*6 constraints.*8 free"):
+        fit_parametric_lens(pairs[:3], model=("EPL", "SHEAR"), z_lens=ZL, z_source=ZS)
+    with pytest.raises(TypeError, match="pairs must be an astropy Table"):
+        fit_parametric_lens(np.zeros((3, 4)), z_lens=ZL, z_source=ZS)
+    plain = QTable(pairs[:5], copy=True)
+    plain["x1"] = plain["x1"].value
+    with pytest.raises(TypeError, match="x1"):
+        fit_parametric_lens(plain, model="SIS", z_lens=ZL, z_source=ZS)
+
+
+def test_mcmc_posterior(pairs):
+    fit = fit_parametric_lens(pairs, model=("SIE", "SHEAR"), z_lens=ZL, z_source=ZS,
+                              fixed_params=FIXED_CENTRE, n_starts=1, mcmc=True, n_mcmc=200,
+                              n_samples=20, seed=4)
+    assert fit.samples.shape == (150, 5)
+    assert 0 <= fit.acceptance <= 1
+    assert np.all(np.isfinite(fit.predictions["mu_model_err"]))
+
+
+def test_compare_with_parametric(fit, pairs):
+    duality = check_duality(pairs, sigma_pos=0.01 * u.arcsec, n_bootstrap=200, seed=1)
+    table = compare_with_parametric(duality, fit, n_samples=50, seed=1)
+    for col in ("pair_id", "mu_flux", "mu_flux_err", "mu_size", "mu_size_err", "mu_model",
+                "mu_model_err", "ratio_size", "snr_size", "ratio_model", "snr_model",
+                "anomalous_size", "anomalous_model", "mu_true"):
+        assert col in table.colnames
+    # noiseless fluxes and a perfect model: mu_flux = mu_model, no anomaly
+    np.testing.assert_allclose(table["ratio_model"], 1.0, rtol=1e-4)
+    assert not np.any(table["anomalous_model"])
+    np.testing.assert_allclose(table["mu_model"], fit.predictions["mu_model"], rtol=1e-12)
+
+    # an anomalously bright L1 image is flagged against the model
+    bad = QTable(duality, copy=True)
+    bad["mu_flux"][2] *= 3.0
+    flagged = compare_with_parametric(bad, fit, n_samples=50, seed=1, snr_threshold=3)
+    assert flagged["anomalous_model"][2]
+    assert flagged["ratio_model"][2] == pytest.approx(3.0, rel=1e-3)
+
+    with pytest.raises(TypeError, match="fit must be a ParametricFit or a LenstoolModel"):
+        compare_with_parametric(duality, "model")
+    with pytest.raises(ValueError, match="lacks the column"):
+        compare_with_parametric(pairs, fit)
+    with pytest.raises(ValueError, match="snr_threshold"):
+        compare_with_parametric(duality, fit, snr_threshold=-1.0)
+
+
+def test_plot(fit, pairs):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    duality = check_duality(pairs, sigma_pos=0.01 * u.arcsec, n_bootstrap=100, seed=1)
+    table = compare_with_parametric(duality, fit, n_samples=20, seed=1)
+    ax = plot_parametric_comparison(table)
+    assert ax.get_yscale() == "log"
+    assert len(ax.get_legend().get_texts()) >= 3
+    plt.close(ax.figure)
+    with pytest.raises(ValueError, match="lacks the column"):
+        plot_parametric_comparison(QTable({"pair_id": [1]}))
+
+
+def test_compare_with_lenstool_model(tmp_path, pairs):
+    import importlib.util
+    from pathlib import Path
+
+    from lensdual.parametric import read_lenstool
+
+    spec = importlib.util.spec_from_file_location(
+        "_lenstool_tests", Path(__file__).with_name("test_lenstool.py"))
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    path = tmp_path / "model.par"
+    path.write_text(mod.PAR)
+    model = read_lenstool(path)
+    duality = check_duality(pairs, sigma_pos=0.01 * u.arcsec, n_bootstrap=100, seed=1)
+    with pytest.raises(ValueError, match="z_source is required"):
+        compare_with_parametric(duality, model)
+    table = compare_with_parametric(duality, model, z_source=2.0)
+    lm = model.lens_model(2.0)
+    mu1 = lm.magnification(pairs["x1"].value, pairs["y1"].value)
+    mu2 = lm.magnification(pairs["x2"].value, pairs["y2"].value)
+    np.testing.assert_allclose(table["mu_model"], np.abs(mu1 / mu2), rtol=1e-12)
+    assert np.all(table["mu_model_err"] == 0)
