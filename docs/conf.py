@@ -86,3 +86,12 @@ else:
 html_title = f"{project} {release}"
 html_static_path = []
 html_show_sourcelink = False
+
+# Substitutions used in astropy docstrings that automodapi pulls in (e.g. the
+# SkyCoord documentation of a module-level SkyCoord constant).
+rst_epilog = """
+.. |SkyCoord| replace:: :class:`~astropy.coordinates.SkyCoord`
+.. |Quantity| replace:: :class:`~astropy.units.Quantity`
+.. |Table| replace:: :class:`~astropy.table.Table`
+.. |QTable| replace:: :class:`~astropy.table.QTable`
+"""
