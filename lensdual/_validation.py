@@ -134,3 +134,41 @@ def as_redshifts(z_lens, z_source):
             f"z_source must be larger than z_lens, got z_source={z_source} <= z_lens={z_lens}"
         )
     return zl, zs
+
+
+def split_image(image, name):
+    """Unpack an image argument by type, with the checks every image needs.
+
+    Accepts an ndarray, a masked array, a Quantity or an NDData/CCDData.
+    Returns ``(data, mask, unit, wcs, uncertainty)``: the raw 2-D data array
+    (not copied), the mask as an array or None, and the unit, WCS and
+    uncertainty or None. Raises TypeError for another type or non-real data,
+    ValueError for data that is not 2-D.
+    """
+    from astropy.nddata import NDData
+
+    mask = unit = wcs = uncertainty = None
+    if isinstance(image, NDData):
+        data = image.data
+        if image.mask is not None:
+            mask = np.asarray(image.mask)
+        unit, wcs, uncertainty = image.unit, image.wcs, image.uncertainty
+    elif isinstance(image, np.ma.MaskedArray):
+        data = image.data
+        mask = np.ma.getmaskarray(image)
+    elif isinstance(image, u.Quantity):
+        data = image.value
+        unit = image.unit
+    elif isinstance(image, np.ndarray):
+        data = image
+    else:
+        raise TypeError(
+            f"{name} must be a numpy array, NDData or CCDData (or a masked array or "
+            f"Quantity), got {type(image).__name__}"
+        )
+    data = np.asarray(data)
+    if data.dtype.kind not in "iuf":
+        raise TypeError(f"{name} must hold real numbers (integer or float), got dtype {data.dtype}")
+    if data.ndim != 2:
+        raise ValueError(f"{name} must be a 2-D image, got shape {data.shape}")
+    return data, mask, unit, wcs, uncertainty

@@ -25,7 +25,7 @@ from astropy.wcs.wcsapi import BaseHighLevelWCS, BaseLowLevelWCS, HighLevelWCSWr
 from scipy.ndimage import gaussian_filter
 from scipy.special import erf
 
-from ._validation import as_int, as_positions, as_real
+from ._validation import as_int, as_positions, as_real, split_image
 from .exceptions import LensdualWarning
 
 __all__ = ["BACKGROUND_STRATEGIES", "psf_photometry", "measure_pairs"]
@@ -385,61 +385,36 @@ def _as_wcs(wcs, name):
 
 def _unpack_image(image, name):
     """Return (float64 data copy, invalid mask or None, error or None, unit, wcs)."""
-    mask = None
-    unit = None
-    wcs = None
+    data, mask, unit, wcs, unc = split_image(image, name)
+    wcs = _as_wcs(wcs, f"{name}.wcs")
     error = None
-    if isinstance(image, NDData):
-        data = image.data
-        unit = image.unit
-        wcs = _as_wcs(image.wcs, f"{name}.wcs")
-        if image.mask is not None:
-            mask = np.asarray(image.mask)
-        unc = image.uncertainty
-        if unc is not None:
-            arr = np.asarray(unc.array, dtype=np.float64)
-            if isinstance(unc, StdDevUncertainty):
-                error = arr
-            elif isinstance(unc, VarianceUncertainty):
-                error = np.sqrt(arr)
-            elif isinstance(unc, InverseVariance):
-                with np.errstate(divide="ignore"):
-                    error = 1.0 / np.sqrt(arr)
-            else:
-                raise TypeError(
-                    f"{name}.uncertainty must be a StdDevUncertainty, VarianceUncertainty "
-                    f"or InverseVariance, got {type(unc).__name__}"
-                )
-            eunit = unc.unit
-            if isinstance(unc, VarianceUncertainty) and eunit is not None:
-                eunit = eunit**0.5
-            elif isinstance(unc, InverseVariance) and eunit is not None:
-                eunit = eunit**-0.5
-            if eunit is not None and unit is not None and eunit != unit:
-                try:
-                    error = error * float(eunit.to(unit))
-                except u.UnitsError:
-                    raise ValueError(
-                        f"{name}.uncertainty has unit {eunit!s}, not convertible to the "
-                        f"image unit {unit!s}"
-                    ) from None
-    elif isinstance(image, np.ma.MaskedArray):
-        data = image.data
-        mask = np.ma.getmaskarray(image)
-    elif isinstance(image, u.Quantity):
-        data = image.value
-        unit = image.unit
-    elif isinstance(image, np.ndarray):
-        data = image
-    else:
-        raise TypeError(
-            f"{name} must be a numpy array, Quantity, NDData or CCDData, got {type(image).__name__}"
-        )
-    data = np.asarray(data)
-    if data.dtype.kind not in "iuf":
-        raise TypeError(f"{name} must hold real numbers, got dtype {data.dtype}")
-    if data.ndim != 2:
-        raise ValueError(f"{name} must be a 2-D image, got shape {data.shape}")
+    if unc is not None:
+        arr = np.asarray(unc.array, dtype=np.float64)
+        if isinstance(unc, StdDevUncertainty):
+            error = arr
+        elif isinstance(unc, VarianceUncertainty):
+            error = np.sqrt(arr)
+        elif isinstance(unc, InverseVariance):
+            with np.errstate(divide="ignore"):
+                error = 1.0 / np.sqrt(arr)
+        else:
+            raise TypeError(
+                f"{name}.uncertainty must be a StdDevUncertainty, VarianceUncertainty "
+                f"or InverseVariance, got {type(unc).__name__}"
+            )
+        eunit = unc.unit
+        if isinstance(unc, VarianceUncertainty) and eunit is not None:
+            eunit = eunit**0.5
+        elif isinstance(unc, InverseVariance) and eunit is not None:
+            eunit = eunit**-0.5
+        if eunit is not None and unit is not None and eunit != unit:
+            try:
+                error = error * float(eunit.to(unit))
+            except u.UnitsError:
+                raise ValueError(
+                    f"{name}.uncertainty has unit {eunit!s}, not convertible to the "
+                    f"image unit {unit!s}"
+                ) from None
     data = np.array(data, dtype=np.float64)  # a copy: the input is never modified
     invalid = ~np.isfinite(data)
     if mask is not None:

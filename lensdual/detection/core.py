@@ -6,12 +6,11 @@ from datetime import UTC, datetime
 
 import numpy as np
 from astropy import units as u
-from astropy.nddata import NDData
 from astropy.table import QTable
 from astropy.wcs.wcsapi import BaseHighLevelWCS, BaseLowLevelWCS, HighLevelWCSWrapper
 from scipy.ndimage import gaussian_filter
 
-from .._validation import as_int, as_real
+from .._validation import as_int, as_real, split_image
 from ..exceptions import NoDetectionsWarning
 from . import _kernels
 
@@ -144,34 +143,7 @@ class PointSourceMap:
 
 def _unpack(image, band):
     """Return (float64 data, valid map or None, unit or None, wcs or None)."""
-    mask = None
-    unit = None
-    wcs = None
-    if isinstance(image, NDData):
-        data = image.data
-        if image.mask is not None:
-            mask = np.asarray(image.mask)
-        unit = image.unit
-        wcs = image.wcs
-    elif isinstance(image, np.ma.MaskedArray):
-        data = image.data
-        mask = np.ma.getmaskarray(image)
-    elif isinstance(image, u.Quantity):
-        data = image.value
-        unit = image.unit
-    elif isinstance(image, np.ndarray):
-        data = image
-    else:
-        raise TypeError(
-            f"images[{band!r}] must be a numpy array, NDData or CCDData, got {type(image).__name__}"
-        )
-    data = np.asarray(data)
-    if data.dtype.kind not in "iuf":
-        raise TypeError(
-            f"images[{band!r}] must hold real numbers (integer or float), got dtype {data.dtype}"
-        )
-    if data.ndim != 2:
-        raise ValueError(f"images[{band!r}] must be a 2-D image, got shape {data.shape}")
+    data, mask, unit, wcs, _ = split_image(image, f"images[{band!r}]")
     if data.size == 0:
         raise ValueError(f"images[{band!r}] is empty (shape {data.shape})")
     if mask is not None:
