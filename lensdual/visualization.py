@@ -6,7 +6,12 @@ it, so that figures can be composed, restyled and saved by the caller.
 
 import numpy as np
 
-__all__ = ["plot_true_vs_inferred", "plot_estimator_grid", "plot_error_histograms"]
+__all__ = [
+    "plot_true_vs_inferred",
+    "plot_estimator_grid",
+    "plot_error_histograms",
+    "plot_pairing_map",
+]
 
 _COLOURS = {"2v": "tab:orange", "quad": "tab:blue", "quad2": "tab:green"}
 _LABELS = {"2v": "2v", "quad": "Quad (QW)", "quad2": "Quad, 2nd order"}
@@ -117,5 +122,94 @@ def plot_error_histograms(table, methods=None, *, ax=None, limit=0.3):
                       f"{np.median(np.abs(e)):.1%}")
     ax.set_xlabel("fractional error (clipped)")
     ax.set_ylabel("pairs")
+    ax.legend(fontsize="small")
+    return ax
+
+
+def plot_pairing_map(pairs, catalog1=None, catalog2=None, *, ax=None, offset=None):
+    """The pairing map (paper Fig. 3): both constellations in L2's orientation.
+
+    The L1 positions are flipped (for a map of parity -1) and rotated, not
+    scaled, onto the orientation of L2, as in the paper: the rotation (or
+    reflection) is the orthogonal factor of the polar decomposition of the
+    fitted map from L1 to L2 (``A^-1``, with ``A`` from
+    ``pairs.meta['map']``, or fitted to the pairs when it is missing), applied
+    about the centroid of the paired L1 points, which is moved onto the
+    centroid of the paired L2 points (plus ``offset``). Lines join the pairs;
+    the pair ids label the L2 points.
+
+    Parameters
+    ----------
+    pairs : `~astropy.table.Table`
+        Output of :func:`~lensdual.pairing.pair_constellations` or
+        :func:`~lensdual.pairing.pairs_from_ids`, or any pairs table with
+        ``x1``, ``y1``, ``x2``, ``y2`` (at least 3 pairs without a fitted
+        map) and ``pair_id``.
+    catalog1, catalog2 : `~astropy.table.Table` or `~astropy.units.Quantity`, optional
+        The full catalogues: their unpaired points are drawn as open symbols
+        (positions read as recorded in ``pairs.meta``, see
+        :func:`~lensdual.pairing.pair_constellations`).
+    ax : `matplotlib.axes.Axes`, optional
+    offset : `~astropy.units.Quantity`, shape (2,), optional
+        Shift of the drawn L1 constellation (e.g. to draw it beside L2
+        rather than on top of it). Default: none.
+
+    Returns
+    -------
+    ax : `matplotlib.axes.Axes`
+    """
+    from astropy import units as u
+    from matplotlib.collections import LineCollection
+
+    from .pairing import _catalog_positions, _pairs_positions
+
+    x1, x2 = _pairs_positions(pairs)
+    meta_map = pairs.meta.get("map") or {}
+    a_mat = meta_map.get("A")
+    if a_mat is None:
+        if len(x1) < 3:
+            raise ValueError("pairs has no fitted map (meta['map']) and fewer than 3 pairs")
+        design = np.column_stack([x2, np.ones(len(x2))])
+        a_mat = np.linalg.lstsq(design, x1, rcond=None)[0][:2].T
+    a_mat = np.asarray(a_mat, dtype=float)
+    u_mat, _, vt = np.linalg.svd(np.linalg.inv(a_mat))
+    rot = u_mat @ vt  # orthogonal, det = parity of the map
+    parity = int(np.sign(np.linalg.det(rot)))
+    shift = np.zeros(2) if offset is None else u.Quantity(offset, u.arcsec).value
+    c1, c2 = x1.mean(axis=0), x2.mean(axis=0)
+
+    def to_l2(x):
+        return (x - c1) @ rot.T + c2 + shift
+
+    if ax is None:
+        ax = _plt().subplots(figsize=(5, 5))[1]
+    meta = pairs.meta
+    for cat, name, colour, marker, transform in (
+        (catalog2, "catalog2", "tab:blue", "o", None),
+        (catalog1, "catalog1", "tab:orange", "s", to_l2),
+    ):
+        if cat is None:
+            continue
+        xy = _catalog_positions(cat, name, meta.get("position_columns", ("x", "y")),
+                                meta.get("reference"))
+        if transform is not None:
+            xy = transform(xy)
+        ax.scatter(xy[:, 0], xy[:, 1], s=30, facecolors="none", edgecolors=colour,
+                   marker=marker, lw=0.8, zorder=2)
+    y1 = to_l2(x1)
+    ax.add_collection(LineCollection(np.stack([y1, x2], axis=1), colors="0.5", lw=0.8,
+                                     zorder=1, label="pairs"))
+    ax.scatter(x2[:, 0], x2[:, 1], s=30, color="tab:blue", marker="o", zorder=3, label="L2")
+    what = "flipped and rotated" if parity < 0 else "rotated"
+    ax.scatter(y1[:, 0], y1[:, 1], s=30, color="tab:orange", marker="s", zorder=3,
+               label=f"L1 ({what})")
+    ids = pairs["pair_id"] if "pair_id" in pairs.colnames else np.arange(1, len(x1) + 1)
+    for pid, (x, y) in zip(np.asarray(ids), x2, strict=True):
+        ax.annotate(str(pid), (x, y), xytext=(3, 3), textcoords="offset points",
+                    fontsize="x-small", zorder=4)
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.autoscale_view()
+    ax.set_xlabel("x [arcsec] (L2 frame)")
+    ax.set_ylabel("y [arcsec] (L2 frame)")
     ax.legend(fontsize="small")
     return ax
