@@ -17,8 +17,10 @@ import warnings
 
 import astropy.units as u
 import numpy as np
+from astropy.table import QTable
 
 from lensdual.detection import find_point_sources
+from lensdual.pairing import pair_constellations
 from lensdual.photometry import psf_photometry
 from lensdual.simulation import render_mock_images, smacs0723_analog
 
@@ -41,8 +43,11 @@ def run_seed(seed):
         truth = grid_constellation(system, rng)
         mocks = render_mock_images(system, pairs=truth, seed=seed)
     out = {"found": [], "snr": [], "spurious": 0, "detections": 0, "pos_err": [],
-           "pos_snr": [], "ratio_err": [], "ratio_snr": []}
+           "pos_snr": [], "ratio_err": [], "ratio_snr": [], "pairs_true": 0,
+           "pairs_correct": 0, "pairs_wrong": 0, "wrong_per_system": []}
     fluxes = {}
+    catalogs = {}
+    truth_of = {}
     for k, arc in enumerate(("L1", "L2"), start=1):
         images = mocks.arc(arc)
         true_xy = np.asarray(mocks.truth_pixels(arc))
@@ -67,17 +72,40 @@ def run_seed(seed):
         out["detections"] += len(det)
         out["spurious"] += len(det) - len(used)
         ok = match >= 0
+        if cat is not None:
+            catalogs[arc] = QTable({"id": cat["id"], "sky": cat["sky_centroid"]})
+            truth_of[arc] = {int(cat["id"][j]): i for i, j in enumerate(match) if j >= 0}
         for b in BANDS:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 phot = psf_photometry(images[b], det[match[ok]], warn=False)
             fluxes[(arc, b)] = np.full(len(true_xy), np.nan)
             fluxes[(arc, b)][ok] = phot["flux"]
+            if cat is not None:
+                flux_all = np.full(len(det), np.nan)
+                flux_all[match[ok]] = phot["flux"]
+                catalogs[arc][f"flux_{b}"] = flux_all
             if b == "F150W":
                 fit = np.column_stack([phot["x_fit"], phot["y_fit"]])
                 err = np.hypot(*(fit - true_xy[ok]).T) * 0.04  # arcsec
                 out["pos_err"].extend(err)
                 out["pos_snr"].extend(snr[ok])
+    if len(catalogs) == 2:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            pairs = pair_constellations(catalogs["L1"], catalogs["L2"], position_columns="sky",
+                                        flux_columns=[f"flux_{b}" for b in BANDS], seed=seed)
+        wrong = 0
+        for row in pairs:
+            t1 = truth_of["L1"].get(int(row["id1"]))
+            t2 = truth_of["L2"].get(int(row["id2"]))
+            if t1 is not None and t1 == t2:
+                out["pairs_correct"] += 1
+            else:
+                wrong += 1
+        out["pairs_wrong"] += wrong
+        out["wrong_per_system"].append(wrong)
+        out["pairs_true"] += len(set(truth_of["L1"].values()) & set(truth_of["L2"].values()))
     mu_true = np.asarray(mocks.pairs["mu_true"])
     snr_pair = np.minimum.reduce([np.asarray(mocks.pairs[f"snr{k}_{b}"]) for k in (1, 2)
                                   for b in BANDS])
@@ -112,6 +140,9 @@ def main(argv=None):
         if s.any():
             print(f"  astrometric rms, SNR {lo}-{hi}: {np.sqrt(np.mean(err[s] ** 2)):.4f} arcsec "
                   f"({s.sum()} images)")
+    print(f"automatic pairing: {agg['pairs_correct']} of {agg['pairs_true']} true pairs "
+          f"({agg['pairs_correct'] / max(agg['pairs_true'], 1):.1%}), {agg['pairs_wrong']} wrong "
+          f"(at most {max(agg['wrong_per_system'], default=0)} in one system)")
     rerr, rsnr = np.array(agg["ratio_err"]), np.array(agg["ratio_snr"])
     s = rsnr >= 30
     print(f"flux ratio, both images SNR >= 30: median |ln(measured/true)| = "
