@@ -806,6 +806,29 @@ def _robust_rms(d2, n_params):
 # ---------------------------------------------------------------------------
 
 
+def _pairs_table(id_pairs, ids1, ids2, p, q, sky1, sky2, i, j):
+    """The common columns of a pairs table: ids and positions of the pairs (i, j).
+
+    ``pair_id`` comes from ``id_pairs`` when it is a table with that column,
+    otherwise it counts from 1.
+    """
+    out = QTable()
+    if isinstance(id_pairs, Table) and "pair_id" in id_pairs.colnames:
+        out["pair_id"] = np.asarray(id_pairs["pair_id"])
+    else:
+        out["pair_id"] = np.arange(1, len(i) + 1)
+    out["id1"] = ids1[i]
+    out["id2"] = ids2[j]
+    out["x1"] = p[i, 0] * u.arcsec
+    out["y1"] = p[i, 1] * u.arcsec
+    out["x2"] = q[j, 0] * u.arcsec
+    out["y2"] = q[j, 1] * u.arcsec
+    if sky1 is not None:
+        out["sky1"] = sky1[i]
+        out["sky2"] = sky2[j]
+    return out
+
+
 def pair_constellations(
     catalog1,
     catalog2,
@@ -1083,20 +1106,7 @@ def pair_constellations(
     i, j, conf = i[sort], j[sort], conf[sort]
     res = np.sqrt(d2_all[i, j])
 
-    out = QTable()
-    if method == "manual" and isinstance(ids, Table) and "pair_id" in ids.colnames:
-        out["pair_id"] = np.asarray(ids["pair_id"])
-    else:
-        out["pair_id"] = np.arange(1, len(i) + 1)
-    out["id1"] = ids1[i]
-    out["id2"] = ids2[j]
-    out["x1"] = p[i, 0] * u.arcsec
-    out["y1"] = p[i, 1] * u.arcsec
-    out["x2"] = q[j, 0] * u.arcsec
-    out["y2"] = q[j, 1] * u.arcsec
-    if sky1 is not None:
-        out["sky1"] = sky1[i]
-        out["sky2"] = sky2[j]
+    out = _pairs_table(ids if method == "manual" else None, ids1, ids2, p, q, sky1, sky2, i, j)
     out["residual"] = res * u.arcsec
     out["confidence"] = conf
     if colour_diff is not None:
@@ -1212,20 +1222,7 @@ def pairs_from_ids(
         if not isinstance(template, str) or "{band}" not in template:
             raise ValueError(f"{name} must be a template containing '{{band}}', got {template!r}")
 
-    out = QTable()
-    if isinstance(id_pairs, Table) and "pair_id" in id_pairs.colnames:
-        out["pair_id"] = np.asarray(id_pairs["pair_id"])
-    else:
-        out["pair_id"] = np.arange(1, len(i) + 1)
-    out["id1"] = ids1[i]
-    out["id2"] = ids2[j]
-    out["x1"] = p[i, 0] * u.arcsec
-    out["y1"] = p[i, 1] * u.arcsec
-    out["x2"] = q[j, 0] * u.arcsec
-    out["y2"] = q[j, 1] * u.arcsec
-    if sky1 is not None:
-        out["sky1"] = sky1[i]
-        out["sky2"] = sky2[j]
+    out = _pairs_table(id_pairs, ids1, ids2, p, q, sky1, sky2, i, j)
     for band in bands:
         fcol = flux_columns.format(band=band)
         ecol = flux_err_columns.format(band=band)
