@@ -11,6 +11,7 @@ __all__ = [
     "plot_estimator_grid",
     "plot_error_histograms",
     "plot_pairing_map",
+    "plot_duality",
 ]
 
 _COLOURS = {"2v": "tab:orange", "quad": "tab:blue", "quad2": "tab:green"}
@@ -212,4 +213,92 @@ def plot_pairing_map(pairs, catalog1=None, catalog2=None, *, ax=None, offset=Non
     ax.set_xlabel("x [arcsec] (L2 frame)")
     ax.set_ylabel("y [arcsec] (L2 frame)")
     ax.legend(fontsize="small")
+    return ax
+
+
+_BAND_MARKERS = ("o", "s", "D", "^", "v", "P")
+
+
+def plot_duality(result, *, bands=None, ax=None, annotate=True, title=None):
+    r"""Flux magnification against size magnification (paper Fig. 4).
+
+    Every pair is drawn once per band, at (``mu_size``, ``mu_flux_<band>``)
+    on logarithmic axes with its error bars (``mu_size_p16`` to
+    ``mu_size_p84``, or ``mu_size_err``; ``mu_flux_err_<band>``), labelled by
+    its ``pair_id``. The solid line is geometrical duality, mu_flux =
+    mu_size; pairs flagged ``anomalous`` are drawn in red.
+
+    Parameters
+    ----------
+    result : `~astropy.table.Table`
+        Output of :func:`~lensdual.duality.check_duality`.
+    bands : sequence of str, optional
+        Bands to draw; default ``result.meta['bands']`` (or every
+        ``mu_flux_<band>`` column).
+    ax : `matplotlib.axes.Axes`, optional
+    annotate : bool
+        Write the pair ids beside the points.
+    title : str, optional
+
+    Returns
+    -------
+    ax : `matplotlib.axes.Axes`
+    """
+    missing = [c for c in ("mu_size", "mu_size_err", "pair_id") if c not in result.colnames]
+    if missing:
+        raise ValueError(f"result lacks the columns {missing}: pass the output of "
+                         "lensdual.duality.check_duality")
+    if bands is None:
+        bands = result.meta.get("bands") or [
+            c[len("mu_flux_"):] for c in result.colnames
+            if c.startswith("mu_flux_") and not c.startswith("mu_flux_err")]
+    bands = list(bands)
+    for band in bands:
+        if f"mu_flux_{band}" not in result.colnames:
+            raise ValueError(f"result has no column 'mu_flux_{band}'")
+    if ax is None:
+        ax = _plt().subplots(figsize=(5.5, 5))[1]
+    size = np.asarray(result["mu_size"], dtype=float)
+    if "mu_size_p16" in result.colnames:
+        lo = size - np.asarray(result["mu_size_p16"], dtype=float)
+        hi = np.asarray(result["mu_size_p84"], dtype=float) - size
+    else:
+        lo = hi = np.asarray(result["mu_size_err"], dtype=float)
+    flagged = (np.asarray(result["anomalous"], dtype=bool) if "anomalous" in result.colnames
+               else np.zeros(len(result), dtype=bool))
+    ids = np.asarray(result["pair_id"])
+    values = [size]
+    for k, band in enumerate(bands):
+        flux = np.asarray(result[f"mu_flux_{band}"], dtype=float)
+        ferr = (np.asarray(result[f"mu_flux_err_{band}"], dtype=float)
+                if f"mu_flux_err_{band}" in result.colnames else np.zeros_like(flux))
+        values.append(flux)
+        marker = _BAND_MARKERS[k % len(_BAND_MARKERS)]
+        for sel, colour, label in ((~flagged, f"C{k}", band),
+                                   (flagged, "tab:red", f"{band}, anomalous")):
+            if not sel.any():
+                continue
+            ax.errorbar(size[sel], flux[sel], xerr=[lo[sel], hi[sel]], yerr=ferr[sel],
+                        fmt=marker, ms=5, color=colour, mfc="none" if k else colour,
+                        lw=0.8, capsize=1.5, label=label, zorder=3)
+    if annotate:
+        top = np.nanmax(np.vstack(values[1:]), axis=0)
+        for x, y, i, bad in zip(size, top, ids, flagged, strict=True):
+            if np.isfinite(x) and np.isfinite(y):
+                ax.annotate(str(i), (x, y), xytext=(3, 4), textcoords="offset points",
+                            fontsize=7, color="tab:red" if bad else "0.25")
+    finite = np.concatenate(values)
+    finite = finite[np.isfinite(finite) & (finite > 0)]
+    if finite.size:
+        lo_lim, hi_lim = finite.min() / 1.3, finite.max() * 1.3
+        ax.plot([lo_lim, hi_lim], [lo_lim, hi_lim], "k-", lw=1, label="duality", zorder=1)
+        ax.set_xlim(lo_lim, hi_lim)
+        ax.set_ylim(lo_lim, hi_lim)
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel(r"size magnification $\mu_{\rm size}$")
+    ax.set_ylabel(r"flux magnification $\mu_{\rm flux} = F(L1)/F(L2)$")
+    ax.legend(fontsize="small", loc="upper left")
+    if title:
+        ax.set_title(title)
     return ax

@@ -1,0 +1,856 @@
+"""The ``lensdual`` command line: ``lensdual demo`` and ``lensdual run CONFIG.toml``.
+
+``lensdual demo`` simulates the SMACS0723 analogue of the paper (two cluster
+members and one sub-halo on the L2 image of one point source), renders
+two-band mock images and analyses them with the real-data pipeline, knowing
+nothing of the truth until it compares its results with it at the end.
+``lensdual run`` runs the same pipeline on the FITS images named in a TOML
+configuration file (see :mod:`lensdual.config`).
+
+The pipeline, for both: point sources are detected on each arc
+(:func:`~lensdual.detection.find_point_sources`), measured by PSF photometry
+(:func:`~lensdual.photometry.psf_photometry`, for their colours), paired
+across the arcs (:func:`~lensdual.pairing.pair_constellations`, automatic or
+from a manual list), re-measured as pairs
+(:func:`~lensdual.photometry.measure_pairs`) and tested for geometrical
+duality (:func:`~lensdual.duality.check_duality`).
+
+Exit codes: 0 success, 1 the analysis failed, 2 bad command line or
+configuration (nothing is written then).
+"""
+
+import argparse
+import os
+import shutil
+import sys
+import tempfile
+import time
+import warnings
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+__all__ = [
+    "main",
+    "build_parser",
+    "simulate_demo",
+    "analyse",
+    "Analysis",
+    "PipelineError",
+    "DEMO_SUBHALOES",
+]
+
+#: Sub-halo choices of ``lensdual demo --subhalo``.
+DEMO_SUBHALOES = ("none", "massive", "small", "overconcentrated")
+
+#: The bands of the demo's mock images.
+DEMO_BANDS = ("F150W", "F200W")
+
+EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
+
+_TABLE_COLUMNS_DOC = """\
+pairs.ecsv columns (one row per pair; see the "pairs table" page of the docs):
+pair_id, id1, id2 (catalogue ids), x1, y1, x2, y2 (arcsec, common tangent-plane
+frame, x to the west), sky1, sky2, pos_err1, pos_err2, flux1_<band>,
+flux2_<band>, flux_err1_<band>, flux_err2_<band>, jacobian, parity, mu_size,
+mu_size_err, mu_size_p16, mu_size_p84, mu_flux_<band>, mu_flux_err_<band>,
+mu_flux, mu_flux_err, duality_ratio, duality_ratio_err, snr, snr_paper,
+anomalous."""
+
+
+class PipelineError(RuntimeError):
+    """The analysis cannot go on (no detections, too few pairs, ...)."""
+
+
+# ---------------------------------------------------------------------------
+# progress and output helpers
+# ---------------------------------------------------------------------------
+
+
+class _Progress:
+    """One tqdm bar over the named steps of a command (silent when quiet)."""
+
+    def __init__(self, steps, *, quiet, desc):
+        self.quiet = quiet
+        self.bar = None
+        if not quiet:
+            from tqdm.auto import tqdm
+
+            self.bar = tqdm(total=len(steps), desc=desc, unit="step", file=sys.stderr,
+                            leave=False, dynamic_ncols=True,
+                            bar_format="{desc}: {n_fmt}/{total_fmt} |{bar}| {postfix} "
+                                       "[{elapsed}]")
+
+    @contextmanager
+    def step(self, name):
+        if self.bar is not None:
+            self.bar.set_postfix_str(name)
+        yield
+        if self.bar is not None:
+            self.bar.update(1)
+
+    def close(self):
+        if self.bar is not None:
+            self.bar.close()
+
+
+@contextmanager
+def _atomic_directory(outdir):
+    """Write into a temporary sibling of ``outdir``; move the files there on success.
+
+    Nothing is left in ``outdir`` when the block raises: files already there
+    are only replaced once every output has been written.
+    """
+    outdir = Path(outdir)
+    parent = outdir.resolve().parent
+    parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{outdir.name}.partial-", dir=parent))
+    try:
+        yield tmp
+        outdir.mkdir(parents=True, exist_ok=True)
+        for path in sorted(tmp.rglob("*")):
+            target = outdir / path.relative_to(tmp)
+            if path.is_dir():
+                target.mkdir(parents=True, exist_ok=True)
+            else:
+                os.replace(path, target)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _fmt(value, spec=".3f"):
+    value = float(value)
+    return "nan" if not np.isfinite(value) else format(value, spec)
+
+
+# ---------------------------------------------------------------------------
+# the pipeline shared by demo and run
+# ---------------------------------------------------------------------------
+
+
+@dataclass
+class Analysis:
+    """What :func:`analyse` found.
+
+    Attributes
+    ----------
+    catalogs : dict of str to `~astropy.table.QTable`
+        The point-source catalogue of each arc (``"L1"``, ``"L2"``) with its
+        PSF fluxes per band.
+    pairs : `~astropy.table.QTable`
+        The pairing (output of :func:`~lensdual.pairing.pair_constellations`).
+    result : `~astropy.table.QTable`
+        The duality table (output of :func:`~lensdual.duality.check_duality`
+        on the PSF-measured pairs).
+    sigma_pos : `~astropy.units.Quantity`
+        The positional errors used for the bootstrap.
+    warnings : list of str
+        The distinct warnings raised on the way.
+    """
+
+    catalogs: dict
+    pairs: object
+    result: object
+    sigma_pos: object
+    warnings: list = field(default_factory=list)
+
+
+def _catalogue(images, psf, catalog=None):
+    """Detections (or the given catalogue) of one arc, with PSF fluxes per band."""
+    from astropy.table import QTable
+
+    from .detection import find_point_sources
+    from .photometry import psf_photometry
+
+    bands = list(images)
+    if catalog is None:
+        cat = find_point_sources(images)
+        if cat is None:
+            return None
+        out = QTable({"id": cat["id"], "sky": cat["sky_centroid"],
+                      "x_pix": cat["x_centroid"], "y_pix": cat["y_centroid"]})
+    else:
+        wcs = images[bands[0]].wcs
+        x, y = wcs.world_to_pixel(catalog["sky"])
+        out = QTable({"id": catalog["id"], "sky": catalog["sky"], "x_pix": x, "y_pix": y})
+    for band in bands:
+        image = images[band]
+        xy = np.column_stack(image.wcs.world_to_pixel(out["sky"]))
+        phot = psf_photometry(image, xy, psf=psf.get(band), warn=False)
+        out[f"flux_{band}"] = phot["flux"]
+        out[f"flux_err_{band}"] = phot["flux_err"]
+    return out
+
+
+def analyse(images, *, psf=None, estimator="quad2", sigma_pos="auto", n_bootstrap=1000,
+            snr_threshold=3.0, seed=0, catalogs=None, manual_pairs=None, progress=None):
+    """Run the pipeline from images of two arcs to the duality table.
+
+    Parameters
+    ----------
+    images : dict
+        ``{"L1": {band: CCDData}, "L2": {band: CCDData}}``; every image needs
+        a celestial WCS; the same bands on both arcs.
+    psf : dict of str to PSF, optional
+        Per band, what :func:`~lensdual.photometry.psf_photometry` takes as
+        ``psf`` (a FWHM, a PSF image, or None to fit a Gaussian FWHM).
+    estimator : {"quad2", "quad", "2v"}
+        Size-magnification estimator.
+    sigma_pos : "auto" or `~astropy.units.Quantity`
+        Positional error of the bootstrap. ``"auto"`` (default): each point
+        source's own error from the PSF fits (``pos_err1``, ``pos_err2``).
+    n_bootstrap, snr_threshold, seed
+        As in :func:`~lensdual.duality.check_duality`; ``seed`` also seeds
+        the pairing.
+    catalogs : dict of str to `~astropy.table.Table`, optional
+        Point-source lists of the arcs (``id`` and ``sky`` columns) used
+        instead of detection.
+    manual_pairs : `~astropy.table.Table`, optional
+        ``id1``, ``id2`` of the pairs (catalogue ids): manual pairing.
+    progress : `_Progress`, optional
+
+    Returns
+    -------
+    `Analysis`
+
+    Raises
+    ------
+    PipelineError
+        No point sources on an arc, or too few pairs.
+    """
+    import astropy.units as u
+
+    from .duality import check_duality
+    from .pairing import pair_constellations
+    from .photometry import measure_pairs
+
+    psf = dict(psf or {})
+    progress = progress or _Progress([], quiet=True, desc="")
+    bands = list(images["L1"])
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        cats = {}
+        for arc in ("L1", "L2"):
+            with progress.step(f"detect + photometry {arc}"):
+                given = None if catalogs is None else catalogs[arc]
+                cats[arc] = _catalogue(images[arc], psf, given)
+            if cats[arc] is None or len(cats[arc]) < 3:
+                n = 0 if cats[arc] is None else len(cats[arc])
+                raise PipelineError(f"only {n} point source(s) found on arc {arc}: at least 3 "
+                                    "are needed to pair the arcs")
+        with progress.step("pair"):
+            try:
+                pairs = pair_constellations(
+                    cats["L1"], cats["L2"], ids=manual_pairs, position_columns="sky",
+                    flux_columns=[f"flux_{b}" for b in bands], seed=seed)
+            except ValueError as err:
+                raise PipelineError(f"pairing failed: {err}") from err
+            if len(pairs) < 3:
+                raise PipelineError(f"only {len(pairs)} pair(s) found: at least 3 are needed")
+        with progress.step("PSF photometry of the pairs"):
+            measured = measure_pairs(images["L1"], images["L2"], pairs, psf=psf, bands=bands)
+        with progress.step(f"mu_size ({estimator}, {n_bootstrap} bootstraps)"):
+            if isinstance(sigma_pos, str):
+                sigma = np.vstack([measured["pos_err1"].to_value(u.arcsec),
+                                   measured["pos_err2"].to_value(u.arcsec)]) * u.arcsec
+            else:
+                sigma = sigma_pos
+            result = check_duality(measured, estimator, sigma_pos=sigma,
+                                   n_bootstrap=n_bootstrap, snr_threshold=snr_threshold,
+                                   seed=seed)
+    messages = list(dict.fromkeys(f"{w.category.__name__}: {w.message}" for w in caught))
+    return Analysis(cats, pairs, result, sigma, messages)
+
+
+# ---------------------------------------------------------------------------
+# the demo's simulation and truth
+# ---------------------------------------------------------------------------
+
+
+def _demo_sources(n_sources, rng):
+    """A jittered grid of ``n_sources`` sources inside the analogue's fold caustic.
+
+    Table 1's Gaussian of 0.06 arcsec is not resolved at 0.04 arcsec per
+    pixel; a grid of 3 columns over the same patch of the source plane keeps
+    the images 2-4 PSF widths apart.
+    """
+    n_rows = -(-n_sources // 3)
+    gx = np.array([0.35, 0.65, 0.95])
+    gy = np.linspace(6.70, 7.06, max(n_rows, 4))[:n_rows]
+    gx, gy = np.meshgrid(gx, gy)
+    beta = np.column_stack([gx.ravel(), gy.ravel()])[:n_sources]
+    return beta + rng.uniform(-0.02, 0.02, beta.shape)
+
+
+def simulate_demo(*, subhalo="overconcentrated", n_sources=12, seed=0, subhalo_source=None):
+    """The demo's lens: the SMACS0723 analogue, its members and one sub-halo.
+
+    Parameters
+    ----------
+    subhalo : {"overconcentrated", "massive", "small", "none"}
+        The paper's sub-haloes (see `lensdual.simulation.SUBHALOES`): 1e8
+        Msun with c = 100, 1e9 Msun and 1e8 Msun on the mass-concentration
+        relation. It is put 2 mas from the L2 image of one point source.
+    n_sources : int
+        Point sources (3-18), on a jittered grid of 3 columns.
+    seed : int
+        Seed of the positions and fluxes.
+    subhalo_source : int, optional
+        Which source's L2 image gets the sub-halo; default ``n_sources // 3``.
+
+    Returns
+    -------
+    system : `~lensdual.simulation.LensSystem`
+    truth : `~astropy.table.QTable`
+        The true pairs (``system.constellation``) plus ``mu_macro``, the true
+        ``|mu(L1)/mu(L2)|`` without the sub-halo (what ``mu_size`` measures),
+        and ``subhalo`` (True for the perturbed pair).
+    """
+    import astropy.units as u
+
+    from .simulation import SUBHALOES, smacs0723_analog, tnfw_halo
+    from .simulation.scenarios import SMACS0723
+
+    if subhalo not in DEMO_SUBHALOES:
+        raise ValueError(f"subhalo must be one of {DEMO_SUBHALOES}, got {subhalo!r}")
+    if not 3 <= int(n_sources) <= 18:
+        raise ValueError(f"n_sources must be between 3 and 18, got {n_sources}")
+    n_sources = int(n_sources)
+    k = n_sources // 3 if subhalo_source is None else int(subhalo_source)
+    if not 0 <= k < n_sources:
+        raise ValueError(f"subhalo_source must be in [0, {n_sources}), got {subhalo_source}")
+    rng = np.random.default_rng(seed)
+    base = smacs0723_analog(perturbers=True, seed=seed)
+    beta = _demo_sources(n_sources, rng) * u.arcsec
+    f0 = 10 ** rng.uniform(np.log10(3.0), 1.0, n_sources)
+    flux = {"F150W": f0, "F200W": f0 * 10 ** rng.normal(-0.05, 0.1, n_sources)}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        macro = base.constellation(beta, intrinsic_flux=flux)
+    system = base
+    if subhalo != "none":
+        mass, conc = SUBHALOES[subhalo]
+        host = np.array([macro["x2"][k].to_value(u.arcsec), macro["y2"][k].to_value(u.arcsec)])
+        sub = tnfw_halo(mass, conc, (host + [0.002, 0.0]) * u.arcsec,
+                        z_lens=SMACS0723["z_lens"], z_source=SMACS0723["z_source"],
+                        label=f"{subhalo} sub-halo")
+        system = base.add(sub)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        truth = system.constellation(beta, intrinsic_flux=flux)
+    truth["mu_macro"] = macro["mu_true"]
+    truth["subhalo"] = np.zeros(n_sources, dtype=bool)
+    if subhalo != "none":
+        truth["subhalo"][k] = True
+    truth.meta["subhalo"] = subhalo
+    return system, truth
+
+
+def compare_with_truth(result, truth, sky_center, *, max_separation=0.1):
+    """Match the measured pairs to the simulated ones and compare.
+
+    Parameters
+    ----------
+    result : `~astropy.table.QTable`
+        The duality table (``sky1``, ``sky2`` columns).
+    truth : `~astropy.table.QTable`
+        Output of :func:`simulate_demo`.
+    sky_center : `~astropy.coordinates.SkyCoord`
+        Sky position of the lens frame's origin.
+    max_separation : float
+        Largest L2 separation (arcsec) of a match.
+
+    Returns
+    -------
+    table : `~astropy.table.QTable`
+        One row per measured pair: ``pair_id``, ``source`` (-1 when
+        unmatched), ``mu_macro``, ``mu_true``, ``mu_size``, ``size_error``
+        (``mu_size / mu_macro - 1``), ``mu_flux``, ``flux_error``
+        (``mu_flux / mu_true - 1``), ``subhalo``, ``anomalous``.
+        ``meta`` holds the summary: ``n_true``, ``n_matched``,
+        ``subhalo_flagged`` (None without a sub-halo), ``false_flags``,
+        ``median_abs_size_error``, ``max_abs_size_error``.
+    """
+    import astropy.units as u
+    from astropy.table import QTable
+
+    from .simulation import lens_to_sky
+
+    true_sky1 = lens_to_sky(np.column_stack([truth["x1"].to_value(u.arcsec),
+                                             truth["y1"].to_value(u.arcsec)]) * u.arcsec,
+                            sky_center)
+    true_sky2 = lens_to_sky(np.column_stack([truth["x2"].to_value(u.arcsec),
+                                             truth["y2"].to_value(u.arcsec)]) * u.arcsec,
+                            sky_center)
+    idx2, sep2, _ = result["sky2"].match_to_catalog_sky(true_sky2)
+    sep1 = result["sky1"].separation(true_sky1[idx2])
+    ok = (sep2.to_value(u.arcsec) < max_separation) & (sep1.to_value(u.arcsec) < max_separation)
+    source = np.where(ok, idx2, -1)
+    n = len(result)
+
+    def pick(col):
+        values = np.asarray(truth[col], dtype=float)
+        return np.where(ok, values[idx2], np.nan)
+
+    out = QTable()
+    out["pair_id"] = result["pair_id"]
+    out["source"] = source
+    out["mu_macro"] = pick("mu_macro")
+    out["mu_true"] = pick("mu_true")
+    out["mu_size"] = np.asarray(result["mu_size"], dtype=float)
+    out["size_error"] = out["mu_size"] / out["mu_macro"] - 1
+    out["mu_flux"] = np.asarray(result["mu_flux"], dtype=float)
+    out["flux_error"] = out["mu_flux"] / out["mu_true"] - 1
+    sub = np.asarray(truth["subhalo"], dtype=bool)
+    out["subhalo"] = np.where(ok, sub[idx2], False)
+    out["anomalous"] = np.asarray(result["anomalous"], dtype=bool)
+    errors = np.abs(np.asarray(out["size_error"], dtype=float))
+    errors = errors[np.isfinite(errors)]
+    distinct = len(set(source[ok].tolist()))
+    out.meta.update({
+        "n_true": len(truth),
+        "n_matched": distinct,
+        "subhalo_flagged": (bool(out["anomalous"][out["subhalo"]].any())
+                            if sub.any() and out["subhalo"].any() else
+                            (False if sub.any() else None)),
+        "false_flags": int(np.sum(out["anomalous"] & ~out["subhalo"])),
+        "median_abs_size_error": float(np.median(errors)) if errors.size else np.nan,
+        "max_abs_size_error": float(np.max(errors)) if errors.size else np.nan,
+        "n_pairs": n,
+    })
+    return out
+
+
+# ---------------------------------------------------------------------------
+# reporting
+# ---------------------------------------------------------------------------
+
+
+def format_pairs_table(result):
+    """The per-pair table as printed by the commands (a str)."""
+    bands = list(result.meta.get("bands", []))
+    head = ["pair", "id1", "id2"] + [f"mu_flux {b}" for b in bands] + [
+        "mu_size", "+-", "ratio", "SNR", "flag"]
+    rows = []
+    for row in result:
+        cells = [str(row["pair_id"]), str(row["id1"]), str(row["id2"])]
+        cells += [_fmt(row[f"mu_flux_{b}"]) for b in bands]
+        cells += [_fmt(row["mu_size"]), _fmt(row["mu_size_err"]),
+                  _fmt(row["duality_ratio"]), _fmt(row["snr"], ".1f"),
+                  "ANOMALOUS" if row["anomalous"] else "ok"]
+        rows.append(cells)
+    widths = [max(len(h), *(len(r[k]) for r in rows)) if rows else len(h)
+              for k, h in enumerate(head)]
+    lines = ["  ".join(h.rjust(w) for h, w in zip(head, widths, strict=True))]
+    lines.append("  ".join("-" * w for w in widths))
+    lines += ["  ".join(c.rjust(w) for c, w in zip(r, widths, strict=True)) for r in rows]
+    return "\n".join(lines)
+
+
+def verdict(result, sigma_pos):
+    """One paragraph on which pairs break duality, and how strongly (a str)."""
+    import astropy.units as u
+
+    meta = result.meta.get("duality", {})
+    bands = list(result.meta.get("bands", []))
+    threshold = meta.get("snr_threshold", 3.0)
+    sig = np.asarray(u.Quantity(sigma_pos, u.arcsec).to_value(u.mas))
+    if sig.size > 1:
+        sig_text = f"positional errors from the PSF fits (median {np.median(sig):.1f} mas)"
+    else:
+        sig_text = f"sigma_pos = {float(sig):.1f} mas"
+    text = (f"{len(result)} point-source pairs were measured on arcs L1 and L2 in "
+            f"{len(bands)} band{'s' if len(bands) != 1 else ''} ({', '.join(bands)}). "
+            f"Size magnifications from the {meta.get('method', '?')} estimator with "
+            f"{sig_text} and {meta.get('n_bootstrap', '?')} bootstrap realisations; a pair is "
+            f"anomalous when |ln(mu_flux/mu_size)| exceeds {threshold:g} times its error. ")
+    bad = result[np.asarray(result["anomalous"], dtype=bool)]
+    if len(bad) == 0:
+        text += ("No pair breaks geometrical duality: flux and size magnifications agree "
+                 "everywhere, so no sub-halo is detected near these point sources.")
+        return text
+    parts = []
+    for row in bad:
+        ratio = float(row["duality_ratio"])
+        if ratio > 1:
+            how = f"its L1 image is {ratio - 1:.0%} brighter, relative to L2,"
+        else:
+            how = f"its L2 image is {1 / ratio - 1:.0%} brighter, relative to L1,"
+        parts.append(f"pair {row['pair_id']} (mu_flux = {_fmt(row['mu_flux'])} +- "
+                     f"{_fmt(row['mu_flux_err'])}, mu_size = {_fmt(row['mu_size'])} +- "
+                     f"{_fmt(row['mu_size_err'])}, ratio {_fmt(ratio, '.2f')}, SNR "
+                     f"{_fmt(row['snr'], '.1f')}: {how} than the geometry allows)")
+    n_bad = len(bad)
+    text += (f"{n_bad} pair{'s break' if n_bad > 1 else ' breaks'} geometrical duality: "
+             + "; ".join(parts) + ". A flux anomaly at fixed geometry is the signature of "
+             "unseen sub-structure (a sub-halo) near one of the two images. "
+             f"The other {len(result) - n_bad} pairs agree with duality.")
+    return text
+
+
+def _truth_paragraph(comparison):
+    meta = comparison.meta
+    text = (f"Compared with the injected truth: {meta['n_matched']} of {meta['n_true']} "
+            f"simulated sources were found and paired; mu_size matches the true "
+            f"|mu(L1)/mu(L2)| of the smooth lens to {meta['median_abs_size_error']:.1%} "
+            f"(median; worst {meta['max_abs_size_error']:.1%}). ")
+    flagged = meta["subhalo_flagged"]
+    if flagged is None:
+        text += "No sub-halo was injected. "
+    else:
+        sub = comparison[np.asarray(comparison["subhalo"], dtype=bool)]
+        which = f"pair {sub['pair_id'][0]}" if len(sub) else "its pair (not recovered)"
+        text += (f"The sub-haloed pair ({which}) was "
+                 f"{'flagged' if flagged else 'NOT flagged'}. ")
+    text += f"False flags: {meta['false_flags']}."
+    return text
+
+
+# ---------------------------------------------------------------------------
+# writing
+# ---------------------------------------------------------------------------
+
+
+def _write_table(table, path):
+    table.write(path, format="ascii.ecsv", overwrite=True)
+
+
+def _write_figures(analysis, directory, *, title):
+    import matplotlib
+
+    if matplotlib.get_backend().lower() not in ("agg", "pdf", "svg", "cairo"):
+        matplotlib.use("agg")
+    import matplotlib.pyplot as plt
+
+    from .visualization import plot_duality, plot_pairing_map
+
+    fig, ax = plt.subplots(figsize=(5.5, 5.5))
+    plot_pairing_map(analysis.pairs, analysis.catalogs["L1"], analysis.catalogs["L2"], ax=ax)
+    ax.set_title(f"{title}: pairing (L1 rotated onto L2)", fontsize="medium")
+    fig.tight_layout()
+    fig.savefig(directory / "pairing_map.png", dpi=120)
+    plt.close(fig)
+    fig, ax = plt.subplots(figsize=(5.5, 5.5))
+    plot_duality(analysis.result, ax=ax, title=f"{title}: duality test")
+    fig.tight_layout()
+    fig.savefig(directory / "duality.png", dpi=120)
+    plt.close(fig)
+
+
+def _write_analysis(analysis, directory, report_text, *, title):
+    for arc, cat in analysis.catalogs.items():
+        _write_table(cat, directory / f"catalog_{arc}.ecsv")
+    _write_table(analysis.result, directory / "pairs.ecsv")
+    _write_figures(analysis, directory, title=title)
+    (directory / "report.txt").write_text(report_text + "\n")
+
+
+def _report(analysis, extra=()):
+    parts = [format_pairs_table(analysis.result), "", verdict(analysis.result,
+                                                             analysis.sigma_pos)]
+    parts += [p for p in extra if p]
+    if analysis.warnings:
+        parts += ["", "Warnings raised on the way:"] + [f"  {w}" for w in analysis.warnings]
+    return "\n".join(parts)
+
+
+def _parametric_outputs(analysis, directory, *, lenstool=None, fit=False, model=None,
+                        z_lens=None, z_source=None, seed=0):
+    """The parametric comparison: table and figure into ``directory``."""
+    import matplotlib.pyplot as plt
+
+    from .parametric import parametric_comparison
+
+    kwargs = {"lenstool": lenstool, "fit": fit, "z_lens": z_lens, "z_source": z_source,
+              "seed": seed}
+    if model is not None:
+        kwargs["model"] = tuple(model)
+    table, fig = parametric_comparison(analysis.result, **kwargs)
+    _write_table(table, directory / "parametric.ecsv")
+    fig.savefig(directory / "parametric.png", dpi=120)
+    plt.close(fig)
+    return table
+
+
+# ---------------------------------------------------------------------------
+# the demo's config for ``lensdual run``
+# ---------------------------------------------------------------------------
+
+
+def _write_run_inputs(mocks, directory, *, estimator, n_bootstrap, snr_threshold, seed,
+                      parametric=False):
+    """FITS images, error maps and PSFs of the mocks, and a config that reads them."""
+    from astropy.io import fits
+
+    data = directory / "data"
+    data.mkdir(parents=True, exist_ok=True)
+    config = {
+        "output": {"outdir": "run-output"},
+        "analysis": {"estimator": estimator, "sigma_pos": "auto",
+                     "n_bootstrap": int(n_bootstrap), "snr_threshold": float(snr_threshold),
+                     "seed": int(seed)},
+        "bands": {}, "arcs": {"L1": {}, "L2": {}},
+    }
+    for (arc, band), image in mocks.items():
+        header = image.wcs.to_header()
+        header["BUNIT"] = image.unit.to_string()
+        header["BAND"] = band
+        fits.writeto(data / f"{arc}_{band}_sci.fits", np.asarray(image.data, dtype=float),
+                     header, overwrite=True)
+        fits.writeto(data / f"{arc}_{band}_err.fits",
+                     np.asarray(image.uncertainty.array, dtype=float), header, overwrite=True)
+        config["arcs"][arc][band] = {"image": f"data/{arc}_{band}_sci.fits",
+                                     "error": f"data/{arc}_{band}_err.fits"}
+        if band not in config["bands"]:
+            fits.writeto(data / f"psf_{band}.fits", np.asarray(image.psf, dtype=float),
+                         overwrite=True)
+            config["bands"][band] = {"psf": f"data/psf_{band}.fits"}
+    if parametric:
+        config["parametric"] = {"fit": True, "z_lens": 0.39, "z_source": 2.2}
+    header = ("lensdual run configuration written by `lensdual demo --write-config`:\n"
+              "the demo's mock images as FITS files (science, error map, PSF),\n"
+              "analysed with the demo's settings. Run it with\n"
+              "    lensdual run run.toml\n"
+              "Relative paths are relative to this file.")
+    return config, header
+
+
+# ---------------------------------------------------------------------------
+# commands
+# ---------------------------------------------------------------------------
+
+
+def _print(args, text=""):
+    if not args.quiet:
+        print(text, flush=True)
+
+
+def _cmd_demo(args):
+    import astropy.units as u
+    from astropy.coordinates import SkyCoord
+
+    from .simulation import render_mock_images, write_mock_images
+
+    start = time.perf_counter()
+    steps = ["simulate", "render", "detect L1", "detect L2", "pair", "photometry", "mu_size",
+             "write"] + (["parametric"] if args.parametric else [])
+    progress = _Progress(steps, quiet=args.quiet, desc="lensdual demo")
+    try:
+        with progress.step("simulate the lens"):
+            system, truth = simulate_demo(subhalo=args.subhalo, n_sources=args.n_sources,
+                                          seed=args.seed)
+        with progress.step("render mock images"):
+            mocks = render_mock_images(system, bands=DEMO_BANDS, pairs=truth, seed=args.seed)
+        images = {arc: dict(mocks.arc(arc)) for arc in ("L1", "L2")}
+        psf = {band: np.asarray(mocks[("L1", band)].psf) for band in DEMO_BANDS}
+        analysis = analyse(images, psf=psf, estimator=args.estimator, sigma_pos="auto",
+                           n_bootstrap=args.n_bootstrap, snr_threshold=args.snr_threshold,
+                           seed=args.seed, progress=progress)
+        meta = mocks[("L1", DEMO_BANDS[0])].meta
+        centre = SkyCoord(meta["LENSRA"] * u.deg, meta["LENSDEC"] * u.deg)
+        comparison = compare_with_truth(analysis.result, truth, centre)
+        report = _report(analysis, ["", _truth_paragraph(comparison)])
+        with _atomic_directory(args.outdir) as tmp:
+            with progress.step("write outputs"):
+                write_mock_images(mocks, tmp / "images")
+                _write_table(comparison, tmp / "truth_comparison.ecsv")
+                if args.write_config:
+                    config, header = _write_run_inputs(
+                        mocks, tmp, estimator=args.estimator, n_bootstrap=args.n_bootstrap,
+                        snr_threshold=args.snr_threshold, seed=args.seed,
+                        parametric=args.parametric)
+                    from .config import write_config
+
+                    write_config(tmp / "run.toml", config, header=header)
+            if args.parametric:
+                with progress.step("parametric fit"):
+                    _parametric_outputs(analysis, tmp, fit=True, z_lens=0.39, z_source=2.2,
+                                        seed=args.seed)
+            _write_analysis(analysis, tmp, report, title="lensdual demo")
+    except PipelineError as err:
+        progress.close()
+        print(f"lensdual demo: {err}", file=sys.stderr)
+        return EXIT_FAILED
+    progress.close()
+    _print(args, report)
+    _print(args, f"\nOutputs in {args.outdir} ({time.perf_counter() - start:.1f} s).")
+    return EXIT_OK
+
+
+def _cmd_run(args):
+    from astropy.table import QTable
+
+    from .config import ConfigError, band_psfs, load_config, load_images
+
+    start = time.perf_counter()
+    try:
+        config = load_config(args.config, outdir=args.outdir)
+    except ConfigError as err:
+        print(f"lensdual run: {err}", file=sys.stderr)
+        return EXIT_USAGE
+    par = config.parametric
+    steps = ["read", "detect L1", "detect L2", "pair", "photometry", "mu_size", "write"]
+    if par is not None:
+        steps.append("parametric")
+    progress = _Progress(steps, quiet=args.quiet, desc="lensdual run")
+    try:
+        with progress.step("read images"):
+            images = load_images(config)
+            psf = band_psfs(config)
+            catalogs = None
+            if config.catalogs is not None:
+                catalogs = {arc: _read_catalog(path) for arc, path in config.catalogs.items()}
+            manual = None
+            if config.pairing_method == "manual":
+                manual = QTable.read(config.pairs_file, format="ascii.ecsv")
+        analysis = analyse(images, psf=psf, estimator=config.estimator,
+                           sigma_pos=config.sigma_pos, n_bootstrap=config.n_bootstrap,
+                           snr_threshold=config.snr_threshold, seed=config.seed,
+                           catalogs=catalogs, manual_pairs=manual, progress=progress)
+        extra = []
+        with _atomic_directory(config.outdir) as tmp:
+            if par is not None and (par.lenstool is not None or par.fit):
+                with progress.step("parametric comparison"):
+                    table = _parametric_outputs(
+                        analysis, tmp, lenstool=par.lenstool, fit=par.fit, model=par.model,
+                        z_lens=par.z_lens, z_source=par.z_source, seed=config.seed)
+                extra = ["", f"Parametric comparison written ({len(table)} pairs): "
+                         "parametric.ecsv, parametric.png."]
+            report = _report(analysis, extra)
+            with progress.step("write outputs"):
+                _write_analysis(analysis, tmp, report, title=Path(args.config).stem)
+    except (PipelineError, ConfigError) as err:
+        progress.close()
+        print(f"lensdual run: {err}", file=sys.stderr)
+        return EXIT_FAILED
+    progress.close()
+    _print(args, report)
+    _print(args, f"\nOutputs in {config.outdir} ({time.perf_counter() - start:.1f} s).")
+    return EXIT_OK
+
+
+def _read_catalog(path):
+    import astropy.units as u
+    from astropy.coordinates import SkyCoord
+    from astropy.table import QTable
+
+    cat = QTable.read(path, format="ascii.ecsv")
+    if "sky" not in cat.colnames:
+        cat["sky"] = SkyCoord(u.Quantity(cat["ra"], u.deg), u.Quantity(cat["dec"], u.deg))
+    return cat
+
+
+def _positive_int(text):
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {value}")
+    return value
+
+
+def _positive_float(text):
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"expected a number > 0, got {value}")
+    return value
+
+
+def build_parser():
+    """The `argparse.ArgumentParser` of the ``lensdual`` command."""
+    from . import __version__
+    from .estimators import METHODS
+
+    parser = argparse.ArgumentParser(
+        prog="lensdual",
+        description="Find dark sub-haloes with geometrical duality: compare the flux ratio "
+                    "of each point-source pair of two lens arcs with its model-independent "
+                    "size magnification.",
+        epilog="Run 'lensdual demo' first: it needs no files and takes about a minute.")
+    parser.add_argument("--version", action="version", version=f"lensdual {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+
+    demo = sub.add_parser(
+        "demo", help="simulate the paper's SMACS0723 analogue and run the whole pipeline",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        description="Simulate the SMACS0723 analogue of the paper (main halo, two cluster "
+                    "members, one sub-halo 2 mas from the L2 image of one point source), "
+                    "render two-band JWST-like mock images (F150W, F200W), then detect, pair "
+                    "automatically, measure by PSF photometry, estimate the size "
+                    "magnification with bootstrap errors and test duality, without using "
+                    "the truth; at the end, compare with the injected truth. Writes the "
+                    "images (FITS), catalogues and the pairs table (ECSV), the pairing map "
+                    "and the duality figure (PNG) and a report to OUTDIR.",
+        epilog=_TABLE_COLUMNS_DOC)
+    demo.add_argument("--outdir", default="lensdual-demo", type=Path,
+                      help="output directory (created; files in it are replaced)")
+    demo.add_argument("--subhalo", choices=DEMO_SUBHALOES, default="overconcentrated",
+                      help="the injected sub-halo: 1e8 Msun with c = 100 "
+                           "(overconcentrated), 1e9 Msun (massive) or 1e8 Msun (small) on the "
+                           "mass-concentration relation, or none")
+    demo.add_argument("--seed", type=int, default=0,
+                      help="seed of the simulation, noise, pairing and bootstrap")
+    demo.add_argument("--n-sources", type=_positive_int, default=12,
+                      help="point sources in the constellation (3-18)")
+    demo.add_argument("--n-bootstrap", type=_positive_int, default=1000,
+                      help="bootstrap realisations of the positional noise")
+    demo.add_argument("--estimator", choices=sorted(METHODS), default="quad2",
+                      help="size-magnification estimator (quad2: second-order fit, the most "
+                           "accurate with PSF-fit astrometry)")
+    demo.add_argument("--snr-threshold", type=_positive_float, default=3.0,
+                      help="a pair is anomalous above this duality SNR")
+    demo.add_argument("--write-config", action="store_true",
+                      help="also write the mock images as FITS files with error maps and "
+                           "PSFs under OUTDIR/data and a matching OUTDIR/run.toml for "
+                           "'lensdual run'")
+    demo.add_argument("--parametric", action="store_true",
+                      help="also fit a parametric lenstronomy model (NFW_ELLIPSE_CSE + SHEAR) "
+                           "to the pairs and compare its magnification ratios "
+                           "(parametric.ecsv, parametric.png)")
+    demo.add_argument("--quiet", "-q", action="store_true",
+                      help="print nothing (no progress bars, no table); errors still go to "
+                           "stderr")
+    demo.set_defaults(func=_cmd_demo)
+
+    run = sub.add_parser(
+        "run", help="run the pipeline on real images named in a TOML configuration file",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="Run the pipeline on the FITS images of a TOML configuration file "
+                    "(images, error or weight maps, PSFs per band and arc; optional "
+                    "cut-outs, catalogues, manual pairs, parametric models). The whole "
+                    "file is checked before any work starts: every problem is listed in "
+                    "one message and the exit code is 2. Outputs (catalogue_L1/L2.ecsv, "
+                    "pairs.ecsv, pairing_map.png, duality.png, report.txt) appear in the "
+                    "output directory only when all of them have been written. "
+                    "'lensdual demo --write-config' writes an example.",
+        epilog=_TABLE_COLUMNS_DOC + "\n\nConfiguration keys: see the lensdual.config "
+               "documentation (python -c 'import lensdual.config; "
+               "help(lensdual.config)').")
+    run.add_argument("config", type=Path, help="the TOML configuration file")
+    run.add_argument("--outdir", type=Path, default=None,
+                     help="output directory (overrides [output] outdir of the file)")
+    run.add_argument("--quiet", "-q", action="store_true",
+                     help="print nothing (no progress bars, no table); errors still go to "
+                          "stderr")
+    run.set_defaults(func=_cmd_run)
+    return parser
+
+
+def main(argv=None):
+    """Entry point of the ``lensdual`` command; returns the exit code."""
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # --help, --version, usage errors
+        return int(exc.code or 0)
+    return args.func(args)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
