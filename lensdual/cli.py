@@ -742,14 +742,20 @@ def _read_catalog(path):
     return cat
 
 
-def _positive_int(text):
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {value}")
-    return value
+def _int_range(lo, hi=None):
+    """An argparse type: an integer in [lo, hi]."""
+
+    def convert(text):
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if value < lo or (hi is not None and value > hi):
+            bound = f">= {lo}" if hi is None else f"between {lo} and {hi}"
+            raise argparse.ArgumentTypeError(f"expected an integer {bound}, got {value}")
+        return value
+
+    return convert
 
 
 def _positive_float(text):
@@ -794,11 +800,11 @@ def build_parser():
                       help="the injected sub-halo: 1e8 Msun with c = 100 "
                            "(overconcentrated), 1e9 Msun (massive) or 1e8 Msun (small) on the "
                            "mass-concentration relation, or none")
-    demo.add_argument("--seed", type=int, default=0,
+    demo.add_argument("--seed", type=_int_range(0), default=0,
                       help="seed of the simulation, noise, pairing and bootstrap")
-    demo.add_argument("--n-sources", type=_positive_int, default=12,
+    demo.add_argument("--n-sources", type=_int_range(3, 18), default=12,
                       help="point sources in the constellation (3-18)")
-    demo.add_argument("--n-bootstrap", type=_positive_int, default=1000,
+    demo.add_argument("--n-bootstrap", type=_int_range(10), default=1000,
                       help="bootstrap realisations of the positional noise")
     demo.add_argument("--estimator", choices=sorted(METHODS), default="quad2",
                       help="size-magnification estimator (quad2: second-order fit, the most "

@@ -1,0 +1,276 @@
+"""The ``lensdual`` command: demo, run on the demo's config, bad configs."""
+
+import os
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+from astropy.table import QTable
+
+from lensdual.cli import main
+
+FAST = ["--n-sources", "8", "--n-bootstrap", "200", "--seed", "3"]
+
+DOCUMENTED_COLUMNS = [
+    "pair_id", "id1", "id2", "x1", "y1", "x2", "y2", "sky1", "sky2", "pos_err1", "pos_err2",
+    "flux1_F150W", "flux2_F150W", "flux_err1_F150W", "flux_err2_F150W",
+    "flux1_F200W", "flux2_F200W", "flux_err1_F200W", "flux_err2_F200W",
+    "jacobian", "parity", "mu_size", "mu_size_err", "mu_size_p16", "mu_size_p84",
+    "mu_flux_F150W", "mu_flux_err_F150W", "mu_flux_F200W", "mu_flux_err_F200W",
+    "mu_flux", "mu_flux_err", "duality_ratio", "duality_ratio_err", "snr", "snr_paper",
+    "anomalous",
+]
+OUTPUTS = ["pairs.ecsv", "catalog_L1.ecsv", "catalog_L2.ecsv", "pairing_map.png",
+           "duality.png", "report.txt"]
+
+
+@pytest.fixture(scope="module")
+def demo_dir(tmp_path_factory):
+    """One small demo run (8 sources, 200 bootstraps) with its run config."""
+    out = tmp_path_factory.mktemp("cli") / "demo"
+    assert main(["demo", "--outdir", str(out), "--write-config", "--quiet", *FAST]) == 0
+    return out
+
+
+def test_demo_writes_everything(demo_dir):
+    for name in OUTPUTS + ["truth_comparison.ecsv", "run.toml"]:
+        assert (demo_dir / name).is_file(), name
+    for arc in ("L1", "L2"):
+        for band in ("F150W", "F200W"):
+            assert (demo_dir / "images" / f"{arc}_{band}.fits").is_file()
+            assert (demo_dir / "data" / f"{arc}_{band}_sci.fits").is_file()
+            assert (demo_dir / "data" / f"{arc}_{band}_err.fits").is_file()
+    # no temporary directory left behind
+    assert not [p for p in demo_dir.parent.iterdir() if ".partial-" in p.name]
+
+
+def test_demo_table_columns_and_verdict(demo_dir):
+    table = QTable.read(demo_dir / "pairs.ecsv", format="ascii.ecsv")
+    missing = [c for c in DOCUMENTED_COLUMNS if c not in table.colnames]
+    assert not missing
+    assert len(table) == 8
+    assert table["jacobian"].shape == (8, 2, 2)
+    assert table.meta["duality"]["method"] == "quad2"
+    truth = QTable.read(demo_dir / "truth_comparison.ecsv", format="ascii.ecsv")
+    assert truth.meta["n_matched"] == 8
+    # the sub-haloed pair is flagged, and no other
+    flagged = np.asarray(table["anomalous"], dtype=bool)
+    sub = np.asarray(truth["subhalo"], dtype=bool)
+    assert sub.sum() == 1
+    assert np.array_equal(flagged, sub)
+    assert truth.meta["subhalo_flagged"] is True
+    assert truth.meta["false_flags"] == 0
+    # the size magnification of the clean pairs against the true smooth-lens ratio
+    assert np.nanmedian(np.abs(truth["size_error"])) < 0.05
+    # the flux ratio of the sub-haloed pair follows the perturbed truth, not the macro one
+    row = truth[sub][0]
+    assert abs(row["flux_error"]) < 0.1
+    assert row["mu_true"] / row["mu_macro"] < 0.8
+
+
+def test_demo_prints_table_and_truth(tmp_path, capsys):
+    out = tmp_path / "loud"
+    assert main(["demo", "--outdir", str(out), "--subhalo", "none", *FAST]) == 0
+    printed = capsys.readouterr().out
+    assert "mu_size" in printed and "SNR" in printed
+    assert "No pair breaks geometrical duality" in printed
+    assert "No sub-halo was injected. False flags: 0." in printed
+    assert printed.count("\n   ") >= 8  # one line per pair
+    report = (out / "report.txt").read_text()
+    assert "No pair breaks geometrical duality" in report
+
+
+def test_quiet_prints_nothing(tmp_path, capsys):
+    assert main(["demo", "--outdir", str(tmp_path / "q"), "--quiet", "--n-sources", "5",
+                 "--n-bootstrap", "20"]) == 0
+    captured = capsys.readouterr()
+    assert captured.out == ""
+    assert captured.err == ""
+
+
+@pytest.mark.parametrize("command", ["demo", "run"])
+def test_help_explains_every_option(command, capsys):
+    assert main([command, "--help"]) == 0
+    text = capsys.readouterr().out
+    options = {"demo": ["--outdir", "--subhalo", "--seed", "--n-sources", "--n-bootstrap",
+                        "--estimator", "--snr-threshold", "--write-config", "--parametric",
+                        "--quiet"],
+               "run": ["config", "--outdir", "--quiet"]}[command]
+    for option in options:
+        assert option in text
+    assert "pairs.ecsv" in text
+
+
+def test_bad_arguments_exit_2(tmp_path, capsys):
+    assert main(["demo", "--subhalo", "huge", "--outdir", str(tmp_path / "x")]) == 2
+    assert "invalid choice" in capsys.readouterr().err
+    assert main(["demo", "--n-sources", "2", "--outdir", str(tmp_path / "x")]) == 2
+    assert "between 3 and 18" in capsys.readouterr().err
+    assert main([]) == 2
+    assert not (tmp_path / "x").exists()
+
+
+def test_run_reproduces_the_demo(demo_dir, tmp_path):
+    out = tmp_path / "run-out"
+    assert main(["run", str(demo_dir / "run.toml"), "--outdir", str(out), "--quiet"]) == 0
+    for name in OUTPUTS:
+        assert (out / name).is_file(), name
+    demo = QTable.read(demo_dir / "pairs.ecsv", format="ascii.ecsv")
+    run = QTable.read(out / "pairs.ecsv", format="ascii.ecsv")
+    assert list(run["pair_id"]) == list(demo["pair_id"])
+    for name in ("id1", "id2", "anomalous", "parity"):
+        assert np.array_equal(np.asarray(run[name]), np.asarray(demo[name])), name
+    for name in ("x1", "y1", "x2", "y2", "mu_size", "mu_size_err", "mu_flux", "snr"):
+        np.testing.assert_allclose(np.asarray(run[name].value if hasattr(run[name], "unit")
+                                              else run[name]),
+                                   np.asarray(demo[name].value if hasattr(demo[name], "unit")
+                                              else demo[name]),
+                                   rtol=1e-6, err_msg=name)
+
+
+def test_run_default_outdir_is_relative_to_the_config(demo_dir, tmp_path):
+    import shutil
+
+    copy = tmp_path / "copy"
+    shutil.copytree(demo_dir / "data", copy / "data")
+    shutil.copy(demo_dir / "run.toml", copy / "run.toml")
+    assert main(["run", str(copy / "run.toml"), "--quiet"]) == 0
+    assert (copy / "run-output" / "pairs.ecsv").is_file()
+
+
+def _write(path, data):
+    from lensdual.config import format_config
+
+    path.write_text(format_config(data))
+    return path
+
+
+def _bad_configs(demo_dir):
+    """(name, change to the demo's config, expected fragment) of bad configurations."""
+    good = tomllib.loads((demo_dir / "run.toml").read_text())
+    data_dir = demo_dir / "data"
+
+    def absolute(cfg):
+        for arc in ("L1", "L2"):
+            for spec in cfg["arcs"][arc].values():
+                for key in ("image", "error"):
+                    spec[key] = str(data_dir.parent / spec[key])
+        for spec in cfg["bands"].values():
+            spec["psf"] = str(data_dir.parent / spec["psf"])
+        return cfg
+
+    def change(fn):
+        import copy
+
+        cfg = absolute(copy.deepcopy(good))
+        fn(cfg)
+        return cfg
+
+    return [
+        ("unknown key", change(lambda c: c["analysis"].update(estimater="quad")), "estimater"),
+        ("unknown estimator", change(lambda c: c["analysis"].update(estimator="quadd")),
+         "quadd"),
+        ("missing image", change(lambda c: c["arcs"]["L1"]["F150W"].update(
+            image=str(data_dir / "nope.fits"))), "nope.fits"),
+        ("unitless sigma_pos", change(lambda c: c["analysis"].update(sigma_pos="0.01")),
+         "sigma_pos"),
+        ("wrong unit", change(lambda c: c["analysis"].update(sigma_pos="0.01 kg")), "kg"),
+        ("n_bootstrap not int", change(lambda c: c["analysis"].update(n_bootstrap="many")),
+         "n_bootstrap"),
+        ("missing arc", change(lambda c: c["arcs"].pop("L2")), "L2"),
+        ("psf twice", change(lambda c: c["bands"]["F150W"].update(psf_fwhm="0.05 arcsec")),
+         "psf_fwhm"),
+        ("band missing on an arc", change(lambda c: c["arcs"]["L2"].pop("F200W")), "F200W"),
+        ("manual without file", change(lambda c: c.update(pairing={"method": "manual"})),
+         "file"),
+        ("bad redshifts", change(lambda c: c.update(parametric={"fit": True, "z_lens": 0.4,
+                                                                 "z_source": 0.3})),
+         "z_source"),
+        ("negative threshold", change(lambda c: c["analysis"].update(snr_threshold=-1.0)),
+         "snr_threshold"),
+    ]
+
+
+def test_bad_configs_exit_2_and_write_nothing(demo_dir, tmp_path, capsys):
+    cases = _bad_configs(demo_dir)
+    assert len(cases) >= 8
+    for name, cfg, fragment in cases:
+        path = _write(tmp_path / f"{name.replace(' ', '_')}.toml", cfg)
+        out = tmp_path / f"out_{name.replace(' ', '_')}"
+        assert main(["run", str(path), "--outdir", str(out)]) == 2, name
+        err = capsys.readouterr().err
+        assert fragment in err, (name, err)
+        assert "problem" in err, (name, err)
+        assert not out.exists(), name
+    # a TOML syntax error and a missing config file
+    broken = tmp_path / "broken.toml"
+    broken.write_text("[analysis\nestimator = 'quad'\n")
+    assert main(["run", str(broken), "--outdir", str(tmp_path / "o1")]) == 2
+    assert "line 1" in capsys.readouterr().err
+    assert main(["run", str(tmp_path / "absent.toml"), "--outdir", str(tmp_path / "o2")]) == 2
+    assert "absent.toml" in capsys.readouterr().err
+    assert not (tmp_path / "o1").exists() and not (tmp_path / "o2").exists()
+    assert not [p for p in tmp_path.iterdir() if ".partial-" in p.name]
+
+
+def test_failure_mid_run_leaves_no_output(demo_dir, tmp_path, capsys):
+    """Catalogues of 2 sources: the pairing cannot start; exit 1, nothing written."""
+    from astropy.coordinates import SkyCoord
+
+    cat = QTable.read(demo_dir / "catalog_L1.ecsv", format="ascii.ecsv")
+    small = QTable({"id": cat["id"][:2], "sky": SkyCoord(cat["sky"][:2])})
+    small.write(tmp_path / "few.ecsv", format="ascii.ecsv")
+    cfg = tomllib.loads((demo_dir / "run.toml").read_text())
+    cfg["catalogs"] = {"L1": str(tmp_path / "few.ecsv"), "L2": str(tmp_path / "few.ecsv")}
+    for arc in ("L1", "L2"):
+        for spec in cfg["arcs"][arc].values():
+            for key in ("image", "error"):
+                spec[key] = str(demo_dir / spec[key])
+    for spec in cfg["bands"].values():
+        spec["psf"] = str(demo_dir / spec["psf"])
+    path = _write(tmp_path / "few.toml", cfg)
+    out = tmp_path / "out"
+    assert main(["run", str(path), "--outdir", str(out), "--quiet"]) == 1
+    assert "at least 3" in capsys.readouterr().err
+    assert not out.exists()
+    assert not [p for p in tmp_path.iterdir() if ".partial-" in p.name]
+
+
+def test_manual_pairs_from_a_previous_run(demo_dir, tmp_path):
+    """The ids of a run's catalogues, given back as manual pairs, give the same pairs."""
+    previous = QTable.read(demo_dir / "pairs.ecsv", format="ascii.ecsv")
+    QTable({"id1": previous["id1"][:6], "id2": previous["id2"][:6]}).write(
+        tmp_path / "pairs.ecsv", format="ascii.ecsv")
+    cfg = tomllib.loads((demo_dir / "run.toml").read_text())
+    for arc in ("L1", "L2"):
+        for spec in cfg["arcs"][arc].values():
+            for key in ("image", "error"):
+                spec[key] = str(demo_dir / spec[key])
+    for spec in cfg["bands"].values():
+        spec["psf"] = str(demo_dir / spec["psf"])
+    cfg["pairing"] = {"method": "manual", "file": str(tmp_path / "pairs.ecsv")}
+    path = _write(tmp_path / "manual.toml", cfg)
+    assert main(["run", str(path), "--outdir", str(tmp_path / "out"), "--quiet"]) == 0
+    table = QTable.read(tmp_path / "out" / "pairs.ecsv", format="ascii.ecsv")
+    assert len(table) == 6
+    assert list(table["id1"]) == list(previous["id1"][:6])
+    assert list(table["id2"]) == list(previous["id2"][:6])
+
+
+def test_command_line_as_a_subprocess(tmp_path):
+    """``lensdual`` (the installed script, else ``python -m lensdual``) in a fresh process."""
+    script = Path(sys.executable).with_name("lensdual")
+    command = [str(script)] if script.is_file() else [sys.executable, "-m", "lensdual"]
+    env = dict(os.environ, MPLBACKEND="agg")
+    done = subprocess.run(command + ["demo", "--outdir", str(tmp_path / "sub"), "--quiet",
+                                     "--n-sources", "6", "--n-bootstrap", "100"],
+                          capture_output=True, text=True, env=env, timeout=600)
+    assert done.returncode == 0, done.stderr
+    assert (tmp_path / "sub" / "pairs.ecsv").is_file()
+    done = subprocess.run(command + ["run", str(tmp_path / "missing.toml")],
+                          capture_output=True, text=True, env=env, timeout=600)
+    assert done.returncode == 2
+    assert "missing.toml" in done.stderr
