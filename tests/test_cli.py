@@ -102,6 +102,10 @@ def test_help_explains_every_option(command, capsys):
     for option in options:
         assert option in text
     assert "pairs.ecsv" in text
+    if command == "run":  # the whole configuration schema
+        for key in ("[analysis]", "sigma_pos", "[bands.F150W]", "psf_fwhm", "[arcs.L1.F150W]",
+                    "weight", "[catalogs]", "[pairing]", "[parametric]", "z_source"):
+            assert key in text, key
 
 
 def test_bad_arguments_exit_2(tmp_path, capsys):
