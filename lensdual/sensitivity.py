@@ -11,22 +11,34 @@ image adds ``alpha_sub(theta - theta0 - d)``; the images of the source solve
 
 Definitions
 -----------
-Unit ellipse and ``r_eff``
-    With ``A0 = sum_i lambda_i e_i e_i^T`` (eigen-decomposition of its
-    symmetric part), the unit ellipse is the image-plane set of offsets
-    ``{d : sum_i |lambda_i| (d . e_i)^2 = (2 theta_E)^2}``, semi-axes
-    ``a_i = 2 theta_E / sqrt(|lambda_i|)`` along ``e_i``, and
-    ``r_eff(d) = sqrt(sum_i |lambda_i| (d . e_i)^2) / (2 theta_E)``.
-    ``theta_E / sqrt(|lambda_i|)`` is the isolated Einstein radius mapped
-    through the macro deformation (where the sub-halo's shear
-    ``theta_E^2 / r^2`` equals ``|lambda_i|``: the sub-halo's critical curve
-    crosses the eigen-axis there); for a point mass at a saddle-point
-    macro image the caustic, mapped back to offsets, has a cusp exactly on
-    this ellipse on the axis of the negative eigenvalue and lies at
-    ``0.98 <= r_eff <= 1.15`` for the SMACS0723 analogue's L2 Jacobian.
+``r_eff`` (``definition="paper"``, the default)
+    The paper's Fig. 7 and 9: the sub-halo's isolated (point-mass)
+    Einstein ring of radius ``theta_E``, mapped to the source plane by the
+    macro deformation tensor ``A0``, is the *unit ellipse*; a source at
+    source-plane offset ``b`` from the sub-halo (mapped by the macro
+    model) has ``r_eff = |A0^-1 b| / theta_E``. Since ``b = -A0 d``, this is
+    the image-plane separation of sub-halo and macro image in Einstein
+    radii, ``r_eff = |d| / theta_E`` (Fig. 9's "distance in the image plane
+    normalised to the Einstein radius"; also the paper's ``zeta theta_E``
+    of Sect. 5.4).
+``r_eff`` (``definition="caustic"``)
+    An alternative scaled to the point-mass caustic: with ``lambda_i, e_i``
+    the eigenvalues and eigenvectors of (the symmetric part of) ``A0``,
+    ``r_eff = sqrt(sum_i |lambda_i| (d . e_i)^2) / (2 theta_E)``; the unit
+    ellipse has image-plane semi-axes ``2 theta_E / sqrt(|lambda_i|)``
+    (twice the Einstein radius enlarged by the macro field, where a point
+    mass's shear ``theta_E^2 / r^2`` equals ``|lambda_i|``). At a saddle
+    the point-mass caustic has its cusps on the axis of the negative
+    eigenvalue exactly at ``r_eff = 1`` (at ``r_eff = 2 / sqrt(|lambda_-|)``
+    in the paper's units).
 Flux excess
-    ``sum_i |mu_i| / |mu_0|`` over all micro-images, ``mu_0 = 1 / det A0``;
+    ``f = sum_i |mu_i| / |mu_0|`` over all micro-images, ``mu_0 = 1 / det A0``;
     1 without sub-halo.
+Detection SNR
+    ``|mu_flux / mu_size - 1| / sigma_rel`` with ``mu_flux / mu_size = f``
+    (the sub-halo on the image in the numerator of the flux ratio) and
+    ``sigma_rel`` the relative error of ``mu_size``; alternatives
+    ``|ln f|`` and ``|1 / f - 1|`` (see :func:`detection_snr_map`).
 """
 
 import math
@@ -49,9 +61,13 @@ __all__ = [
     "plot_flux_excess_violin",
     "smacs0723_reference",
     "detection_snr_map",
+    "plot_detection_snr_map",
 ]
 
 _MAX_IMAGES = 16
+_DEFINITIONS = ("paper", "caustic")
+_PLANES = ("image", "source")
+_SIGNALS = ("ratio", "log", "inverse")
 
 
 # ----------------------------------------------------------------------------- inputs
@@ -87,6 +103,12 @@ def _eig(a):
     return lam, vec
 
 
+def _choice(value, name, options):
+    if not isinstance(value, str) or value not in options:
+        raise ValueError(f"{name} must be one of {', '.join(map(repr, options))}, got {value!r}")
+    return value
+
+
 def _as_angle_value(value, name):
     if not isinstance(value, u.Quantity) or value.unit.physical_type != "angle":
         raise TypeError(f"{name} must be a Quantity with angular units, got {value!r}")
@@ -112,6 +134,18 @@ def _as_offsets(offsets, name="offsets"):
     if v.shape[0] == 0:
         raise ValueError(f"{name} is empty")
     return np.ascontiguousarray(v)
+
+
+def _as_r_eff(r_eff, name="r_eff"):
+    try:
+        r = np.atleast_1d(np.asarray(r_eff, dtype=np.float64))
+    except (TypeError, ValueError):
+        raise TypeError(f"{name} must be a 1-d array of real numbers, got {r_eff!r}") from None
+    if r.ndim != 1 or r.size == 0:
+        raise ValueError(f"{name} must be a non-empty 1-d array, got shape {r.shape}")
+    if not (np.isfinite(r) & (r >= 0)).all():
+        raise ValueError(f"{name} must be finite and >= 0, got {r_eff}")
+    return r
 
 
 def _as_subhalo(subhalo):
@@ -150,7 +184,11 @@ def subhalo_einstein_radius(subhalo):
     """Point-mass Einstein radius of a sub-halo's total projected mass.
 
     ``theta_E = sqrt(r alpha(r))`` for ``r -> infinity`` (``1e4 r_trunc``
-    for a TNFW), or ``theta_E`` of a point mass.
+    for a TNFW), or ``theta_E`` of a point mass. The paper normalises
+    ``r_eff`` to the Einstein radius of M200 instead
+    (:func:`lensdual.abundance.einstein_radius`), which
+    :func:`detection_snr_map` uses; a TNFW truncated at 30 ``Rs`` holds
+    more than M200.
 
     Parameters
     ----------
@@ -170,50 +208,90 @@ def subhalo_einstein_radius(subhalo):
 # ----------------------------------------------------------------------------- r_eff
 
 
-def effective_radius_ellipse(jacobian, theta_e):
+def _unit_map(a, te, definition):
+    """2x2 matrix M with image-plane unit-ellipse offsets ``d = M (cos phi, sin phi)``."""
+    if definition == "paper":
+        return te * np.eye(2)
+    lam, vec = _eig(a)
+    return vec * (2.0 * te / np.sqrt(np.abs(lam)))[None, :]
+
+
+def _orientation(v):
+    ang = math.degrees(math.atan2(v[1], v[0]))
+    if ang <= -90:
+        ang += 180
+    elif ang > 90:
+        ang -= 180
+    return ang
+
+
+def effective_radius_ellipse(jacobian, theta_e, *, definition="paper", plane="source"):
     """The unit ellipse ``r_eff = 1`` of a sub-halo at a macro image (paper Fig. 7).
 
     Parameters
     ----------
     jacobian : array_like, shape (2, 2)
-        Macro Jacobian ``A0 = d beta / d theta`` at the image (its symmetric
-        part is used).
+        Macro Jacobian ``A0 = d beta / d theta`` at the image.
     theta_e : `~astropy.units.Quantity`
-        Isolated Einstein radius of the sub-halo.
+        Isolated Einstein radius of the sub-halo (the paper: the point-mass
+        Einstein radius of its M200, :func:`lensdual.abundance.einstein_radius`).
+    definition : {"paper", "caustic"}
+        ``"paper"``: the Einstein ring mapped by ``A0`` (a circle of radius
+        ``theta_E`` in the image plane); ``"caustic"``: image-plane
+        semi-axes ``2 theta_E / sqrt(|lambda_i|)`` along the eigenvectors of
+        ``A0`` (see the module docstring).
+    plane : {"source", "image"}
+        ``"source"``: the ellipse of source positions relative to the
+        sub-halo mapped by the macro model (the ellipse drawn in Fig. 7),
+        i.e. ``A0`` applied to the image-plane ellipse; ``"image"``: the
+        ellipse of image-plane offsets ``d`` of the sub-halo from the macro
+        image.
 
     Returns
     -------
     semi_axes : `~astropy.units.Quantity`, shape (2,)
-        ``2 theta_E / sqrt(|lambda_i|)`` along the eigenvectors of ``A0``, in
-        the order of ascending eigenvalue.
+        Major and minor semi-axis (arcsec).
     orientation : `~astropy.units.Quantity`
-        Angle of the first axis from the x axis (deg, in (-90, 90]).
+        Angle of the major axis from the x axis (deg, in (-90, 90]).
 
-    Notes
-    -----
-    See the module docstring; ``r_eff(d) = sqrt(sum |lambda_i| (d.e_i)^2) / (2 theta_E)``.
+    Examples
+    --------
+    For the SMACS0723 analogue's L2 image (eigenvalues -0.635 and 0.223)
+    the paper's unit ellipse in the source plane has semi-axes
+    ``|lambda_i| theta_E``:
+
+    >>> import numpy as np
+    >>> import astropy.units as u
+    >>> from lensdual.sensitivity import effective_radius_ellipse
+    >>> A0 = np.diag([-0.635, 0.223])
+    >>> axes, angle = effective_radius_ellipse(A0, 0.0232 * u.arcsec)
+    >>> print(np.round(axes / (0.0232 * u.arcsec), 3), angle)
+    [0.635 0.223] 0.0 deg
     """
     a = _as_jacobian(jacobian)
     te = _as_theta_e(theta_e)
-    lam, vec = _eig(a)
-    axes = 2.0 * te / np.sqrt(np.abs(lam))
-    ang = math.degrees(math.atan2(vec[1, 0], vec[0, 0]))
-    if ang <= -90:
-        ang += 180
-    elif ang > 90:
-        ang -= 180
-    return axes * u.arcsec, ang * u.deg
+    _choice(definition, "definition", _DEFINITIONS)
+    _choice(plane, "plane", _PLANES)
+    m = _unit_map(a, te, definition)
+    if plane == "source":
+        m = a @ m
+    uu, s, _ = np.linalg.svd(m)
+    return s * u.arcsec, _orientation(uu[:, 0]) * u.deg
 
 
-def effective_radius(offsets, jacobian, theta_e):
-    """``r_eff`` of image-plane sub-halo offsets (see :func:`effective_radius_ellipse`).
+def effective_radius(offsets, jacobian, theta_e, *, definition="paper", plane="image"):
+    """``r_eff`` of sub-halo offsets (see :func:`effective_radius_ellipse`).
 
     Parameters
     ----------
     offsets : `~astropy.units.Quantity`, shape (N, 2) or (2,)
-        Sub-halo centre minus macro image position.
+        ``plane="image"``: sub-halo centre minus macro image position;
+        ``plane="source"``: source position minus the sub-halo centre
+        mapped to the source plane by the macro model (``-A0 d``).
     jacobian : array_like, shape (2, 2)
     theta_e : `~astropy.units.Quantity`
+    definition : {"paper", "caustic"}
+    plane : {"image", "source"}
 
     Returns
     -------
@@ -225,39 +303,51 @@ def effective_radius(offsets, jacobian, theta_e):
     >>> import astropy.units as u
     >>> from lensdual.sensitivity import effective_radius
     >>> A0 = np.diag([-0.25, 0.64])
-    >>> effective_radius([[0.08, 0.0], [0.0, 0.05]] * u.arcsec, A0, 0.02 * u.arcsec)
+    >>> d = [[0.08, 0.0], [0.0, 0.05]] * u.arcsec
+    >>> effective_radius(d, A0, 0.02 * u.arcsec)
+    array([4. , 2.5])
+    >>> effective_radius(d, A0, 0.02 * u.arcsec, definition="caustic")
     array([1., 1.])
     """
     d = _as_offsets(offsets)
     a = _as_jacobian(jacobian)
     te = _as_theta_e(theta_e)
-    lam, vec = _eig(a)
-    c = d @ vec
-    return np.sqrt((np.abs(lam) * c**2).sum(axis=1)) / (2.0 * te)
+    _choice(definition, "definition", _DEFINITIONS)
+    _choice(plane, "plane", _PLANES)
+    if plane == "source":
+        d = -np.linalg.solve(a, d.T).T
+    m = _unit_map(a, te, definition)
+    return np.hypot(*np.linalg.solve(m, d.T))
 
 
-def offsets_on_ellipse(r_eff, angles, jacobian, theta_e):
-    """Offsets ``d`` with the given ``r_eff`` at parametric ``angles`` on the ellipse.
+def offsets_on_ellipse(r_eff, angles, jacobian, theta_e, *, definition="paper"):
+    """Image-plane sub-halo offsets ``d`` with the given ``r_eff`` at the given angles.
 
-    ``d = r_eff (a_1 cos(phi) e_1 + a_2 sin(phi) e_2)``.
+    ``definition="paper"``: ``d = r_eff theta_E (cos(phi), sin(phi))``, ``phi``
+    the polar angle from the x axis; ``"caustic"``:
+    ``d = r_eff (a_1 cos(phi) e_1 + a_2 sin(phi) e_2)``, ``phi`` the
+    parametric angle from the first eigenvector (ascending eigenvalue).
+
+    Parameters
+    ----------
+    r_eff : array_like
+        Non-empty 1-d, >= 0.
+    angles : `~astropy.units.Quantity`
+        Angles (1-d or scalar).
+    jacobian, theta_e, definition
+        As in :func:`effective_radius_ellipse`.
 
     Returns
     -------
     offsets : `~astropy.units.Quantity`, shape (len(r_eff) * len(angles), 2)
         r_eff varies slowest.
     """
-    r = np.atleast_1d(np.asarray(r_eff, dtype=np.float64))
-    if r.size == 0 or r.ndim != 1:
-        raise ValueError(f"r_eff must be a non-empty 1-d array, got shape {r.shape}")
-    if not (np.isfinite(r) & (r >= 0)).all():
-        raise ValueError("r_eff must be finite and >= 0")
+    r = _as_r_eff(r_eff)
     phi = np.atleast_1d(_as_angle_value(angles, "angles") * (math.pi / 180 / 3600))
     a = _as_jacobian(jacobian)
     te = _as_theta_e(theta_e)
-    lam, vec = _eig(a)
-    axes = 2.0 * te / np.sqrt(np.abs(lam))
-    local = np.stack([axes[0] * np.cos(phi), axes[1] * np.sin(phi)], axis=1)  # (A, 2)
-    base = local @ vec.T
+    _choice(definition, "definition", _DEFINITIONS)
+    base = np.stack([np.cos(phi), np.sin(phi)], axis=1) @ _unit_map(a, te, definition).T
     return (r[:, None, None] * base[None, :, :]).reshape(-1, 2) * u.arcsec
 
 
@@ -360,8 +450,9 @@ def flux_excess(jacobian, subhalo, offsets, *, box=10.0, n_grid=400, return_coun
 
     Examples
     --------
-    A point mass in a uniform field ``A0 = 0.5 I`` at ``r_eff = 0.5``
-    (impact parameter u = 1 of the rescaled point lens):
+    A point mass in an isotropic field ``A0 = 0.5 I`` at ``|d| = theta_E /
+    sqrt(0.5)`` (impact parameter u = 1 of the rescaled point lens; the
+    point-lens magnification ``3 / sqrt(5)``):
 
     >>> import numpy as np
     >>> import astropy.units as u
@@ -380,7 +471,7 @@ def flux_excess(jacobian, subhalo, offsets, *, box=10.0, n_grid=400, return_coun
 
 
 def flux_excess_distribution(jacobian, subhalo, r_eff_values, n_angles=36, *, theta_e=None,
-                             box=10.0, n_grid=400):
+                             definition="paper", box=10.0, n_grid=400):
     """Flux excess on concentric ellipses ``r_eff`` (data of the paper's Fig. 8).
 
     Parameters
@@ -390,10 +481,14 @@ def flux_excess_distribution(jacobian, subhalo, r_eff_values, n_angles=36, *, th
     r_eff_values : array_like
         Values of ``r_eff`` (>= 0).
     n_angles : int
-        Parametric angles per ellipse, ``360 k / n_angles`` deg.
+        Angles per ellipse, ``360 k / n_angles`` deg (see
+        :func:`offsets_on_ellipse`).
     theta_e : `~astropy.units.Quantity`, optional
         Einstein radius defining ``r_eff``; default
-        :func:`subhalo_einstein_radius`.
+        :func:`subhalo_einstein_radius` (the paper uses the point-mass
+        Einstein radius of M200, :func:`lensdual.abundance.einstein_radius`).
+    definition : {"paper", "caustic"}
+        Definition of ``r_eff`` (see :func:`effective_radius_ellipse`).
 
     Returns
     -------
@@ -405,11 +500,9 @@ def flux_excess_distribution(jacobian, subhalo, r_eff_values, n_angles=36, *, th
     code, p0, p1, p2 = _as_subhalo(subhalo)
     te = subhalo_einstein_radius(subhalo) if theta_e is None else theta_e
     n_ang = as_int(n_angles, "n_angles", minimum=1)
-    r = np.atleast_1d(np.asarray(r_eff_values, dtype=np.float64))
-    if r.ndim != 1 or r.size == 0:
-        raise ValueError(f"r_eff_values must be a non-empty 1-d array, got shape {r.shape}")
+    r = _as_r_eff(r_eff_values, "r_eff_values")
     ang = np.arange(n_ang) * (360.0 / n_ang) * u.deg
-    d = offsets_on_ellipse(r, ang, a, te).to_value(u.arcsec)
+    d = offsets_on_ellipse(r, ang, a, te, definition=definition).to_value(u.arcsec)
     box, n = _check_grid(box, n_grid)
     excess, counts = _flux_excess_raw(a, code, p0, p1, p2, np.ascontiguousarray(d), box, n)
     t = QTable({
@@ -421,6 +514,7 @@ def flux_excess_distribution(jacobian, subhalo, r_eff_values, n_angles=36, *, th
         "n_images": counts,
     })
     t.meta["theta_e"] = u.Quantity(te, u.arcsec)
+    t.meta["definition"] = definition
     return t
 
 
@@ -466,127 +560,232 @@ def plot_flux_excess_violin(table, ax=None, mu_size_band=None):
 # ----------------------------------------------------------------------------- SNR map
 
 
-def smacs0723_reference(*, seed=0, source=0, sigma_pos=0.06 * u.arcsec, n_bootstrap=500,
-                        bootstrap_seed=0):
+def smacs0723_reference(*, seed=0, source=0, image=2, sigma_pos=0.06 * u.arcsec,
+                        n_bootstrap=500, bootstrap_seed=0):
     """Macro Jacobian and size-magnification noise of the SMACS0723 analogue.
 
-    The macro image is the L2 image of source ``source`` of
-    ``smacs0723_analog(seed=seed)``; the noise is the relative Quad-Jacobian
-    bootstrap error of ``mu_size`` of that pair at ``sigma_pos``.
+    The macro image is the image on arc L``image`` of source ``source`` of
+    ``smacs0723_analog(seed=seed)`` (L2: a saddle point, eigenvalues of
+    ``d beta / d theta`` -0.635 and 0.223 for the defaults; L1: a maximum,
+    -1.14 and -0.28, the analogue's fold being radial); the noise is the
+    relative Quad-Jacobian bootstrap error of ``mu_size`` of that pair at
+    positional error ``sigma_pos``.
+
+    Parameters
+    ----------
+    seed : int
+        Seed of the analogue's source positions.
+    source : int
+        Which source's pair.
+    image : {1, 2}
+        Arc of the perturbed image.
+    sigma_pos : `~astropy.units.Quantity`
+        Positional error of the bootstrap (the paper's 0.06 arcsec).
+    n_bootstrap, bootstrap_seed
+        Of :func:`lensdual.estimators.size_magnification`.
 
     Returns
     -------
     ref : dict
-        ``jacobian`` ((2, 2) ``d beta / d theta`` at the L2 image),
+        ``jacobian`` ((2, 2) ``d beta / d theta`` at the image),
         ``mu_macro`` (signed ``1 / det``), ``mu_size``, ``mu_size_err``,
-        ``sigma_lnsize`` (``mu_size_err / mu_size``), ``position`` (the L2
-        image, arcsec).
+        ``sigma_rel`` (``mu_size_err / mu_size``), ``position`` (the image,
+        arcsec), ``image``.
+
+    Notes
+    -----
+    The analogue's constellation is compact (the images of the 16 sources
+    spread over about 0.06 x 0.2 arcsec), so ``sigma_rel`` is 0.72 at
+    0.06 arcsec and about 0.1 only at 0.005 arcsec; the paper quotes a
+    recovery of ``mu_size`` to about 10 % for its analogue and
+    ``1.04 +- 0.09`` for the real pair 1 at 0.06 arcsec.
     """
     from .estimators import size_magnification
     from .simulation.scenarios import smacs0723_analog
 
+    k = as_int(source, "source", minimum=0)
+    img = as_int(image, "image", minimum=1)
+    if img not in (1, 2):
+        raise ValueError(f"image must be 1 or 2, got {image}")
     system = smacs0723_analog(seed=seed)
     p = system.constellation()
-    k = as_int(source, "source", minimum=0)
     rows = np.flatnonzero(np.asarray(p["source"]) == k)
     if rows.size == 0:
         raise ValueError(f"source {k} has no image pair in the SMACS0723 analogue")
     t1 = u.Quantity([p["x1"], p["y1"]]).T
     t2 = u.Quantity([p["x2"], p["y2"]]).T
-    pos = t2[rows[0]][None, :]
+    pos = (t1 if img == 1 else t2)[rows[0]][None, :]
     jac = system.jacobian(pos)[0]
     size = size_magnification(t1, t2, "quad", sigma_pos=sigma_pos, n_bootstrap=n_bootstrap,
                               seed=bootstrap_seed)
     mu = float(size["mu_size"][rows[0]])
     err = float(size["mu_size_err"][rows[0]])
     return {"jacobian": jac, "mu_macro": 1.0 / float(np.linalg.det(jac)), "mu_size": mu,
-            "mu_size_err": err, "sigma_lnsize": err / mu, "position": pos[0]}
+            "mu_size_err": err, "sigma_rel": err / mu, "position": pos[0], "image": img}
 
 
-def _snr_chunk(args):
-    """Percentiles of the SNR over angles for a chunk of masses (picklable)."""
-    (masses, conc, a, r_eff, n_angles, sigma, percentiles, zl, zs, cosmology, box, n) = args
+def _signal(fe, signal):
+    if signal == "ratio":
+        return np.abs(fe - 1.0)
+    if signal == "log":
+        return np.abs(np.log(fe))
+    return np.abs(1.0 / fe - 1.0)
+
+
+def _snr_chunk(task):
+    """SNR statistics over angles for a chunk of masses (module level: picklable).
+
+    The angles of mass number ``i`` (its index in the whole grid) depend on
+    ``(seed, i)`` only, so a chunk gives the same numbers whatever the
+    chunking and wherever it runs.
+    """
+    (index, masses, conc, a, r, n_ang, sigma, q, signal, definition, seed, zl, zs, cosmology,
+     box, n) = task
     from .abundance import einstein_radius
     from .simulation.halos import mass_concentration, tnfw_halo
 
-    ang = np.arange(n_angles) * (360.0 / n_angles) * u.deg
+    k = np.arange(n_ang)
     out = []
-    for m in masses:
+    for i, m in zip(index, masses, strict=True):
         mq = m * u.Msun
         c = mass_concentration(mq) * (1.0 if conc == "mcr" else conc)
         sub = tnfw_halo(mq, c, z_lens=zl, z_source=zs, cosmology=cosmology)
         code, p0, p1, p2 = _as_subhalo(sub)
-        te = einstein_radius(mq, zl, zs, cosmology)
-        d = np.ascontiguousarray(offsets_on_ellipse(r_eff, ang, a, te).to_value(u.arcsec))
+        te = float(einstein_radius(mq, zl, zs, cosmology).to_value(u.arcsec))
+        if seed is None:
+            phase = np.zeros(r.size)
+        else:
+            phase = np.random.default_rng([seed, int(i)]).random(r.size)
+        phi = (k[None, :] + phase[:, None]) * (2.0 * math.pi / n_ang)
+        unit = np.stack([np.cos(phi), np.sin(phi)], axis=-1) @ _unit_map(a, te, definition).T
+        d = np.ascontiguousarray((r[:, None, None] * unit).reshape(-1, 2))
         fe, cnt = _flux_excess_raw(a, code, p0, p1, p2, d, box, n)
-        snr = (np.abs(np.log(fe)) / sigma).reshape(r_eff.size, n_angles)
-        fe = fe.reshape(r_eff.size, n_angles)
-        out.append((float(te.value), c, np.percentile(snr, percentiles, axis=1).T,
-                    np.median(fe, axis=1), cnt.reshape(r_eff.size, n_angles).max(axis=1)))
+        fe = fe.reshape(r.size, n_ang)
+        snr = _signal(fe, signal) / sigma
+        out.append((te, c, snr.mean(axis=1), np.percentile(snr, q, axis=1).T,
+                    np.median(fe, axis=1), cnt.reshape(r.size, n_ang).max(axis=1)))
     return out
 
 
-def detection_snr_map(masses, r_eff, *, jacobian, sigma_lnsize, concentration="mcr",
-                      percentiles=(50, 68, 95), n_angles=36, z_lens=0.39, z_source=2.2,
-                      cosmology=None, box=10.0, n_grid=400, executor=None, chunk_size=1):
+def _run(fn, tasks, pool):
+    """``[fn(t) for t in tasks]`` serially, on a dask Client or on an Executor."""
+    if pool is None:
+        return [fn(t) for t in tasks]
+    if all(callable(getattr(pool, k, None)) for k in ("submit", "map", "gather", "scatter")):
+        return pool.gather(pool.map(fn, tasks, pure=False))  # dask.distributed.Client
+    return list(pool.map(fn, tasks))
+
+
+def _check_pool(client, executor):
+    if client is not None and executor is not None:
+        raise ValueError("give client or executor (its alias), not both")
+    pool = client if client is not None else executor
+    if pool is not None and not callable(getattr(pool, "map", None)):
+        raise TypeError("client must be None, a dask.distributed.Client or a "
+                        f"concurrent.futures.Executor, got {type(pool).__name__}")
+    return pool
+
+
+def detection_snr_map(masses, r_eff, *, jacobian=None, sigma_rel=None, sigma_pos=None,
+                      concentration="mcr", percentiles=(50, 68, 95), n_angles=36,
+                      signal="ratio", definition="paper", seed=None, z_lens=0.39,
+                      z_source=2.2, cosmology=None, box=10.0, n_grid=400, client=None,
+                      executor=None, chunk_size=1):
     """Sub-halo detection SNR over masses and ``r_eff`` (paper Fig. 9).
 
     For each mass (circular TNFW, ``r_trunc = 30 Rs``) and each ``r_eff``
     (normalised to the point-mass Einstein radius of M200, as in the paper),
-    the sub-halo is placed at ``n_angles`` parametric angles on the ellipse
-    and the signal is the duality ratio ``mu_flux / mu_size``, i.e. the flux
-    excess ``f`` (sub-halo on the L1 image) or ``1 / f`` (on L2); either way
-    ``SNR = |ln f| / sigma_lnsize``. The requested percentiles of the SNR
-    over the angles are returned.
+    the sub-halo is placed at ``n_angles`` angles around the macro image and
+    the flux excess ``f`` of the image (all micro-images summed) is
+    computed; the SNR is the signal over ``sigma_rel``, the relative error
+    of ``mu_size``. Returned are the mean and the requested percentiles of
+    the SNR over the angles.
 
     Parameters
     ----------
     masses : `~astropy.units.Quantity`
-        M200 of the sub-haloes (1-d).
+        M200 of the sub-haloes (non-empty, 1-d, > 0).
     r_eff : array_like
         Non-empty 1-d ``r_eff`` values (>= 0).
-    jacobian : array_like, shape (2, 2)
-        Macro ``d beta / d theta`` at the perturbed image (e.g.
-        ``smacs0723_reference()["jacobian"]``).
-    sigma_lnsize : float
-        Relative error of the size magnification (> 0), e.g.
-        ``smacs0723_reference()["sigma_lnsize"]``.
+    jacobian : array_like, shape (2, 2), optional
+        Macro ``d beta / d theta`` at the perturbed image. Default: the L2
+        image of :func:`smacs0723_reference` (a saddle point).
+    sigma_rel : float, optional
+        Relative error of ``mu_size`` (> 0). Required with ``jacobian``;
+        with ``jacobian=None`` it defaults to the Quad bootstrap error of
+        :func:`smacs0723_reference` at ``sigma_pos``.
+    sigma_pos : `~astropy.units.Quantity`, optional
+        Positional error of that bootstrap (default 0.06 arcsec); only with
+        ``jacobian=None`` and ``sigma_rel=None``.
     concentration : "mcr" or float
         ``"mcr"``: the mass-concentration relation; a number multiplies it
-        (5 for the paper's over-concentrated row).
+        (5 for the paper's second row of Fig. 9).
     percentiles : sequence of float
-        Percentiles over angles (default 50, 68, 95).
+        Percentiles over angles (default 50, 68, 95), in [0, 100].
     n_angles : int
-        Angles per ellipse.
+        Angles per ``r_eff``, ``360 (k + phase) / n_angles`` deg.
+    signal : {"ratio", "log", "inverse"}
+        ``"ratio"`` (the paper's): ``|mu_flux / mu_size - 1|`` with
+        ``mu_flux / mu_size = f``, the sub-halo on the image in the
+        numerator of the flux ratio; ``"inverse"``: ``|1 / f - 1|``, the
+        sub-halo on the other image; ``"log"``: ``|ln f|``, either.
+    definition : {"paper", "caustic"}
+        Definition of ``r_eff`` (see :func:`effective_radius_ellipse`).
+    seed : int or `numpy.random.Generator`, optional
+        None: the same angles ``360 k / n_angles`` for every cell (phase 0).
+        An int: a random phase per (mass, ``r_eff``) cell, drawn from
+        ``numpy.random.default_rng([seed, i])`` for the ``i``-th mass, so
+        that the result does not depend on the chunking or the executor. A
+        Generator gives that int (one draw).
     z_lens, z_source, cosmology
-        Of the sub-halo and the source.
+        Of the sub-halo and the source (defaults: the paper's 0.39, 2.2 and
+        flat LCDM with H0 = 70, Om0 = 0.3).
     box, n_grid
         Image search, see :func:`micro_images`.
-    executor : `concurrent.futures.Executor` or dask ``Client``, optional
-        Anything with ``.map(fn, iterable)`` (a dask Client's futures are
-        gathered with ``.gather``). None runs serially. Results are identical.
+    client : `dask.distributed.Client` or `concurrent.futures.Executor`, optional
+        Where to run the chunks: a dask Client (``client.map`` then
+        ``client.gather``) or anything with an Executor-like ``map``. None
+        runs serially. The result is identical in every case.
+    executor : optional
+        Alias of ``client`` (give one of them).
     chunk_size : int
-        Masses per task.
+        Masses per task (>= 1).
 
     Returns
     -------
     table : `~astropy.table.QTable`
-        One row per (mass, r_eff): ``mass``, ``concentration``, ``theta_e``,
-        ``r_eff``, ``snr_p<q>`` per percentile, ``flux_excess_median``,
-        ``max_images``.
+        One row per (mass, r_eff), r_eff varying fastest: ``mass``,
+        ``concentration``, ``theta_e``, ``r_eff``, ``snr_mean``,
+        ``snr_p<q>`` per percentile, ``flux_excess_median``, ``max_images``
+        (most micro-images over the angles); ``meta`` holds the settings,
+        the ``jacobian`` and ``sigma_rel``.
+
+    Raises
+    ------
+    TypeError
+        ``masses`` not a mass Quantity; ``client`` without ``map``.
+    ValueError
+        Empty or negative grids, ``percentiles`` outside [0, 100], a bad
+        option, ``z_source <= z_lens``, or ``jacobian`` without
+        ``sigma_rel``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import astropy.units as u
+    >>> from lensdual.sensitivity import detection_snr_map
+    >>> A0 = np.array([[-0.6163, 0.1266], [0.1266, 0.2037]])  # SMACS0723 analogue, L2
+    >>> t = detection_snr_map([1e8] * u.Msun, [0.5, 2.0], jacobian=A0, sigma_rel=0.1,
+    ...                       concentration=5.0, n_angles=12, n_grid=200)
+    >>> print(np.round(t["snr_p95"], 1))
+    [24.4  4.8]
     """
-    from ._validation import as_cosmology, as_mass, as_redshifts
+    from ._validation import as_angle_scalar, as_cosmology, as_mass, as_redshifts
 
     m = np.atleast_1d(as_mass(masses, "masses").value)
     if m.ndim != 1 or m.size == 0:
         raise ValueError(f"masses must be a non-empty 1-d Quantity, got shape {m.shape}")
-    r = np.atleast_1d(np.asarray(r_eff, dtype=np.float64))
-    if r.ndim != 1 or r.size == 0:
-        raise ValueError(f"r_eff must be a non-empty 1-d array, got shape {r.shape}")
-    if not (np.isfinite(r) & (r >= 0)).all():
-        raise ValueError("r_eff must be finite and >= 0")
-    a = _as_jacobian(jacobian)
-    sigma = as_real(sigma_lnsize, "sigma_lnsize", minimum=0.0, inclusive=False)
+    r = _as_r_eff(r_eff)
     if isinstance(concentration, str):
         if concentration != "mcr":
             raise ValueError(
@@ -595,39 +794,143 @@ def detection_snr_map(masses, r_eff, *, jacobian, sigma_lnsize, concentration="m
         conc = "mcr"
     else:
         conc = as_real(concentration, "concentration", minimum=0.0, inclusive=False)
-    q = np.atleast_1d(np.asarray(percentiles, dtype=np.float64))
+    try:
+        q = np.atleast_1d(np.asarray(percentiles, dtype=np.float64))
+    except (TypeError, ValueError):
+        raise TypeError(f"percentiles must be real numbers, got {percentiles!r}") from None
     if q.ndim != 1 or q.size == 0 or not ((q >= 0) & (q <= 100)).all():
         raise ValueError(f"percentiles must be a non-empty sequence in [0, 100], got {percentiles}")
     n_ang = as_int(n_angles, "n_angles", minimum=1)
+    _choice(signal, "signal", _SIGNALS)
+    _choice(definition, "definition", _DEFINITIONS)
+    if isinstance(seed, np.random.Generator):
+        seed = int(seed.integers(0, 2**63 - 1))
+    elif seed is not None:
+        seed = as_int(seed, "seed", minimum=0)
     zl, zs = as_redshifts(z_lens, z_source)
     cosmology = as_cosmology(cosmology)
     box, n = _check_grid(box, n_grid)
     cs = as_int(chunk_size, "chunk_size", minimum=1)
-    tasks = [(m[i:i + cs], conc, a, r, n_ang, sigma, q, zl, zs, cosmology, box, n)
-             for i in range(0, m.size, cs)]
-    if executor is None:
-        results = [_snr_chunk(t) for t in tasks]
-    elif hasattr(executor, "gather") and hasattr(executor, "map"):  # dask.distributed Client
-        results = executor.gather(executor.map(_snr_chunk, tasks, pure=False))
-    elif hasattr(executor, "map"):
-        results = list(executor.map(_snr_chunk, tasks))
+    pool = _check_pool(client, executor)
+    if sigma_rel is not None:
+        sigma = as_real(sigma_rel, "sigma_rel", minimum=0.0, inclusive=False)
+        if sigma_pos is not None:
+            raise ValueError("give sigma_rel or sigma_pos, not both (sigma_pos sets the "
+                             "bootstrap error that sigma_rel would replace)")
+    meta = {}
+    if jacobian is None:
+        sp = 0.06 * u.arcsec if sigma_pos is None else sigma_pos
+        as_angle_scalar(sp, "sigma_pos", allow_zero=False)
+        ref = smacs0723_reference(sigma_pos=sp)
+        a = ref["jacobian"]
+        if sigma_rel is None:
+            sigma = ref["sigma_rel"]
+            meta["sigma_pos"] = sp
     else:
-        raise TypeError("executor must be None, a concurrent.futures.Executor or a dask Client, "
-                        f"got {type(executor).__name__}")
-    rows = [row for chunk in results for row in chunk]
+        a = _as_jacobian(jacobian)
+        if sigma_rel is None:
+            raise ValueError("sigma_rel is required with a jacobian (sigma_pos only sets the "
+                             "bootstrap error of the default SMACS0723 reference)")
+    _eig(a)
+    tasks = [(np.arange(i, min(i + cs, m.size)), m[i:i + cs], conc, a, r, n_ang, sigma, q,
+              signal, definition, seed, zl, zs, cosmology, box, n)
+             for i in range(0, m.size, cs)]
+    rows = [row for chunk in _run(_snr_chunk, tasks, pool) for row in chunk]
     nr = r.size
     cols = {
         "mass": np.repeat(m, nr) * u.Msun,
         "concentration": np.repeat([row[1] for row in rows], nr),
         "theta_e": np.repeat([row[0] for row in rows], nr) * u.arcsec,
         "r_eff": np.tile(r, m.size),
+        "snr_mean": np.concatenate([row[2] for row in rows]),
     }
-    snr = np.vstack([row[2] for row in rows])
+    snr = np.vstack([row[3] for row in rows])
     for j, qq in enumerate(q):
         cols[f"snr_p{qq:g}"] = snr[:, j]
-    cols["flux_excess_median"] = np.concatenate([row[3] for row in rows])
-    cols["max_images"] = np.concatenate([row[4] for row in rows])
+    cols["flux_excess_median"] = np.concatenate([row[4] for row in rows])
+    cols["max_images"] = np.concatenate([row[5] for row in rows])
     t = QTable(cols)
-    t.meta.update({"sigma_lnsize": sigma, "n_angles": n_ang, "percentiles": q.tolist(),
-                   "concentration": conc})
+    meta.update({"jacobian": a.tolist(), "sigma_rel": sigma, "signal": signal,
+                 "definition": definition, "concentration": conc, "n_angles": n_ang,
+                 "percentiles": q.tolist(), "seed": seed, "z_lens": zl, "z_source": zs})
+    t.meta.update(meta)
     return t
+
+
+def _edges(v, log):
+    w = np.log10(v) if log else v
+    if w.size == 1:
+        e = np.array([w[0] - 0.5, w[0] + 0.5])
+    else:
+        mid = 0.5 * (w[1:] + w[:-1])
+        e = np.concatenate([[2 * w[0] - mid[0]], mid, [2 * w[-1] - mid[-1]]])
+    return 10**e if log else e
+
+
+def plot_detection_snr_map(table, *, columns=None, axes=None, vmin=0.3, vmax=100.0,
+                           levels=(3, 5, 10), cmap="viridis"):
+    """SNR maps over ``r_eff`` (x) and mass (y), one panel per column (paper Fig. 9).
+
+    Parameters
+    ----------
+    table : `~astropy.table.QTable`
+        From :func:`detection_snr_map` (one concentration model).
+    columns : sequence of str, optional
+        SNR columns to show; default every ``snr_p*`` column.
+    axes : sequence of `matplotlib.axes.Axes`, optional
+        One per column; default a new row of panels.
+    vmin, vmax : float
+        Limits of the logarithmic colour scale.
+    levels : sequence of float
+        SNR contour levels (white lines); the dashed line is ``r_eff = 1``.
+    cmap : str
+        Colour map.
+
+    Returns
+    -------
+    axes : list of `matplotlib.axes.Axes`
+    mesh : `matplotlib.collections.QuadMesh`
+        Of the last panel (for a colour bar).
+    """
+    import matplotlib.pyplot as plt
+    from matplotlib.colors import LogNorm
+
+    names = getattr(table, "colnames", ())
+    for col in ("mass", "r_eff"):
+        if col not in names:
+            raise ValueError(f"table must have column {col!r} (from detection_snr_map)")
+    if columns is None:
+        columns = [c for c in names if c.startswith("snr_p")]
+    columns = list(columns)
+    if not columns or any(c not in names for c in columns):
+        raise ValueError(f"columns must name SNR columns of the table, got {columns}")
+    mass = u.Quantity(table["mass"], u.Msun).value
+    r = np.asarray(table["r_eff"], dtype=float)
+    mu, ru = np.unique(mass), np.unique(r)
+    if mu.size * ru.size != len(table):
+        raise ValueError("table must hold one row per (mass, r_eff) pair")
+    im, ir = np.searchsorted(mu, mass), np.searchsorted(ru, r)
+    if axes is None:
+        _, axes = plt.subplots(1, len(columns), figsize=(4 * len(columns), 3.4),
+                               sharey=True, squeeze=False)
+        axes = axes[0]
+    axes = list(np.atleast_1d(axes))
+    if len(axes) != len(columns):
+        raise ValueError(f"need one axes per column: {len(columns)} columns, {len(axes)} axes")
+    xe, ye = _edges(ru, False), _edges(mu, True)
+    mesh = None
+    for ax, col in zip(axes, columns, strict=True):
+        z = np.full((mu.size, ru.size), np.nan)
+        z[im, ir] = np.asarray(table[col], dtype=float)
+        mesh = ax.pcolormesh(xe, ye, np.clip(z, vmin, vmax), norm=LogNorm(vmin, vmax),
+                             cmap=cmap, shading="flat")
+        if levels and ru.size > 1 and mu.size > 1:
+            cs = ax.contour(ru, mu, z, levels=sorted(levels), colors="w", linewidths=0.8)
+            ax.clabel(cs, fmt="%g", fontsize=7)
+        ax.axvline(1.0, color="w", ls="--", lw=0.8)
+        ax.set_yscale("log")
+        ax.set_xlabel(r"$r_{\rm eff}$")
+        ax.set_title(col.replace("snr_p", "SNR, ").replace("snr_mean", "mean SNR")
+                     + ("th percentile" if col.startswith("snr_p") else ""))
+    axes[0].set_ylabel(r"$M_{200}$ [$M_\odot$]")
+    return axes, mesh
