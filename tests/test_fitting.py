@@ -2,12 +2,17 @@
 
 import warnings
 
+import matplotlib
+import matplotlib.pyplot as plt
 import numpy as np
 import pytest
 from astropy import units as u
+from astropy.coordinates import SkyCoord
 from astropy.table import QTable
+from astropy.wcs import WCS
 
 from lensdual.duality import check_duality
+from lensdual.parametric import parametric_comparison
 from lensdual.parametric.fitting import (
     ParametricFit,
     compare_with_parametric,
@@ -187,11 +192,7 @@ def test_compare_with_parametric(fit, pairs):
 
 
 def test_plot(fit, pairs):
-    import matplotlib
-
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     duality = check_duality(pairs, sigma_pos=0.01 * u.arcsec, n_bootstrap=100, seed=1)
     table = compare_with_parametric(duality, fit, n_samples=20, seed=1)
     ax = plot_parametric_comparison(table)
@@ -224,3 +225,186 @@ def test_compare_with_lenstool_model(tmp_path, pairs):
     mu2 = lm.magnification(pairs["x2"].value, pairs["y2"].value)
     np.testing.assert_allclose(table["mu_model"], np.abs(mu1 / mu2), rtol=1e-12)
     assert np.all(table["mu_model_err"] == 0)
+
+
+# ---------------------------------------------------------------------- parametric_comparison
+
+LENS_CENTRE = SkyCoord(150.0, -30.0, unit="deg")
+
+
+def tan_wcs(reference):
+    """An astropy TAN WCS whose pixels are arcsec, x west, y north, origin at
+    ``reference``: an independent implementation of the pairs' tangent-plane frame."""
+    w = WCS(naxis=2)
+    w.wcs.ctype = ["RA---TAN", "DEC--TAN"]
+    w.wcs.crval = [reference.ra.deg, reference.dec.deg]
+    w.wcs.crpix = [1.0, 1.0]
+    w.wcs.cdelt = [-1.0 / 3600.0, 1.0 / 3600.0]
+    return w
+
+
+def with_frame(duality, sky1, sky2, reference, *, keep_sky):
+    """The duality table with positions in the tangent plane about ``reference``, as
+    measure_pairs writes them (and its sky1, sky2 columns when ``keep_sky``)."""
+    w = tan_wcs(reference)
+    out = QTable(duality, copy=True)
+    for (xn, yn), sky in ((("x1", "y1"), sky1), (("x2", "y2"), sky2)):
+        px, py = w.world_to_pixel(sky)
+        out[xn], out[yn] = px * u.arcsec, py * u.arcsec
+    if keep_sky:
+        out["sky1"], out["sky2"] = sky1, sky2
+    out.meta["reference"] = reference
+    return out
+
+
+@pytest.fixture(scope="module")
+def duality(pairs):
+    return check_duality(pairs, sigma_pos=0.01 * u.arcsec, n_bootstrap=100, seed=1)
+
+
+def truth_ratio(pairs):
+    from lenstronomy.LensModel.lens_model import LensModel
+
+    lm = LensModel(["SIE", "SHEAR"])
+    mu1 = lm.magnification(pairs["x1"].value, pairs["y1"].value, TRUTH)
+    mu2 = lm.magnification(pairs["x2"].value, pairs["y2"].value, TRUTH)
+    return np.abs(mu1 / mu2)
+
+
+FAST_FIT = {"fixed_params": FIXED_CENTRE, "n_starts": 1, "max_nfev": 400}
+
+
+def test_parametric_comparison_fit(duality, pairs):
+    from matplotlib.figure import Figure
+
+    table, fig = parametric_comparison(duality, fit=True, model=("SIE", "SHEAR"), z_lens=ZL,
+                                       z_source=ZS, fit_kwargs=FAST_FIT, n_samples=20, seed=1)
+    assert isinstance(table, QTable) and isinstance(fig, Figure)
+    np.testing.assert_allclose(table["mu_model"], truth_ratio(pairs), rtol=1e-3)
+    meta = table.meta["parametric"]
+    assert meta["fit_frame"] == "pairs frame" and meta["fit_model"] == ["SIE", "SHEAR"]
+    assert meta["sigma_pos"] == pytest.approx(0.01)  # the duality test's
+    assert meta["chi2"] < 1e-6 and meta["lenstool"] is None
+    assert fig.axes[0].get_yscale() == "log"
+    plt.close(fig)
+
+
+@pytest.mark.parametrize("keep_sky", [True, False])
+def test_parametric_comparison_fit_about_centre(duality, pairs, keep_sky):
+    # the pairs' frame is centred 40 arcsec from the lens, as measure_pairs would make it;
+    # the fit works about centre, where the model is lens-centred
+    w = tan_wcs(LENS_CENTRE)
+    sky1 = w.pixel_to_world(pairs["x1"].value, pairs["y1"].value)
+    sky2 = w.pixel_to_world(pairs["x2"].value, pairs["y2"].value)
+    reference = w.pixel_to_world(30.0, -25.0)
+    tab = with_frame(duality, sky1, sky2, reference, keep_sky=keep_sky)
+    assert abs(tab["x1"][0] - pairs["x1"][0]) > 20 * u.arcsec
+    table, fig = parametric_comparison(tab, fit=True, model=("SIE", "SHEAR"), z_lens=ZL,
+                                       z_source=ZS, centre=LENS_CENTRE, fit_kwargs=FAST_FIT,
+                                       n_samples=20, seed=1)
+    np.testing.assert_allclose(table["mu_model"], truth_ratio(pairs), rtol=1e-3)
+    assert table.meta["parametric"]["fit_frame"].startswith("tangent plane about RA=150.0000000")
+    plt.close(fig)
+
+
+@pytest.fixture(scope="module")
+def small_lenstool(tmp_path_factory):
+    """The small dPIE model of test_lenstool.py, origin (150, -30) = LENS_CENTRE."""
+    import importlib.util
+    from pathlib import Path
+
+    from lensdual.parametric import read_lenstool
+
+    spec = importlib.util.spec_from_file_location(
+        "_lenstool_tests", Path(__file__).with_name("test_lenstool.py"))
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    path = tmp_path_factory.mktemp("lenstool") / "model.par"
+    path.write_text(mod.PAR)
+    return read_lenstool(path)
+
+
+@pytest.mark.parametrize("keep_sky", [True, False])
+def test_parametric_comparison_lenstool(duality, pairs, small_lenstool, keep_sky):
+    model = small_lenstool
+    # the pairs' model-frame positions are those of the simulation
+    xy1 = np.column_stack([pairs["x1"], pairs["y1"]])
+    xy2 = np.column_stack([pairs["x2"], pairs["y2"]])
+    sky1, sky2 = model.to_sky(xy1), model.to_sky(xy2)
+    reference = tan_wcs(model.origin).pixel_to_world(12.0, 7.0)
+    tab = with_frame(duality, sky1, sky2, reference, keep_sky=keep_sky)
+    table, fig = parametric_comparison(tab, lenstool=model, z_source=2.0)
+    lm = model.lens_model(2.0)
+    expect = np.abs(lm.magnification(xy1[:, 0].value, xy1[:, 1].value)
+                    / lm.magnification(xy2[:, 0].value, xy2[:, 1].value))
+    np.testing.assert_allclose(table["mu_model"], expect, rtol=1e-7)
+    wrong = np.abs(lm.magnification(tab["x1"].value, tab["y1"].value)
+                   / lm.magnification(tab["x2"].value, tab["y2"].value))
+    assert np.max(np.abs(wrong / expect - 1)) > 1e-2  # the frame conversion matters
+    assert table.meta["parametric"]["lenstool"] == str(model.path)
+    assert "mu_lenstool" not in table.colnames
+    plt.close(fig)
+
+
+def test_parametric_comparison_lenstool_and_fit(duality, pairs, small_lenstool, tmp_path):
+    model = small_lenstool
+    xy1 = np.column_stack([pairs["x1"], pairs["y1"]])
+    xy2 = np.column_stack([pairs["x2"], pairs["y2"]])
+    tab = with_frame(duality, model.to_sky(xy1), model.to_sky(xy2), model.origin,
+                     keep_sky=True)
+    # read from the path; the fit works in the model's frame (lens-centred here)
+    table, fig = parametric_comparison(tab, lenstool=model.path, fit=True,
+                                       model=("SIE", "SHEAR"), z_source=ZS,
+                                       fit_kwargs=FAST_FIT, n_samples=20, seed=1)
+    np.testing.assert_allclose(table["mu_model"], truth_ratio(pairs), rtol=1e-3)
+    lm = model.lens_model(ZS)
+    expect = np.abs(lm.magnification(xy1[:, 0].value, xy1[:, 1].value)
+                    / lm.magnification(xy2[:, 0].value, xy2[:, 1].value))
+    np.testing.assert_allclose(table["mu_lenstool"], expect, rtol=1e-7)
+    for col in ("ratio_lenstool", "snr_lenstool", "anomalous_lenstool"):
+        assert col in table.colnames
+    meta = table.meta["parametric"]
+    assert meta["fit_frame"] == "Lenstool model frame" and meta["z_lens"] == 0.4
+    labels = [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
+    assert any("Lenstool" in t for t in labels)
+    plt.close(fig)
+    # what lensdual run writes: the table and its meta survive ECSV
+    table.write(tmp_path / "parametric.ecsv")
+    back = QTable.read(tmp_path / "parametric.ecsv")
+    assert back.meta["parametric"] == meta
+    np.testing.assert_array_equal(back["mu_lenstool"], table["mu_lenstool"])
+
+
+@pytest.mark.parametrize(("kwargs", "exc", "match"), [
+    ({}, ValueError, "nothing to compare"),
+    ({"fit": True, "z_source": None}, ValueError, "z_source is required"),
+    ({"fit": True}, ValueError, "z_lens is required"),
+    ({"fit": "yes"}, TypeError, "fit must be True or False"),
+    ({"lenstool": 3}, TypeError, "lenstool must be a path or a LenstoolModel"),
+    ({"lenstool": "/nonexistent/best.par"}, FileNotFoundError, "best.par"),
+    ({"fit": True, "z_lens": ZL, "centre": (150.0, -30.0)}, TypeError, "centre must be"),
+    ({"fit": True, "z_lens": ZL, "centre": LENS_CENTRE}, ValueError,
+     "cannot place the pairs in the frame of centre"),
+    ({"fit": True, "z_lens": ZL, "fit_kwargs": {"model": "SIS"}}, TypeError, "model"),
+    ({"fit": True, "z_lens": ZL, "model": ("NOPE",)}, ValueError, "unknown or unsupported"),
+])
+def test_parametric_comparison_errors(duality, monkeypatch, kwargs, exc, match):
+    import scipy.optimize
+
+    monkeypatch.setattr(scipy.optimize, "least_squares",
+                        lambda *a, **k: (_ for _ in ()).throw(AssertionError("fitting started")))
+    base = {"z_source": ZS}
+    base.update(kwargs)
+    with pytest.raises(exc, match=match):
+        parametric_comparison(duality, **base)
+
+
+def test_parametric_comparison_needs_sky_for_lenstool(duality, small_lenstool):
+    with pytest.raises(ValueError, match="cannot place the pairs in the Lenstool model's frame"):
+        parametric_comparison(duality, lenstool=small_lenstool, z_source=2.0)
+    with pytest.raises(ValueError, match="z_source must be larger than z_lens"):
+        parametric_comparison(duality, lenstool=small_lenstool, z_source=0.3)
+    with pytest.raises(ValueError, match="lacks the column"):
+        parametric_comparison(QTable({"x1": [1.0] * u.arcsec}), fit=True, z_source=2.0)
+    with pytest.raises(TypeError, match="pairs must be an astropy Table"):
+        parametric_comparison([1, 2], fit=True, z_source=2.0)

@@ -483,8 +483,14 @@ def test_cosmology_from_file_and_override(tmp_path):
      r"line 38, block 'potential G2': unknown key 'magnitude'"),
     ("    profil        81", "    profil        99",
      r"line 15, block 'potentiel O1', key 'profile': unknown profile 99 is not supported"),
+    # Lenstool reads the dPIE radii of this block as the NFW's scale radius and r200,
+    # which then disagree with its v_disp
     ("    profil        81", "    profil        12",
-     r"profile 12 \(NFW\) is not supported yet"),
+     r"line 22, block 'potentiel O1', key 'v_disp': 900 km/s disagrees by .* implied by "
+     r"scale_radius, r200"),
+    ("    profil        81", "    profil        121",
+     r"profile 121 \(triaxial NFW\) is not supported \(only profile 81, the dPIE, and "
+     r"profile 12, the NFW\)"),
     ("    profil        81", "    profil        8",
      r"profile 8 \(PIEMD \(not truncated\)\) is not supported"),
     ("    cut_radius    5.0", "    cut_radius    0.01",
@@ -704,3 +710,49 @@ def test_smacs0723_predicted_images(smacs):
         pred = np.column_stack([found["x"].to_value(u.arcsec), found["y"].to_value(u.arcsec)])
         dist = np.hypot(*(theta[:, None, :] - pred[None, :, :]).transpose(2, 0, 1)).min(axis=1)
         assert dist.max() < 0.5 and np.sqrt(np.mean(dist**2)) < 0.3, name
+
+
+def test_smacs0723_parametric_comparison_from_sky(smacs):
+    """Pairs measured on the sky (a frame about another reference) land where the
+    model's own image positions are: mu_model equals the model's ratio there."""
+    import matplotlib.pyplot as plt
+    from astropy.table import QTable
+    from astropy.wcs import WCS
+
+    from lensdual.parametric import parametric_comparison
+
+    model, images = smacs
+    z = model.fitted_redshifts["4"]
+    first, second = [], []
+    for system in dict.fromkeys(images["system"]):
+        rows = np.flatnonzero(images["system"] == system)
+        names = list(images["image"][rows])
+        if "1" in names and "2" in names:
+            first.append(rows[names.index("1")])
+            second.append(rows[names.index("2")])
+    first, second = np.array(first), np.array(second)
+    assert len(first) >= 15
+    reference = images["sky"][first[0]]
+    w = WCS(naxis=2)  # the pairs' tangent-plane frame: arcsec, x west, y north
+    w.wcs.ctype = ["RA---TAN", "DEC--TAN"]
+    w.wcs.crval = [reference.ra.deg, reference.dec.deg]
+    w.wcs.crpix = [1.0, 1.0]
+    w.wcs.cdelt = [-1 / 3600, 1 / 3600]
+    tab = QTable()
+    tab["pair_id"] = np.arange(1, len(first) + 1)
+    for k, rows in (("1", first), ("2", second)):
+        px, py = w.world_to_pixel(images["sky"][rows])
+        tab[f"x{k}"], tab[f"y{k}"] = px * u.arcsec, py * u.arcsec
+    for name, value in (("mu_flux", 1.0), ("mu_flux_err", 0.05), ("mu_size", 1.0),
+                        ("mu_size_err", 0.1)):
+        tab[name] = np.full(len(tab), value)
+    tab.meta["reference"] = reference
+    lm = model.lens_model(z)
+    expect = np.abs(lm.magnification(images["x"][first].value, images["y"][first].value)
+                    / lm.magnification(images["x"][second].value, images["y"][second].value))
+    with_sky = QTable(tab, copy=True)
+    with_sky["sky1"], with_sky["sky2"] = images["sky"][first], images["sky"][second]
+    for table_in, lenstool in ((with_sky, DATA / "best.par"), (tab, model)):
+        table, fig = parametric_comparison(table_in, lenstool=lenstool, z_source=z)
+        np.testing.assert_allclose(table["mu_model"], expect, rtol=1e-6)
+        plt.close(fig)

@@ -1,4 +1,7 @@
-"""Numba kernels of the dPIE (Lenstool profile 81), summed over many components.
+"""Numba kernels of Lenstool's dPIE (profile 81) and NFW (profile 12) potentials.
+
+The dPIE kernels sum many components (a cluster model has hundreds); the NFW
+kernels, at the end of the module, are documented there.
 
 Everything here is unit-free: positions and radii are plain ``float64`` arrays
 in arcsec, the normalisation ``b0`` is in arcsec too (the Einstein radius of
@@ -410,3 +413,148 @@ def dpie_convergence(x, y, params):
             kap += 0.5 * c[j, _C_B] * (1.0 / pa - 1.0 / ps)
         out[i] = kap
     return out
+
+
+# --------------------------------------------------------------------------- NFW (profile 12)
+# Lenstool's profile 12: a circular NFW lensing potential made elliptical in the
+# potential (Golse & Kneib 2002), psi(X, Y) = psi_NFW(u) with
+# u^2 = (1 - eps) X^2 + (1 + eps) Y^2 in the frame of the component (X along the
+# major axis). With x = u / r_s, the circular profile has
+#
+#     alpha(u) = b g(x) / x,     kappa(u) = b / (2 r_s) f(x),
+#     g(x) = ln(x / 2) + h(x),   f(x) = (1 - h(x)) / (x^2 - 1),
+#     h(x) = arccosh(1/x) / sqrt(1 - x^2)  (x < 1),  arccos(1/x) / sqrt(x^2 - 1)  (x > 1),
+#
+# with b = 4 kappa_s r_s = 6 pi (v_disp / c)^2 D_ls / D_s (Lenstool's b0, arcsec).
+# h is an analytic function of s = 1 - x^2, h = sum_k s^k / (2k + 1), and
+# f = (h - 1) / s = sum_{k>=1} s^(k-1) / (2k + 1): near x = 1 (|s| < _NFW_SERIES) both
+# come from that series, elsewhere from the closed forms written without
+# cancellation (for x < 1, g = [x^2 ln(2/x) / (1 + v) + log1p(-x^2 / (2 (1 + v)))] / v
+# with v = sqrt(s)). In the frame of the component, with m = alpha(u) / u and
+# gamma = m - kappa(u),
+#
+#     alpha_X = m a1 X,  alpha_Y = m a2 Y,       (a1 = 1 - eps, a2 = 1 + eps)
+#     f_XX = a1 m - 2 gamma a1^2 X^2 / u^2,  f_YY = a2 m - 2 gamma a2^2 Y^2 / u^2,
+#     f_XY = -2 gamma a1 a2 X Y / u^2.
+#
+# Parameter array ``nfw``, shape (K, NFW_N_PARAMS): ``x_centre, y_centre, theta, eps,
+# r_s, b`` (arcsec; theta in radians, counter-clockwise from the x axis to the major
+# axis; 0 <= eps < 1, r_s > 0). At the exact centre of a component the deflection is
+# 0 and the Hessian is not finite (the NFW convergence diverges logarithmically).
+
+NFW_X, NFW_Y, NFW_THETA, NFW_EPS, NFW_RS, NFW_B = range(6)
+NFW_N_PARAMS = 6
+_NFW_SERIES = 0.1
+_NFW_SERIES_TERMS = 20
+
+
+@njit(**JIT_OPTIONS)
+def nfw_radial(x):
+    """``(g(x), f(x))`` of the circular NFW for ``x > 0`` (see above)."""
+    s = (1.0 - x) * (1.0 + x)
+    if abs(s) < _NFW_SERIES:
+        f = 0.0
+        for k in range(_NFW_SERIES_TERMS, 0, -1):
+            f = f * s + 1.0 / (2.0 * k + 1.0)
+        return np.log(0.5 * x) + 1.0 + s * f, f
+    if s > 0.0:  # x < 1
+        v = np.sqrt(s)
+        x2 = x * x
+        g = (x2 * np.log(2.0 / x) / (1.0 + v) + np.log1p(-x2 / (2.0 * (1.0 + v)))) / v
+        h = np.log((1.0 + v) / x) / v
+        return g, (h - 1.0) / s
+    w = np.sqrt(-s)  # x > 1
+    h = np.arctan(w) / w
+    return np.log(0.5 * x) + h, (h - 1.0) / s
+
+
+@njit(inline="always", **JIT_OPTIONS)
+def _nfw_local(X, Y, a1, a2, rs, b, mode):
+    """Deflection and Hessian of one NFW component in its own frame."""
+    u2 = a1 * X * X + a2 * Y * Y
+    if u2 == 0.0:
+        inf = np.inf
+        return 0.0, 0.0, inf, 0.0, inf
+    u = np.sqrt(u2)
+    x = u / rs
+    g, f = nfw_radial(x)
+    m = b * g / (x * x * rs)
+    fx = m * a1 * X
+    fy = m * a2 * Y
+    if mode == MODE_ALPHA:
+        return fx, fy, 0.0, 0.0, 0.0
+    gam2 = 2.0 * (m - 0.5 * b / rs * f) / u2
+    fxx = a1 * m - gam2 * a1 * a1 * X * X
+    fyy = a2 * m - gam2 * a2 * a2 * Y * Y
+    fxy = -gam2 * a1 * a2 * X * Y
+    return fx, fy, fxx, fxy, fyy
+
+
+@njit(**JIT_OPTIONS)
+def _nfw_sum(x, y, nfw, mode, out):
+    """Sum the NFW components; ``out`` as in :func:`_sum_components`."""
+    n = x.shape[0]
+    h0 = 2 if mode == MODE_BOTH else 0
+    for i in range(n):
+        ax = 0.0
+        ay = 0.0
+        hxx = 0.0
+        hxy = 0.0
+        hyy = 0.0
+        for j in range(nfw.shape[0]):
+            cs = np.cos(nfw[j, NFW_THETA])
+            sn = np.sin(nfw[j, NFW_THETA])
+            dx = x[i] - nfw[j, NFW_X]
+            dy = y[i] - nfw[j, NFW_Y]
+            X = dx * cs + dy * sn
+            Y = dy * cs - dx * sn
+            eps = nfw[j, NFW_EPS]
+            fx, fy, fxx, fxy, fyy = _nfw_local(X, Y, 1.0 - eps, 1.0 + eps, nfw[j, NFW_RS],
+                                               nfw[j, NFW_B], mode)
+            ax += fx * cs - fy * sn
+            ay += fx * sn + fy * cs
+            if mode != MODE_ALPHA:
+                c2 = cs * cs
+                s2 = sn * sn
+                cssn = cs * sn
+                hxx += c2 * fxx - 2.0 * cssn * fxy + s2 * fyy
+                hxy += cssn * (fxx - fyy) + (c2 - s2) * fxy
+                hyy += s2 * fxx + 2.0 * cssn * fxy + c2 * fyy
+        if mode != MODE_HESSIAN:
+            out[i, 0] = ax
+            out[i, 1] = ay
+        if mode != MODE_ALPHA:
+            out[i, h0] = hxx
+            out[i, h0 + 1] = hxy
+            out[i, h0 + 2] = hyy
+
+
+@njit(**JIT_OPTIONS)
+def nfw_deflection(x, y, nfw):
+    """Deflection ``(alpha_x, alpha_y)`` of the NFW components, shape (N, 2)."""
+    out = np.empty((x.shape[0], 2))
+    _nfw_sum(x, y, nfw, MODE_ALPHA, out)
+    return out
+
+
+@njit(**JIT_OPTIONS)
+def nfw_hessian(x, y, nfw):
+    """Hessian ``(f_xx, f_xy, f_yy)`` of the NFW components, shape (N, 3)."""
+    out = np.empty((x.shape[0], 3))
+    _nfw_sum(x, y, nfw, MODE_HESSIAN, out)
+    return out
+
+
+@njit(**JIT_OPTIONS)
+def nfw_deflection_hessian(x, y, nfw):
+    """Deflection and Hessian of the NFW components, shape (N, 5)."""
+    out = np.empty((x.shape[0], 5))
+    _nfw_sum(x, y, nfw, MODE_BOTH, out)
+    return out
+
+
+@njit(**JIT_OPTIONS)
+def nfw_convergence(x, y, nfw):
+    """Convergence ``(f_xx + f_yy) / 2`` of the NFW components, shape (N,)."""
+    out = nfw_hessian(x, y, nfw)
+    return 0.5 * (out[:, 0] + out[:, 2])

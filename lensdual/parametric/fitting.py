@@ -789,7 +789,9 @@ def plot_parametric_comparison(table, ax=None):
     Parameters
     ----------
     table : `~astropy.table.Table`
-        Output of :func:`compare_with_parametric`.
+        Output of :func:`compare_with_parametric` (or of
+        :func:`~lensdual.parametric.parametric_comparison`, whose
+        ``mu_lenstool`` column, when present, is drawn too).
     ax : `matplotlib.axes.Axes`, optional
         Axes to draw on (default: a new figure).
 
@@ -808,9 +810,13 @@ def plot_parametric_comparison(table, ax=None):
     if ax is None:
         _, ax = plt.subplots(figsize=(7, 4))
     x = np.asarray(table["pair_id"], dtype=float)
+    lenstool_only = str(table.meta.get("model", "")).startswith("Lenstool")
     series = [("mu_flux", r"$\mu_{\rm flux}$ (flux ratio)", "o", -0.2),
               ("mu_size", r"$\mu_{\rm size}$ (model-independent)", "s", 0.0),
-              ("mu_model", r"$\mu_{\rm model}$ (parametric)", "D", 0.2)]
+              ("mu_model", r"$\mu_{\rm model}$ ("
+               + ("Lenstool model" if lenstool_only else "parametric") + ")", "D", 0.2)]
+    if "mu_lenstool" in table.colnames:
+        series.append(("mu_lenstool", r"$\mu_{\rm model}$ (Lenstool model)", "v", 0.3))
     for name, label, marker, dx in series:
         err = (np.asarray(table[f"{name}_err"], float) if f"{name}_err" in table.colnames
                else None)
@@ -819,7 +825,8 @@ def plot_parametric_comparison(table, ax=None):
     if "mu_true" in table.colnames:
         ax.scatter(x, np.asarray(table["mu_true"], float), marker="_", s=200, color="k",
                    label="truth", zorder=3)
-    for flag, col in (("anomalous_size", "C1"), ("anomalous_model", "C2")):
+    for flag, col in (("anomalous_size", "C1"), ("anomalous_model", "C2"),
+                      ("anomalous_lenstool", "C3")):
         if flag in table.colnames:
             sel = np.asarray(table[flag], bool)
             ax.scatter(x[sel], np.asarray(table["mu_flux"], float)[sel], s=120,

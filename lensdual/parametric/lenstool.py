@@ -3,14 +3,16 @@
 Lenstool (Jullo et al. 2007) writes its best-fit model as a ``.par`` file made
 of blocks (``runmode``, ``potential``, ``cosmology``, ...), one ``key value``
 per line, each block closed by ``end``. :func:`read_lenstool` reads the
-potentials of such a file into a :class:`LenstoolModel`, which evaluates the
-deflection and the Hessian with Numba kernels (:class:`DPIELensModel`, a
-drop-in for lenstronomy's ``LensModel``) and builds a
-`~lensdual.simulation.LensSystem`. :func:`read_lenstool_images` reads the
-multiple-image catalogue (``arcs.dat``) the model was fitted to.
+potentials of such a file (dPIE, profile 81, and NFW, profile 12) into a
+:class:`LenstoolModel`, which evaluates the deflection and the Hessian with
+Numba kernels (:class:`LenstoolLensModel`, a drop-in for lenstronomy's
+``LensModel``) and builds a `~lensdual.simulation.LensSystem`.
+:func:`read_lenstool_images` reads the multiple-image catalogue (``arcs.dat``)
+the model was fitted to.
 
 Conventions (Lenstool's, verified on the SMACS0723 model of Mahler et al.
-2023, see the "Lenstool models" page of the documentation):
+2023 for the dPIE, taken from the Lenstool 6.8 source for the NFW; see the
+"Lenstool models" page of the documentation):
 
 * model frame: ``x = -(RA - RA0) cos(Dec0) * 3600``, ``y = (Dec - Dec0) *
   3600`` arcsec (x grows to the West), linear in RA and Dec around the
@@ -18,11 +20,20 @@ Conventions (Lenstool's, verified on the SMACS0723 model of Mahler et al.
 * ``angle_pos``: degrees, counter-clockwise from the x axis, to the major axis;
 * ``ellipticite`` of profile 81: ``e = (A^2 - B^2) / (A^2 + B^2)`` of the
   surface density, used through ``epsilon = (1 - sqrt(1 - e^2)) / e``;
-* ``v_disp``: ``b0 = 6 pi (v_disp / c)^2`` (radians; the Einstein radius of
-  the singular isothermal limit), times ``D_ls / D_s``;
-* ``core_radius_kpc`` / ``cut_radius_kpc`` take precedence over the arcsec
-  values when both are given (as in Lenstool), converted with the angular
-  diameter distance of the lens in the file's cosmology.
+* ``ellipticite`` of profile 12: the ellipticity ``epsilon`` of the potential,
+  ``psi(X, Y) = psi_NFW(sqrt((1 - epsilon) X^2 + (1 + epsilon) Y^2))``
+  (Golse & Kneib 2002); ``ellip_pot`` gives ``epsilon = 3 ellip_pot``;
+* ``v_disp``: ``b0 = 6 pi (v_disp / c)^2`` (radians; for the dPIE the
+  Einstein radius of the singular isothermal limit, for the NFW
+  ``4 kappa_s r_s`` with ``v_disp^2 = 8/3 G r_s^2 rho_s``), times
+  ``D_ls / D_s``;
+* an NFW is defined by the first of (concentration, m200), (concentration,
+  r200), (concentration, scale_radius), (scale_radius, m200), (scale_radius,
+  r200), m200 alone, (v_disp, scale_radius) that its block gives, with M200
+  and r200 relative to 200 times the critical density at ``z_lens``;
+* ``*_radius_kpc`` take precedence over the arcsec values when both are given
+  (as in Lenstool), converted with the angular diameter distance of the lens
+  in the file's cosmology.
 """
 
 import math
@@ -41,7 +52,8 @@ from astropy.table import QTable
 from .._validation import DEFAULT_COSMOLOGY, as_cosmology, as_int, as_positions, as_real
 from . import _kernels
 
-__all__ = ["LenstoolModel", "DPIELensModel", "read_lenstool", "read_lenstool_images"]
+__all__ = ["LenstoolModel", "LenstoolLensModel", "DPIELensModel", "read_lenstool",
+           "read_lenstool_images"]
 
 _ARCSEC_PER_RAD = 180.0 / math.pi * 3600.0
 _C_KMS = const.c.to_value(u.km / u.s)
@@ -63,26 +75,51 @@ _OPENERS = {
 } | _END_OF_FILE
 _POTENTIAL_SECTIONS = {"potentiel", "potential"}
 
-# Keys of a potential block. Profile 81 uses these; "mag" and "lum" (the
-# galaxy's magnitude and luminosity, written by Lenstool for scaled members)
-# and "name" are kept but play no role in the lensing.
+# Keys of a potential block, by profile. ``mag`` and ``lum`` (the galaxy's
+# magnitude and luminosity, written by Lenstool for scaled members) and
+# ``name`` are kept but play no role in the lensing. Aliases are Lenstool's own
+# (r_potentiel.c): for an NFW, Lenstool reads ``core_radius`` into the scale
+# radius and ``cut_radius`` into r200.
 _KEY_ALIASES = {
     "profil": "profile",
     "ellipticite": "ellipticity",
     "ellipticitymass": "ellipticity",
     "ellipticite_pot": "ellip_pot",
 }
-_NUMERIC_KEYS = {
+_COMMON_KEYS = {
     "profile", "x_centre", "y_centre", "x_centre_wcs", "y_centre_wcs", "ellipticity",
-    "ellip_pot", "angle_pos", "core_radius", "core_radius_kpc", "cut_radius",
-    "cut_radius_kpc", "v_disp", "z_lens", "mag", "lum",
+    "ellip_pot", "angle_pos", "z_lens", "mag", "lum",
+}
+_PROFILE_KEYS = {
+    81: {"core_radius", "core_radius_kpc", "cut_radius", "cut_radius_kpc", "v_disp"},
+    12: {"scale_radius", "scale_radius_kpc", "r200", "r200_kpc", "v_disp", "concentration",
+         "m200", "rhos", "alpha", "rc_slope"},
+}
+_PROFILE_ALIASES = {
+    81: {},
+    12: {"core_radius": "scale_radius", "core_radius_kpc": "scale_radius_kpc",
+         "cut_radius": "r200", "cut_radius_kpc": "r200_kpc", "virial_radius": "r200",
+         "virial_radius_kpc": "r200_kpc", "c": "concentration", "beta": "concentration",
+         "masse": "m200", "mass": "m200", "virial_mass": "m200", "exponent": "alpha",
+         "exposant": "alpha"},
 }
 _TEXT_KEYS = {"name"}
 _PROFILE_NAMES = {
     1: "SIS", 8: "PIEMD (not truncated)", 12: "NFW", 13: "Sersic", 14: "external shear",
-    15: "Einasto", 16: "Hernquist", 81: "dPIE",
+    15: "Einasto", 16: "Hernquist", 81: "dPIE", 121: "triaxial NFW",
 }
-_SUPPORTED_PROFILES = {81}
+_SUPPORTED_PROFILES = {81, 12}
+
+# Lenstool's 1/G (constant.h: INVG = 2.325968e8 Msun / (km/s)^2 / Mpc), used in its
+# NFW conversions between (concentration, M200, r200, r_s) and v_disp; 3.8e-4 above
+# the CODATA 2018 value. lensdual uses it so as to reproduce Lenstool's numbers.
+_LENSTOOL_INVG = 2.325968e8
+# Relative tolerance of the consistency check of redundant NFW keys (best.par writes
+# v_disp, scale_radius, concentration, m200 and rhos, rounded to 4 digits).
+_NFW_CONSISTENCY = 0.01
+# Maccio, Dutton & van den Bosch (2008) c(M200) relation, as Lenstool applies it to
+# an NFW given by its mass alone: log10 c = 0.830 - 0.098 (log10 M200 - 12).
+_MACCIO_A, _MACCIO_B = 0.830, -0.098
 
 _COSMO_KEYS = {
     "model", "h0", "omegam", "omega", "omegax", "lambda", "omegak", "wx", "q", "wa",
@@ -270,74 +307,243 @@ def _check_nlens(path, blocks, n_potentials):
 
 
 def _potential(path, block):
-    """The keys of one potential block, validated; returns a dict."""
+    """The keys of one potential block, validated; returns a dict.
+
+    Keys are stored under their canonical names (``_KEY_ALIASES`` and, once
+    the profile is known, ``_PROFILE_ALIASES``); ``_lines`` maps them to their
+    line and ``_keys`` to the spelling of the file, for the messages.
+    """
     label = f"{block['section']} {block['label']}".strip()
-    values = {}
-    lines = {}
-    for number, key, tokens in block["items"]:
-        where = f"{path}, line {number}, block '{label}'"
-        key = _KEY_ALIASES.get(key, key)
-        if key not in _NUMERIC_KEYS and key not in _TEXT_KEYS:
-            raise ValueError(f"{where}: unknown key {key!r} in a potential block (known: "
-                             f"{', '.join(sorted(_NUMERIC_KEYS | _TEXT_KEYS))})")
-        if key in values:
-            raise ValueError(f"{where}: key {key!r} given twice (first at line {lines[key]})")
-        if len(tokens) != 1:
-            raise ValueError(f"{where}: key {key!r} needs one value, got "
-                             f"{len(tokens)} ({' '.join(tokens)!r})")
-        values[key] = tokens[0] if key in _TEXT_KEYS else _number(tokens[0], where, key)
-        lines[key] = number
     where = f"{path}, line {block['line']}, block '{label}'"
-    if "profile" not in values:
+    items = [(number, key, _KEY_ALIASES.get(key, key), tokens)
+             for number, key, tokens in block["items"]]
+    found = [it for it in items if it[2] == "profile"]
+    if not found:
         raise ValueError(f"{where}: no 'profile'")
-    profile = values["profile"]
-    pwhere = f"{path}, line {lines['profile']}, block '{label}', key 'profile'"
+    if len(found) > 1:
+        raise ValueError(f"{path}, line {found[1][0]}, block '{label}': key 'profile' given "
+                         f"twice (first at line {found[0][0]})")
+    number, key, _, tokens = found[0]
+    pwhere = f"{path}, line {number}, block '{label}', key 'profile'"
+    if len(tokens) != 1:
+        raise ValueError(f"{path}, line {number}, block '{label}': key {key!r} needs one value, "
+                         f"got {len(tokens)} ({' '.join(tokens)!r})")
+    profile = _number(tokens[0], f"{path}, line {number}, block '{label}'", key)
     if profile != int(profile):
         raise ValueError(f"{pwhere}: the profile must be an integer, got {profile}")
     profile = int(profile)
     if profile not in _SUPPORTED_PROFILES:
-        if profile == 12:
-            raise ValueError(f"{pwhere}: profile 12 (NFW) is not supported yet (only "
-                             "profile 81, the dPIE)")
         name = _PROFILE_NAMES.get(profile)
         what = f"profile {profile} ({name})" if name else f"unknown profile {profile}"
-        raise ValueError(f"{pwhere}: {what} is not supported (only profile 81, the dPIE)")
-    for key in ("v_disp", "z_lens"):
-        if key not in values:
-            raise ValueError(f"{where}: no {key!r}")
+        raise ValueError(f"{pwhere}: {what} is not supported (only profile 81, the dPIE, and "
+                         "profile 12, the NFW)")
+    allowed = _COMMON_KEYS | _PROFILE_KEYS[profile]
+    aliases = _PROFILE_ALIASES[profile]
+
+    values = {"profile": profile}
+    lines = {"profile": number}
+    spelled = {"profile": key}
+    for number, key, canon, tokens in items:
+        if canon == "profile":
+            continue
+        lwhere = f"{path}, line {number}, block '{label}'"
+        canon = aliases.get(canon, canon)
+        if canon not in allowed and canon not in _TEXT_KEYS:
+            known = sorted(allowed | _TEXT_KEYS | set(aliases))
+            raise ValueError(f"{lwhere}: unknown key {key!r} in a potential block of profile "
+                             f"{profile} ({_PROFILE_NAMES[profile]}; known: "
+                             f"{', '.join(known)})")
+        if canon in values:
+            same = "" if spelled[canon] == key else f", as {spelled[canon]!r}"
+            raise ValueError(f"{lwhere}: key {key!r} given twice (first at line "
+                             f"{lines[canon]}{same})")
+        if len(tokens) != 1:
+            raise ValueError(f"{lwhere}: key {key!r} needs one value, got "
+                             f"{len(tokens)} ({' '.join(tokens)!r})")
+        values[canon] = tokens[0] if canon in _TEXT_KEYS else _number(tokens[0], lwhere, key)
+        lines[canon] = number
+        spelled[canon] = key
+    if "z_lens" not in values:
+        raise ValueError(f"{where}: no 'z_lens'")
     for pair in (("x_centre", "x_centre_wcs"), ("y_centre", "y_centre_wcs")):
         if sum(k in values for k in pair) != 1:
             raise ValueError(f"{where}: give exactly one of {pair[0]!r} and {pair[1]!r}")
-    for pair in (("core_radius", "core_radius_kpc"), ("cut_radius", "cut_radius_kpc")):
-        if not any(k in values for k in pair):
-            raise ValueError(f"{where}: no {pair[0]!r} (nor {pair[1]!r})")
+    if profile == 81:
+        if "v_disp" not in values:
+            raise ValueError(f"{where}: no 'v_disp'")
+        for pair in (("core_radius", "core_radius_kpc"), ("cut_radius", "cut_radius_kpc")):
+            if not any(k in values for k in pair):
+                raise ValueError(f"{where}: no {pair[0]!r} (nor {pair[1]!r})")
     if "ellipticity" in values and "ellip_pot" in values:
         raise ValueError(f"{path}, line {lines['ellip_pot']}, block '{label}': give "
                          "'ellipticite' or 'ellip_pot', not both")
 
     def check(key, ok, cond):
         if key in values and not ok(values[key]):
-            raise ValueError(f"{path}, line {lines[key]}, block '{label}', key {key!r}: "
-                             f"must be {cond}, got {values[key]}")
+            raise ValueError(f"{path}, line {lines[key]}, block '{label}', key "
+                             f"{spelled[key]!r}: must be {cond}, got {values[key]}")
 
     check("ellipticity", lambda v: 0.0 <= v < 1.0, "in [0, 1)")
-    check("ellip_pot", lambda v: 0.0 <= v < 1.0, "in [0, 1)")
-    check("v_disp", lambda v: v >= 0.0, ">= 0")
+    if profile == 12:
+        # Lenstool sets the NFW's ellipticity to 3 * ellip_pot (set_lens.c)
+        check("ellip_pot", lambda v: 0.0 <= v < 1.0 / 3.0, "in [0, 1/3) (Lenstool uses "
+              "3 * ellip_pot as the ellipticity of an NFW)")
+    else:
+        check("ellip_pot", lambda v: 0.0 <= v < 1.0, "in [0, 1)")
     check("z_lens", lambda v: v > 0.0, "> 0")
-    for key in ("core_radius", "core_radius_kpc", "cut_radius", "cut_radius_kpc"):
-        check(key, lambda v: v >= 0.0, ">= 0")
+    for key in ("v_disp", "core_radius", "core_radius_kpc", "cut_radius", "cut_radius_kpc",
+                "scale_radius", "scale_radius_kpc", "concentration", "m200", "rhos"):
+        check(key, lambda v: v >= 0.0, ">= 0 (0: not given)" if profile == 12 else ">= 0")
+    for key in ("r200", "r200_kpc"):
+        check(key, lambda v: v > 0.0, "> 0")
+    check("alpha", lambda v: v in (0.0, 1.0), "0 or 1 (the generalised NFW, alpha != 0 or 1 "
+          "in Lenstool, is not supported)")
+    check("rc_slope", lambda v: v == 0.0, "0 (not supported for an NFW)")
     values["_lines"] = lines
+    values["_keys"] = spelled
     values["_label"] = label
     values["_name"] = str(values.get("name", block["label"] or f"#{block['line']}"))
     values["_line"] = block["line"]
     return values
 
 
+def _rho_crit(cosmo, z):
+    """Critical density at ``z`` in Msun / Mpc^3, with Lenstool's G."""
+    h = cosmo.H(z).to_value(u.km / u.s / u.Mpc)
+    return 3.0 * h * h * _LENSTOOL_INVG / (8.0 * math.pi)
+
+
+def _nfw_delta_c(c):
+    """Characteristic overdensity ``rho_s / rho_crit`` of an NFW of concentration ``c``
+    (M200 with respect to the critical density)."""
+    return 200.0 / 3.0 * c**3 / (math.log1p(c) - c / (1.0 + c))
+
+
+def _nfw_v_disp(c, rs_mpc, rho_c):
+    """Lenstool's NFW velocity dispersion, ``v_disp^2 = 8/3 G r_s^2 rho_s`` (km/s)."""
+    return math.sqrt(8.0 / 3.0 / _LENSTOOL_INVG * rs_mpc**2 * _nfw_delta_c(c) * rho_c)
+
+
+def _r200_from_m200(m200, rho_c):
+    """r200 (Mpc) of a mass M200 (Msun): ``M200 = 4/3 pi r200^3 200 rho_crit``."""
+    return (3.0 * m200 / (4.0 * math.pi * 200.0 * rho_c)) ** (1.0 / 3.0)
+
+
+def _nfw_concentration(v_disp, rs_mpc, rho_c):
+    """The concentration of an NFW given by ``v_disp`` and ``r_s`` (NaN if none)."""
+    from scipy.optimize import brentq
+
+    target = 3.0 / 8.0 * _LENSTOOL_INVG * v_disp**2 / rs_mpc**2 / rho_c
+    lo, hi = 1e-6, 1e6
+    if not _nfw_delta_c(lo) < target < _nfw_delta_c(hi):
+        return math.nan
+    return brentq(lambda c: _nfw_delta_c(c) - target, lo, hi, xtol=1e-14, rtol=1e-14)
+
+
+def _nfw_parameters(path, p, cosmo, z_lens, kpc_per_arcsec):
+    """Scale radius and v_disp of an NFW block, the way Lenstool derives them.
+
+    Lenstool (set_dynamics in set_lens.c) takes the first of these
+    definitions that the block gives (0 meaning "not given"), and ignores
+    the other keys: (concentration, m200), (concentration, r200),
+    (concentration, scale_radius), (scale_radius, m200), (scale_radius,
+    r200), m200 alone (concentration from Maccio et al. 2008), and else
+    (v_disp, scale_radius) as they are. Given keys that the definition does
+    not use must agree with it to 1 %.
+
+    Returns a dict: ``rs`` (arcsec), ``rs_kpc``, ``v_disp`` (km/s),
+    ``concentration``, ``m200`` (Msun), ``r200_kpc``, ``definition`` (str).
+    """
+    label = p["_label"]
+    where = f"{path}, line {p['_line']}, block '{label}'"
+    rho_c = _rho_crit(cosmo, z_lens)
+
+    def given(key):
+        value = p.get(key, 0.0)
+        return value if value > 0 else None
+
+    c = given("concentration")
+    m200 = given("m200")
+    r200_kpc = given("r200_kpc")
+    if r200_kpc is None and given("r200") is not None:
+        r200_kpc = p["r200"] * kpc_per_arcsec
+    rs_kpc = given("scale_radius_kpc")
+    if rs_kpc is None and given("scale_radius") is not None:
+        rs_kpc = p["scale_radius"] * kpc_per_arcsec
+    v_disp = given("v_disp")
+
+    if c is not None and m200 is not None:
+        definition, used = "concentration, m200", ("concentration", "m200")
+        rs_kpc_d = _r200_from_m200(m200, rho_c) / c * 1e3
+        c_d = c
+    elif c is not None and r200_kpc is not None:
+        definition, used = "concentration, r200", ("concentration", "r200")
+        rs_kpc_d, c_d = r200_kpc / c, c
+    elif c is not None and rs_kpc is not None:
+        definition, used = "concentration, scale_radius", ("concentration", "scale_radius")
+        rs_kpc_d, c_d = rs_kpc, c
+    elif rs_kpc is not None and m200 is not None:
+        definition, used = "scale_radius, m200", ("scale_radius", "m200")
+        rs_kpc_d = rs_kpc
+        c_d = _r200_from_m200(m200, rho_c) * 1e3 / rs_kpc
+    elif rs_kpc is not None and r200_kpc is not None:
+        definition, used = "scale_radius, r200", ("scale_radius", "r200")
+        rs_kpc_d, c_d = rs_kpc, r200_kpc / rs_kpc
+    elif m200 is not None:
+        definition, used = "m200 (Maccio et al. 2008 concentration)", ("m200",)
+        c_d = 10.0 ** (_MACCIO_A + _MACCIO_B * (math.log10(m200) - 12.0))
+        rs_kpc_d = _r200_from_m200(m200, rho_c) / c_d * 1e3
+    elif v_disp is not None and rs_kpc is not None:
+        definition, used = "v_disp, scale_radius", ("v_disp", "scale_radius")
+        rs_kpc_d = rs_kpc
+        c_d = _nfw_concentration(v_disp, rs_kpc * 1e-3, rho_c)
+    else:
+        have = [k for k, v in (("concentration", c), ("m200", m200), ("r200", r200_kpc),
+                               ("scale_radius", rs_kpc), ("v_disp", v_disp)) if v is not None]
+        raise ValueError(
+            f"{where}: the NFW (profile 12) is not defined: give one of (concentration, "
+            "m200), (concentration, r200), (concentration, scale_radius), (scale_radius, "
+            "m200), (scale_radius, r200), m200 alone, or (v_disp, scale_radius); it has "
+            f"{', '.join(have) if have else 'none of these'} (0 means not given)")
+    if definition.startswith("v_disp"):
+        v_disp_d = v_disp
+    else:
+        v_disp_d = _nfw_v_disp(c_d, rs_kpc_d * 1e-3, rho_c)
+    m200_d = 4.0 / 3.0 * math.pi * 200.0 * rho_c * (c_d * rs_kpc_d * 1e-3) ** 3
+    rhos_d = _nfw_delta_c(c_d) * rho_c if math.isfinite(c_d) else math.nan
+    # (file key, derived value in the unit of that key, unit) of every key
+    checks = {
+        "concentration": ("concentration", c_d, ""), "m200": ("m200", m200_d, " Msun"),
+        "r200": ("r200", c_d * rs_kpc_d / kpc_per_arcsec, " arcsec"),
+        "r200_kpc": ("r200", c_d * rs_kpc_d, " kpc"),
+        "scale_radius": ("scale_radius", rs_kpc_d / kpc_per_arcsec, " arcsec"),
+        "scale_radius_kpc": ("scale_radius", rs_kpc_d, " kpc"),
+        "v_disp": ("v_disp", v_disp_d, " km/s"), "rhos": ("rhos", rhos_d, " Msun/Mpc^3"),
+    }
+    # the kpc radius is the one Lenstool uses when both are given
+    skip = {"r200" if given("r200_kpc") else "r200_kpc",
+            "scale_radius" if given("scale_radius_kpc") else "scale_radius_kpc"}
+    for file_key, (quantity, value_d, unit) in checks.items():
+        value = given(file_key)
+        if value is None or file_key in skip or quantity in used or not math.isfinite(value_d):
+            continue
+        rel = abs(value / value_d - 1.0)
+        if rel > _NFW_CONSISTENCY:
+            raise ValueError(
+                f"{path}, line {p['_lines'][file_key]}, block '{label}', key "
+                f"{p['_keys'][file_key]!r}: {value:.6g}{unit} disagrees by {rel:.1%} with the "
+                f"{value_d:.6g}{unit} implied by {definition} (Lenstool would use "
+                f"{definition} and ignore it): remove it or make it consistent")
+    return {"rs": rs_kpc_d / kpc_per_arcsec, "rs_kpc": rs_kpc_d, "v_disp": v_disp_d,
+            "concentration": c_d, "m200": m200_d, "r200_kpc": c_d * rs_kpc_d,
+            "definition": definition}
+
+
 # --------------------------------------------------------------------------- public API
 
 
 def read_lenstool(path, *, cosmology=None):
-    """Read a Lenstool parameter file (``best.par``) made of dPIE potentials.
+    """Read a Lenstool parameter file (``best.par``) of dPIE and NFW potentials.
 
     Parameters
     ----------
@@ -356,11 +562,14 @@ def read_lenstool(path, *, cosmology=None):
     ValueError
         Anything that cannot be read unambiguously, with the file, line, block
         and key: a block without ``end`` (truncated file), a non-numeric value,
-        an unknown key in a potential block, a profile other than 81 (the
-        dPIE; profile 12, NFW, is not supported yet), no ``runmode``
+        an unknown key in a potential block (the keys depend on the profile), a
+        profile other than 81 (dPIE) and 12 (NFW), no ``runmode``
         ``reference``, a ``potfile`` block (scaling-relation members: the
-        ``best.par`` written by Lenstool lists every member as a potential), or
-        potentials at different redshifts.
+        ``best.par`` written by Lenstool lists every member as a potential),
+        potentials at different redshifts; and for an NFW: no complete
+        definition, negative values, a generalised NFW (``alpha`` other than 0
+        or 1), or a redundant key that disagrees with the definition by more
+        than 1 %.
 
     Notes
     -----
@@ -370,6 +579,26 @@ def read_lenstool(path, *, cosmology=None):
     ``end`` and skipped. The fitted redshifts Lenstool writes in the header of
     ``best.par`` (``#4.0 z:2.174644 dlsds:0.720273``) are kept in
     `LenstoolModel.fitted_redshifts`.
+
+    **NFW (profile 12).** Keys (with Lenstool's aliases): ``scale_radius``
+    (``core_radius``), ``scale_radius_kpc``, ``r200`` (``virial_radius``,
+    ``cut_radius``), ``r200_kpc``, ``concentration`` (``c``, ``beta``),
+    ``m200`` (``masse``, ``mass``, ``virial_mass``; Msun), ``v_disp``
+    (km/s), ``rhos`` (Msun/Mpc^3, informative), ``alpha`` (0 or 1) and
+    ``rc_slope`` (0), besides the centre, ``ellipticite`` or ``ellip_pot``
+    and ``angle_pos``. As in Lenstool, 0 means "not given", and the profile
+    is defined by the first of (concentration, m200), (concentration, r200),
+    (concentration, scale_radius), (scale_radius, m200), (scale_radius,
+    r200), m200 alone (concentration from Maccio et al. 2008,
+    ``log10 c = 0.830 - 0.098 (log10 M200 - 12)``) and (v_disp,
+    scale_radius). The conversions are those of Lenstool's ``e_nfw.c``:
+    ``M200 = 800/3 pi rho_c r200^3``, ``r_s = r200 / c``, ``rho_s = 200/3
+    c^3 / (ln(1 + c) - c / (1 + c)) rho_c`` and ``v_disp^2 = 8/3 G r_s^2
+    rho_s``, with ``rho_c = 3 H(z_lens)^2 / (8 pi G)`` in the file's
+    cosmology and Lenstool's ``G`` (``1 / 2.325968e8`` Mpc (km/s)^2 / Msun).
+    Other keys given (``best.par`` lists ``v_disp``, ``scale_radius``,
+    ``concentration``, ``m200`` and ``rhos`` together) must agree with the
+    definition to 1 %, or the file is ambiguous and rejected.
     """
     path = _as_path(path)
     cosmo_override = None if cosmology is None else as_cosmology(cosmology)
@@ -418,37 +647,55 @@ def read_lenstool(path, *, cosmology=None):
             y = (p["y_centre_wcs"] - origin.dec.deg) * 3600.0
         else:
             y = p["y_centre"]
-        core = (p["core_radius_kpc"] / kpc_per_arcsec if "core_radius_kpc" in p
-                else p["core_radius"])
-        cut = (p["cut_radius_kpc"] / kpc_per_arcsec if "cut_radius_kpc" in p
-               else p["cut_radius"])
-        if not cut > core:
-            raise ValueError(f"{where}: the cut radius ({cut:.6g} arcsec) must be larger than "
-                             f"the core radius ({core:.6g} arcsec)")
-        if "ellip_pot" in p:
-            eps = p["ellip_pot"]
-            emass = 2.0 * eps / (1.0 + eps * eps)
+        nan = math.nan
+        if p["profile"] == 12:
+            nfw = _nfw_parameters(path, p, cosmo, z_lens, kpc_per_arcsec)
+            # Lenstool's NFW takes its ellipticity in the potential: the value of
+            # 'ellipticite', or 3 * 'ellip_pot' (set_lens.c, e_grad.c, e_grad2.c)
+            emass = 3.0 * p["ellip_pot"] if "ellip_pot" in p else p.get("ellipticity", 0.0)
+            eps = emass
+            core = cut = nan
+            v_disp = nfw["v_disp"]
+            extra = (nfw["rs"], nfw["rs_kpc"], nfw["concentration"], nfw["m200"],
+                     nfw["r200_kpc"], nfw["definition"])
         else:
-            emass = p.get("ellipticity", 0.0)
-            eps = (1.0 - math.sqrt(1.0 - emass * emass)) / emass if emass > 0 else 0.0
-        if eps > _kernels.EPS_MAX:
-            raise ValueError(f"{where}: ellipticity {emass} (epsilon {eps:.6g}) is too close "
-                             f"to 1: epsilon must be <= {_kernels.EPS_MAX} (axis ratio "
-                             "1:2000)")
-        b0 = 6.0 * math.pi * (p["v_disp"] / _C_KMS) ** 2 * _ARCSEC_PER_RAD
+            core = (p["core_radius_kpc"] / kpc_per_arcsec if "core_radius_kpc" in p
+                    else p["core_radius"])
+            cut = (p["cut_radius_kpc"] / kpc_per_arcsec if "cut_radius_kpc" in p
+                   else p["cut_radius"])
+            if not cut > core:
+                raise ValueError(f"{where}: the cut radius ({cut:.6g} arcsec) must be larger "
+                                 f"than the core radius ({core:.6g} arcsec)")
+            if "ellip_pot" in p:
+                eps = p["ellip_pot"]
+                emass = 2.0 * eps / (1.0 + eps * eps)
+            else:
+                emass = p.get("ellipticity", 0.0)
+                eps = (1.0 - math.sqrt(1.0 - emass * emass)) / emass if emass > 0 else 0.0
+            if eps > _kernels.EPS_MAX:
+                raise ValueError(f"{where}: ellipticity {emass} (epsilon {eps:.6g}) is too "
+                                 f"close to 1: epsilon must be <= {_kernels.EPS_MAX} (axis "
+                                 "ratio 1:2000)")
+            v_disp = p["v_disp"]
+            extra = (nan, nan, nan, nan, nan, "v_disp, core_radius, cut_radius")
+        b0 = 6.0 * math.pi * (v_disp / _C_KMS) ** 2 * _ARCSEC_PER_RAD
         rows.append((p["_name"], p["_line"], int(p["profile"]), x, y, emass, eps,
                      p.get("angle_pos", 0.0), core, cut, core * kpc_per_arcsec,
-                     cut * kpc_per_arcsec, p["v_disp"], p["z_lens"], p.get("mag", np.nan), b0))
+                     cut * kpc_per_arcsec, v_disp, p["z_lens"], p.get("mag", np.nan), b0,
+                     *extra))
     names = ("name", "line", "profile", "x_centre", "y_centre", "ellipticity", "epsilon",
              "angle_pos", "core_radius", "cut_radius", "core_radius_kpc", "cut_radius_kpc",
-             "v_disp", "z_lens", "mag", "b0")
+             "v_disp", "z_lens", "mag", "b0", "scale_radius", "scale_radius_kpc",
+             "concentration", "m200", "r200_kpc", "definition")
     units = (None, None, None, u.arcsec, u.arcsec, None, None, u.deg, u.arcsec, u.arcsec,
-             u.kpc, u.kpc, u.km / u.s, None, None, u.arcsec)
+             u.kpc, u.kpc, u.km / u.s, None, None, u.arcsec, u.arcsec, u.kpc, None, u.Msun,
+             u.kpc, None)
     cols = list(zip(*rows, strict=True))
     table = QTable()
     for name, col, unit in zip(names, cols, units, strict=True):
         table[name] = np.array(col) * unit if unit is not None else np.array(col)
     table["b0"].description = "6 pi (v_disp / c)^2 for D_ls / D_s = 1"
+    table["definition"].description = "the keys that define the potential"
 
     fitted = {}
     meta = {}
@@ -467,7 +714,7 @@ def read_lenstool(path, *, cosmology=None):
 
 
 class LenstoolModel:
-    """A Lenstool model: dPIE potentials around a sky reference.
+    """A Lenstool model: dPIE and NFW potentials around a sky reference.
 
     Made by :func:`read_lenstool`; not meant to be built by hand.
 
@@ -483,14 +730,22 @@ class LenstoolModel:
         Redshift of the potentials.
     potentials : `~astropy.table.QTable`
         One row per potential, in file order: ``name``, ``line`` (of the
-        block in the file), ``profile``, ``x_centre``, ``y_centre`` (arcsec,
-        model frame), ``ellipticity`` (Lenstool's mass ellipticity
-        ``(A^2 - B^2) / (A^2 + B^2)``), ``epsilon`` (the ellipticity parameter
-        of the kernels, ``(A - B) / (A + B)``), ``angle_pos`` (deg),
-        ``core_radius``, ``cut_radius`` (arcsec, the values used),
-        ``core_radius_kpc``, ``cut_radius_kpc``, ``v_disp`` (km/s),
-        ``z_lens``, ``mag`` (NaN if absent) and ``b0`` (arcsec, for
-        ``D_ls / D_s = 1``).
+        block in the file), ``profile`` (81: dPIE, 12: NFW), ``x_centre``,
+        ``y_centre`` (arcsec, model frame), ``ellipticity`` (the file's
+        ``ellipticite``: for a dPIE the mass ellipticity ``(A^2 - B^2) /
+        (A^2 + B^2)``, for an NFW the ellipticity of the potential),
+        ``epsilon`` (the ellipticity parameter of the kernels: dPIE ``(A - B)
+        / (A + B)`` of the mass, NFW the ellipticity of the potential),
+        ``angle_pos`` (deg), ``core_radius``, ``cut_radius`` (arcsec, the
+        values used; NaN for an NFW), ``core_radius_kpc``,
+        ``cut_radius_kpc``, ``v_disp`` (km/s; for an NFW the value derived
+        from its definition), ``z_lens``, ``mag`` (NaN if absent), ``b0``
+        (arcsec, ``6 pi (v_disp / c)^2`` for ``D_ls / D_s = 1``), and for the
+        NFWs (NaN for the dPIEs) ``scale_radius`` (arcsec),
+        ``scale_radius_kpc``, ``concentration``, ``m200`` (Msun, with
+        respect to 200 times the critical density at ``z_lens``),
+        ``r200_kpc``; ``definition`` names the keys that defined the
+        potential (see :func:`read_lenstool`).
     fitted_redshifts : dict
         System name -> best-fit redshift, from the header of ``best.par``
         (systems whose redshift Lenstool optimised).
@@ -515,7 +770,10 @@ class LenstoolModel:
         return len(self.potentials)
 
     def __repr__(self):
-        return (f"<LenstoolModel {self.path.name!r}: {len(self)} dPIE potentials at "
+        profiles = np.asarray(self.potentials["profile"])
+        n_dpie, n_nfw = int(np.sum(profiles == 81)), int(np.sum(profiles == 12))
+        what = f"{n_dpie} dPIE" + (f" + {n_nfw} NFW" if n_nfw else "")
+        return (f"<LenstoolModel {self.path.name!r}: {what} potentials at "
                 f"z_lens={self.z_lens}, origin RA={self.origin.ra.deg:.6f} "
                 f"Dec={self.origin.dec.deg:.6f} deg>")
 
@@ -573,21 +831,31 @@ class LenstoolModel:
         d_s = self.cosmology.angular_diameter_distance(zs)
         return float((d_ls / d_s).to_value(u.dimensionless_unscaled))
 
-    def kernel_parameters(self, z_source=None):
-        """The (M, 7) float array the kernels take.
+    def kernel_parameters(self, z_source=None, *, profile=81):
+        """The float array the kernels take for the potentials of one profile.
 
-        Columns ``x_centre, y_centre, theta (rad), epsilon, core, cut, b0``
-        (arcsec), ``b0`` scaled by ``D_ls / D_s`` (not scaled when
-        ``z_source`` is None).
+        Parameters
+        ----------
+        z_source : float, optional
+            Source redshift: the normalisations are multiplied by
+            ``D_ls / D_s`` (not scaled when None).
+        profile : {81, 12}
+            81 (dPIE): shape (M, 7), columns ``x_centre, y_centre, theta
+            (rad), epsilon, core, cut, b0`` (arcsec). 12 (NFW): shape (K, 6),
+            columns ``x_centre, y_centre, theta (rad), epsilon, r_s, b0``
+            (arcsec; ``epsilon`` the ellipticity of the potential). M or K
+            may be 0.
         """
+        if profile not in (81, 12):
+            raise ValueError(f"profile must be 81 (dPIE) or 12 (NFW), got {profile!r}")
         scale = 1.0 if z_source is None else self.dls_ds(z_source)
-        t = self.potentials
+        t = self.potentials[np.asarray(self.potentials["profile"]) == profile]
+        radii = (("core_radius", "cut_radius") if profile == 81 else ("scale_radius",))
         params = np.column_stack([
             t["x_centre"].to_value(u.arcsec), t["y_centre"].to_value(u.arcsec),
             t["angle_pos"].to_value(u.rad), np.asarray(t["epsilon"], dtype=float),
-            t["core_radius"].to_value(u.arcsec), t["cut_radius"].to_value(u.arcsec),
-            t["b0"].to_value(u.arcsec) * scale,
-        ])
+            *(t[r].to_value(u.arcsec) for r in radii), t["b0"].to_value(u.arcsec) * scale,
+        ]) if len(t) else np.empty((0, 7 if profile == 81 else _kernels.NFW_N_PARAMS))
         return np.ascontiguousarray(params, dtype=np.float64)
 
     def lens_model(self, z_source, *, n_threads=1):
@@ -603,12 +871,13 @@ class LenstoolModel:
 
         Returns
         -------
-        model : `DPIELensModel`
+        model : `LenstoolLensModel`
             lenstronomy ``LensModel``-like (``ray_shooting``, ``alpha``,
             ``hessian``, ``magnification``, ``kappa``), model-frame arcsec.
         """
-        return DPIELensModel(self.kernel_parameters(z_source), n_threads=n_threads,
-                             z_source=float(z_source))
+        return LenstoolLensModel(self.kernel_parameters(z_source, profile=81),
+                                 self.kernel_parameters(z_source, profile=12),
+                                 n_threads=n_threads, z_source=float(z_source))
 
     def lens_system(self, z_source, *, sources=None, n_threads=1):
         """A `~lensdual.simulation.LensSystem` of this model for ``z_source``.
@@ -616,8 +885,8 @@ class LenstoolModel:
         Positions of the system are in the model frame (arcsec); use
         `to_model_frame` and `to_sky` to go to and from the sky. Its
         ``kwargs_lens`` list the centres of the potentials (``center_x``,
-        ``center_y``): the model ignores them, the image finder refines its
-        grid around them.
+        ``center_y``), dPIEs first, then NFWs: the model ignores them, the
+        image finder refines its grid around them.
 
         Parameters
         ----------
@@ -632,27 +901,27 @@ class LenstoolModel:
         from ..simulation.lens_system import LensSystem
 
         model = self.lens_model(z_source, n_threads=n_threads)
-        kwargs = [{"center_x": float(x), "center_y": float(y)} for x, y in
-                  zip(model.params[:, _kernels.P_X], model.params[:, _kernels.P_Y],
-                      strict=True)]
+        kwargs = [{"center_x": float(x), "center_y": float(y)} for x, y in model.centres]
         return LensSystem.from_model(model, kwargs, z_lens=self.z_lens, z_source=z_source,
                                      cosmology=self.cosmology, sources=sources,
                                      label=f"Lenstool model {self.path.name}")
 
 
-class DPIELensModel:
-    """Sum of dPIE potentials with lenstronomy's ``LensModel`` interface.
+class LenstoolLensModel:
+    """Sum of dPIE and NFW potentials with lenstronomy's ``LensModel`` interface.
 
     Positions are plain float arrays (any shape, broadcast together) in
     arcsec in the model frame; every method takes lenstronomy's ``kwargs``
     argument and ignores it. Evaluated by the Numba kernels of
-    ``lensdual.parametric._kernels``.
+    ``lensdual.parametric._kernels``. Made by `LenstoolModel.lens_model`.
 
     Parameters
     ----------
-    params : numpy.ndarray, shape (M, 7)
-        ``x_centre, y_centre, theta (rad), epsilon, core, cut, b0`` per
-        component (see `LenstoolModel.kernel_parameters`).
+    dpie : numpy.ndarray, shape (M, 7), optional
+        ``x_centre, y_centre, theta (rad), epsilon, core, cut, b0`` per dPIE
+        (see `LenstoolModel.kernel_parameters`).
+    nfw : numpy.ndarray, shape (K, 6), optional
+        ``x_centre, y_centre, theta (rad), epsilon, r_s, b0`` per NFW.
     n_threads : int
         Threads used for inputs of more than 65536 points.
     z_source : float or None
@@ -661,29 +930,58 @@ class DPIELensModel:
 
     _MIN_POINTS_PER_THREAD = 32768
 
-    def __init__(self, params, *, n_threads=1, z_source=None):
-        arr = np.ascontiguousarray(params, dtype=np.float64)
-        if arr.ndim != 2 or arr.shape[1] != _kernels.N_PARAMS or arr.shape[0] == 0:
-            raise ValueError(f"params must have shape (M >= 1, {_kernels.N_PARAMS}), got "
-                             f"{np.shape(params)}")
-        if not np.isfinite(arr).all():
-            raise ValueError("params must be finite")
-        eps = arr[:, _kernels.P_EPS]
-        core = arr[:, _kernels.P_CORE]
-        cut = arr[:, _kernels.P_CUT]
+    def __init__(self, dpie=None, nfw=None, *, n_threads=1, z_source=None):
+        self.params = self._checked(dpie, _kernels.N_PARAMS, "dpie")
+        self.nfw_params = self._checked(nfw, _kernels.NFW_N_PARAMS, "nfw")
+        if len(self.params) + len(self.nfw_params) == 0:
+            raise ValueError("the model needs at least one component (dpie or nfw)")
+        eps = self.params[:, _kernels.P_EPS]
+        core = self.params[:, _kernels.P_CORE]
+        cut = self.params[:, _kernels.P_CUT]
         if (eps < 0).any() or (eps > _kernels.EPS_MAX).any():
             raise ValueError(f"epsilon (column 3) must be in [0, {_kernels.EPS_MAX}]")
         if (core < 0).any() or not (cut > core).all():
             raise ValueError("the radii must satisfy 0 <= core < cut (columns 4 and 5)")
-        self.params = arr
-        self.params.flags.writeable = False
+        eps = self.nfw_params[:, _kernels.NFW_EPS]
+        if (eps < 0).any() or (eps >= 1).any():
+            raise ValueError("the NFW epsilon (nfw column 3) must be in [0, 1)")
+        if not (self.nfw_params[:, _kernels.NFW_RS] > 0).all():
+            raise ValueError("the NFW scale radius (nfw column 4) must be > 0")
         self.n_threads = as_int(n_threads, "n_threads", minimum=1)
         self.z_source = z_source
 
-    def __repr__(self):
-        return f"<DPIELensModel {len(self.params)} components, z_source={self.z_source}>"
+    @staticmethod
+    def _checked(params, ncol, name):
+        if params is None:
+            return np.empty((0, ncol))
+        arr = np.array(params, dtype=np.float64, order="C")
+        if arr.ndim != 2 or arr.shape[1] != ncol:
+            raise ValueError(f"{name} must have shape (M, {ncol}), got {np.shape(params)}")
+        if not np.isfinite(arr).all():
+            raise ValueError(f"{name} must be finite")
+        arr.flags.writeable = False
+        return arr
 
-    def _run(self, kernel, x, y):
+    @property
+    def centres(self):
+        """Centres ``(x, y)`` of the components, dPIEs then NFWs, shape (M + K, 2)."""
+        return np.concatenate([self.params[:, :2], self.nfw_params[:, :2]])
+
+    def __repr__(self):
+        return (f"<{type(self).__name__} {len(self.params)} dPIE + {len(self.nfw_params)} NFW "
+                f"components, z_source={self.z_source}>")
+
+    def _evaluate(self, kernels, x, y):
+        dpie_kernel, nfw_kernel = kernels
+        out = None
+        if len(self.params):
+            out = dpie_kernel(x, y, self.params)
+        if len(self.nfw_params):
+            more = nfw_kernel(x, y, self.nfw_params)
+            out = more if out is None else out + more
+        return out
+
+    def _run(self, kernels, x, y):
         if isinstance(x, u.Quantity) or isinstance(y, u.Quantity):
             raise TypeError("x and y are plain float arrays in arcsec (lenstronomy's "
                             "interface); use LensSystem for Quantities")
@@ -695,13 +993,13 @@ class DPIELensModel:
         n = xf.size
         chunks = min(self.n_threads, max(1, n // self._MIN_POINTS_PER_THREAD))
         if chunks <= 1:
-            out = kernel(xf, yf, self.params)
+            out = self._evaluate(kernels, xf, yf)
         else:
             edges = np.linspace(0, n, chunks + 1).astype(int)
             with ThreadPoolExecutor(max_workers=chunks) as pool:
                 parts = list(pool.map(
-                    lambda k: kernel(xf[edges[k]:edges[k + 1]], yf[edges[k]:edges[k + 1]],
-                                     self.params), range(chunks)))
+                    lambda k: self._evaluate(kernels, xf[edges[k]:edges[k + 1]],
+                                             yf[edges[k]:edges[k + 1]]), range(chunks)))
             out = np.concatenate(parts)
         return out, shape
 
@@ -712,7 +1010,7 @@ class DPIELensModel:
 
     def alpha(self, x, y, kwargs=None, k=None):
         """Deflection ``(alpha_x, alpha_y)`` at ``(x, y)``, arcsec."""
-        out, shape = self._run(_kernels.dpie_deflection, x, y)
+        out, shape = self._run((_kernels.dpie_deflection, _kernels.nfw_deflection), x, y)
         return self._shaped(out[:, 0], shape), self._shaped(out[:, 1], shape)
 
     def ray_shooting(self, x, y, kwargs=None, k=None):
@@ -722,18 +1020,19 @@ class DPIELensModel:
 
     def hessian(self, x, y, kwargs=None, k=None, diff=None):
         """Second derivatives of the potential, ``(f_xx, f_xy, f_yx, f_yy)``."""
-        out, shape = self._run(_kernels.dpie_hessian, x, y)
+        out, shape = self._run((_kernels.dpie_hessian, _kernels.nfw_hessian), x, y)
         fxy = self._shaped(out[:, 1], shape)
         return self._shaped(out[:, 0], shape), fxy, fxy, self._shaped(out[:, 2], shape)
 
     def alpha_hessian(self, x, y, kwargs=None):
         """Deflection and Hessian in one pass: ``alpha_x, alpha_y, f_xx, f_xy, f_yy``."""
-        out, shape = self._run(_kernels.dpie_deflection_hessian, x, y)
+        out, shape = self._run((_kernels.dpie_deflection_hessian,
+                                _kernels.nfw_deflection_hessian), x, y)
         return tuple(self._shaped(out[:, i], shape) for i in range(5))
 
     def kappa(self, x, y, kwargs=None, k=None):
         """Convergence at ``(x, y)`` (closed form)."""
-        out, shape = self._run(_kernels.dpie_convergence, x, y)
+        out, shape = self._run((_kernels.dpie_convergence, _kernels.nfw_convergence), x, y)
         return self._shaped(out, shape)
 
     def magnification(self, x, y, kwargs=None, k=None):
@@ -742,6 +1041,31 @@ class DPIELensModel:
         det = (1.0 - fxx) * (1.0 - fyy) - fxy * fxy
         with np.errstate(divide="ignore"):
             return 1.0 / det
+
+
+class DPIELensModel(LenstoolLensModel):
+    """A sum of dPIE potentials only (a `LenstoolLensModel` without NFWs).
+
+    Parameters
+    ----------
+    params : numpy.ndarray, shape (M >= 1, 7)
+        ``x_centre, y_centre, theta (rad), epsilon, core, cut, b0`` per
+        component (see `LenstoolModel.kernel_parameters`).
+    n_threads : int
+        Threads used for inputs of more than 65536 points.
+    z_source : float or None
+        Kept for reference.
+    """
+
+    def __init__(self, params, *, n_threads=1, z_source=None):
+        arr = np.asarray(params, dtype=np.float64)
+        if arr.ndim != 2 or arr.shape[1] != _kernels.N_PARAMS or arr.shape[0] == 0:
+            raise ValueError(f"params must have shape (M >= 1, {_kernels.N_PARAMS}), got "
+                             f"{np.shape(params)}")
+        super().__init__(arr, None, n_threads=n_threads, z_source=z_source)
+
+    def __repr__(self):
+        return f"<DPIELensModel {len(self.params)} components, z_source={self.z_source}>"
 
 
 def read_lenstool_images(path, *, reference):

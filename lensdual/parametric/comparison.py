@@ -1,0 +1,255 @@
+"""One call from a duality-checked pairs table to the parametric comparison.
+
+:func:`parametric_comparison` puts the pairs in the frame of a Lenstool model
+and/or fits a lenstronomy model to their positions, and returns the table of
+:func:`~lensdual.parametric.compare_with_parametric` with the figure of
+:func:`~lensdual.parametric.plot_parametric_comparison` (what ``lensdual run
+--parametric`` writes).
+"""
+
+import os
+
+import numpy as np
+from astropy import units as u
+from astropy.coordinates import (
+    CartesianRepresentation,
+    SkyCoord,
+    SkyOffsetFrame,
+    UnitSphericalRepresentation,
+)
+from astropy.table import QTable, Table
+
+from .._validation import as_real
+from .fitting import compare_with_parametric, fit_parametric_lens, plot_parametric_comparison
+from .lenstool import LenstoolModel, read_lenstool
+
+__all__ = ["parametric_comparison"]
+
+_ARCSEC_PER_RAD = (1.0 * u.rad).to_value(u.arcsec)
+_POSITIONS = ("x1", "y1", "x2", "y2")
+
+
+def _tangent_to_sky(x, y, reference):
+    """Sky positions of gnomonic offsets ``x`` (west), ``y`` (north) in arcsec about
+    ``reference`` (the frame of :func:`~lensdual.photometry.measure_pairs`)."""
+    xi = -np.asarray(x, dtype=float) / _ARCSEC_PER_RAD
+    eta = np.asarray(y, dtype=float) / _ARCSEC_PER_RAD
+    rep = CartesianRepresentation(np.ones_like(xi), xi, eta).represent_as(
+        UnitSphericalRepresentation)
+    frame = SkyOffsetFrame(origin=reference)
+    return SkyCoord(frame.realize_frame(rep)).transform_to(reference.frame.replicate_without_data())
+
+
+def _tangent_xy(sky, centre):
+    """Gnomonic offsets (x west, y north, arcsec) of ``sky`` about ``centre``."""
+    c = sky.transform_to(SkyOffsetFrame(origin=centre)).cartesian
+    return -c.y.value / c.x.value * _ARCSEC_PER_RAD, c.z.value / c.x.value * _ARCSEC_PER_RAD
+
+
+def _sky_positions(tab, reference):
+    """``(sky1, sky2)`` of a pairs table: its SkyCoord columns, else its x/y about
+    ``reference``; None when neither is possible."""
+    if "sky1" in tab.colnames and "sky2" in tab.colnames:
+        sky1, sky2 = tab["sky1"], tab["sky2"]
+        if not isinstance(sky1, SkyCoord) or not isinstance(sky2, SkyCoord):
+            raise TypeError("pairs['sky1'] and pairs['sky2'] must be SkyCoord columns")
+        return sky1, sky2
+    if reference is None:
+        return None
+    xy = [tab[c].to_value(u.arcsec) for c in _POSITIONS]
+    return _tangent_to_sky(xy[0], xy[1], reference), _tangent_to_sky(xy[2], xy[3], reference)
+
+
+def _with_positions(tab, xy1, xy2):
+    """A copy of ``tab`` with x1, y1, x2, y2 replaced (arcsec)."""
+    out = QTable(tab, copy=True)
+    for name, values in zip(_POSITIONS, (xy1[0], xy1[1], xy2[0], xy2[1]), strict=True):
+        out[name] = np.asarray(values, dtype=float) * u.arcsec
+    return out
+
+
+def parametric_comparison(pairs, *, lenstool=None, fit=False,
+                          model=("NFW_ELLIPSE_CSE", "SHEAR"), z_lens=None, z_source=None,
+                          reference=None, centre=None, fit_kwargs=None, snr_threshold=3.0,
+                          n_samples=300, seed=0):
+    r"""Compare the pairs' flux ratios with ``mu_size`` and parametric models, in one call.
+
+    Parameters
+    ----------
+    pairs : `~astropy.table.Table`
+        Output of :func:`~lensdual.duality.check_duality`: positions ``x1, y1,
+        x2, y2`` (angles) in the tangent-plane frame about ``reference``
+        (x west, y north, as :func:`~lensdual.photometry.measure_pairs` writes
+        them), optionally the same positions as SkyCoord columns ``sky1``,
+        ``sky2`` (used in preference), and the ``mu_flux``, ``mu_size``
+        columns with their errors.
+    lenstool : str, os.PathLike or `~lensdual.parametric.LenstoolModel`, optional
+        A Lenstool model (a ``best.par`` path or a model read by
+        :func:`~lensdual.parametric.read_lenstool`). The pairs' sky positions
+        are converted into its frame (about its own ``runmode`` reference).
+    fit : bool
+        Fit a lenstronomy model (``model``) to the pairs' positions with
+        :func:`~lensdual.parametric.fit_parametric_lens`.
+    model : str or sequence of str
+        lenstronomy profiles of the fit (default ``("NFW_ELLIPSE_CSE",
+        "SHEAR")``).
+    z_lens : float, optional
+        Lens redshift of the fit; default: the Lenstool model's.
+    z_source : float
+        Source redshift (required).
+    reference : `~astropy.coordinates.SkyCoord`, optional
+        Origin of the pairs' frame; default ``pairs.meta['reference']``.
+        Needed when a sky position is needed and the table has no ``sky1``,
+        ``sky2``.
+    centre : `~astropy.coordinates.SkyCoord`, optional
+        Sky position of the lens centre (e.g. the BCG). The fit works in the
+        tangent-plane frame about it (x west, y north); without it, in the
+        Lenstool model's frame when ``lenstool`` is given, else in the pairs'
+        own frame. The default bounds of the fit assume a lens-centred frame.
+    fit_kwargs : dict, optional
+        More keyword arguments of
+        :func:`~lensdual.parametric.fit_parametric_lens` (``fixed_params``,
+        ``n_starts``, ``bounds``, ...). ``sigma_pos`` defaults to the one of
+        the duality test (``pairs.meta['duality']['sigma_pos']``), ``seed``
+        to ``seed``.
+    snr_threshold : float
+        A pair is anomalous when its SNR exceeds this (default 3).
+    n_samples : int
+        Parameter draws for ``mu_model_err`` of the fit.
+    seed : int, `numpy.random.Generator` or None
+        Seed of the fit and of the error draws.
+
+    Returns
+    -------
+    table : `~astropy.table.QTable`
+        :func:`~lensdual.parametric.compare_with_parametric`'s table for the
+        fit when ``fit`` is True, else for the Lenstool model. With both, the
+        Lenstool model's columns are added as ``mu_lenstool``,
+        ``ratio_lenstool``, ``snr_lenstool`` and ``anomalous_lenstool``.
+        ``meta['parametric']`` records the settings: ``lenstool`` (path or
+        None), ``fit_model`` (list or None), ``z_lens``, ``z_source``,
+        ``fit_frame``, and for a fit ``sigma_pos`` (arcsec), ``chi2``, ``dof``
+        and ``best_params``.
+    figure : `matplotlib.figure.Figure`
+        :func:`~lensdual.parametric.plot_parametric_comparison` of the table.
+
+    Raises
+    ------
+    TypeError
+        ``pairs`` not a table, ``lenstool``, ``reference`` or ``centre`` of
+        the wrong type, ``fit`` not a bool.
+    ValueError
+        Nothing to compare (no ``lenstool`` and ``fit=False``), no
+        ``z_source``, no ``z_lens`` for a fit without a Lenstool model, no
+        sky positions where they are needed, missing duality columns, and
+        the errors of :func:`~lensdual.parametric.read_lenstool` and
+        :func:`~lensdual.parametric.fit_parametric_lens` -- all before any
+        fitting starts.
+    """
+    if not isinstance(pairs, Table):
+        raise TypeError("pairs must be an astropy Table (check_duality output), got "
+                        f"{type(pairs).__name__}")
+    if not isinstance(fit, bool):
+        raise TypeError(f"fit must be True or False, got {fit!r}")
+    if lenstool is None and not fit:
+        raise ValueError("nothing to compare: give lenstool=... (a Lenstool best.par) and/or "
+                         "fit=True (a lenstronomy fit)")
+    if z_source is None:
+        raise ValueError("z_source is required")
+    zs = as_real(z_source, "z_source")
+    for name, value in (("reference", reference), ("centre", centre)):
+        if value is not None and not (isinstance(value, SkyCoord) and value.isscalar):
+            raise TypeError(f"{name} must be a scalar SkyCoord or None, got {value!r}")
+    if fit_kwargs is not None and not isinstance(fit_kwargs, dict):
+        raise TypeError(f"fit_kwargs must be a dict or None, got {type(fit_kwargs).__name__}")
+    tab = QTable(pairs, copy=False)
+    missing = [c for c in ("mu_flux", "mu_flux_err", "mu_size", "mu_size_err")
+               if c not in tab.colnames]
+    if missing:
+        raise ValueError(f"pairs lacks the column(s) {missing}: pass the output of "
+                         "check_duality")
+    if reference is None:
+        reference = tab.meta.get("reference")
+        if reference is not None and not (isinstance(reference, SkyCoord)
+                                          and reference.isscalar):
+            raise TypeError("pairs.meta['reference'] must be a scalar SkyCoord, got "
+                            f"{reference!r}")
+
+    lt_model = None
+    if lenstool is not None:
+        if isinstance(lenstool, LenstoolModel):
+            lt_model = lenstool
+        elif isinstance(lenstool, (str, os.PathLike)):
+            lt_model = read_lenstool(lenstool)
+        else:
+            raise TypeError("lenstool must be a path or a LenstoolModel, got "
+                            f"{type(lenstool).__name__}")
+        lt_model.dls_ds(zs)  # z_source > z_lens, checked before any fitting
+    if fit and z_lens is None:
+        if lt_model is None:
+            raise ValueError("z_lens is required for the fit (or give a Lenstool model)")
+        z_lens = lt_model.z_lens
+
+    need_sky = lt_model is not None or (fit and centre is not None)
+    sky = _sky_positions(tab, reference) if need_sky else None
+    if need_sky and sky is None:
+        what = "the Lenstool model's frame" if lt_model is not None else "the frame of centre"
+        raise ValueError(f"cannot place the pairs in {what}: the table has no sky1, sky2 "
+                         "columns and no reference (pass reference=..., or keep "
+                         "meta['reference'] of measure_pairs)")
+
+    lt_tab = None
+    if lt_model is not None:
+        xy1 = lt_model.to_model_frame(sky[0]).to_value(u.arcsec).T
+        xy2 = lt_model.to_model_frame(sky[1]).to_value(u.arcsec).T
+        lt_tab = _with_positions(tab, xy1, xy2)
+
+    parametric = fitted = None
+    meta = {"lenstool": None if lt_model is None else str(lt_model.path),
+            "fit_model": None, "z_lens": None if z_lens is None else float(z_lens),
+            "z_source": zs, "fit_frame": None}
+    if fit:
+        if centre is not None:
+            frame_tab = _with_positions(tab, _tangent_xy(sky[0], centre),
+                                        _tangent_xy(sky[1], centre))
+            meta["fit_frame"] = (f"tangent plane about RA={centre.icrs.ra.deg:.7f} "
+                                 f"Dec={centre.icrs.dec.deg:.7f} deg (centre)")
+        elif lt_tab is not None:
+            frame_tab = lt_tab
+            meta["fit_frame"] = "Lenstool model frame"
+        else:
+            frame_tab = tab
+            meta["fit_frame"] = "pairs frame"
+        kwargs = {"seed": seed}
+        duality = tab.meta.get("duality")
+        used = duality.get("sigma_pos") if isinstance(duality, dict) else None
+        if isinstance(used, u.Quantity) and used.isscalar:
+            kwargs["sigma_pos"] = used
+        elif "pos_err1" in tab.colnames and "pos_err2" in tab.colnames:
+            # per-source errors (e.g. from the PSF fits): their median, as one scalar
+            errs = np.concatenate([u.Quantity(tab["pos_err1"], u.arcsec).value,
+                                   u.Quantity(tab["pos_err2"], u.arcsec).value])
+            errs = errs[np.isfinite(errs) & (errs > 0)]
+            if errs.size:
+                kwargs["sigma_pos"] = float(np.median(errs)) * u.arcsec
+        kwargs.update(fit_kwargs or {})
+        fitted = fit_parametric_lens(frame_tab, model=model, z_lens=z_lens, z_source=zs,
+                                     **kwargs)
+        parametric = compare_with_parametric(frame_tab, fitted, snr_threshold=snr_threshold,
+                                             n_samples=n_samples, seed=seed)
+        meta.update(fit_model=list(fitted.model),
+                    sigma_pos=float(fitted.sigma_pos.to_value(u.arcsec)), chi2=float(fitted.chi2),
+                    dof=int(fitted.dof),
+                    best_params={k: float(v) for k, v in fitted.best_params.items()})
+    if lt_tab is not None:
+        lt_table = compare_with_parametric(lt_tab, lt_model, z_source=zs,
+                                           snr_threshold=snr_threshold)
+        if parametric is None:
+            parametric = lt_table
+        else:
+            for name in ("mu", "ratio", "snr", "anomalous"):
+                src = "mu_model" if name == "mu" else f"{name}_model"
+                parametric[f"{name}_lenstool"] = lt_table[src]
+    parametric.meta["parametric"] = meta
+    ax = plot_parametric_comparison(parametric)
+    return parametric, ax.figure
