@@ -67,6 +67,8 @@ file. Angles are strings of a number and an angular unit (``"0.066 arcsec"``,
     model = ["NFW_ELLIPSE_CSE", "SHEAR"]   # profiles of the fit (this is the default)
     z_lens = 0.39                    # required with fit = true or lenstool
     z_source = 2.2                   # required with fit = true or lenstool; > z_lens
+    sigma_pos = "0.01 arcsec"        # positional error of the fit (default 0.01 arcsec)
+    centre = "110.827 -73.4545"      # optional origin of the fit's frame (e.g. the BCG)
 
 The output directory given to :func:`load_config` (``outdir=``, e.g. from
 the command line) replaces ``[output] outdir``; it is resolved against the
@@ -125,7 +127,7 @@ _KEYS = {
     "arcs": (),
     "catalogs": _ARCS,
     "pairing": ("method", "file"),
-    "parametric": ("lenstool", "fit", "model", "z_lens", "z_source"),
+    "parametric": ("lenstool", "fit", "model", "z_lens", "z_source", "sigma_pos", "centre"),
 }
 _BAND_KEYS = ("psf", "psf_hdu", "psf_fwhm")
 _IMAGE_KEYS = ("image", "hdu", "error", "error_hdu", "weight", "weight_hdu", "unit")
@@ -288,6 +290,13 @@ class ParametricSpec:
     z_lens, z_source : float or None
         Lens and source redshifts (given whenever ``fit`` is true or
         ``lenstool`` is set; ``0 < z_lens < z_source``).
+    sigma_pos : `~astropy.units.Quantity`
+        Positional error of the fit's chi-square (default 0.01 arcsec: a
+        smooth parametric model is not expected to place images better than
+        that, whatever the astrometric errors).
+    centre : `~astropy.coordinates.SkyCoord` or None
+        Origin of the fit's frame, e.g. the brightest cluster galaxy; None:
+        the Lenstool model's frame when one is given, else the pairs' frame.
     """
 
     lenstool: Path | None = None
@@ -295,6 +304,8 @@ class ParametricSpec:
     model: tuple = _DEFAULT_MODEL
     z_lens: float | None = None
     z_source: float | None = None
+    sigma_pos: u.Quantity = 0.01 * u.arcsec
+    centre: SkyCoord | None = None
 
 
 @dataclass(frozen=True)
@@ -1100,8 +1111,14 @@ class _Validator:
         if isinstance(z_lens, float) and isinstance(z_source, float) and z_source <= z_lens:
             self.add(f"[parametric] z_source: must be larger than z_lens ({z_lens:g}), "
                      f"got {z_source:g}")
+        sigma_pos = self.get_angle(table, "sigma_pos", sec, 0.01 * u.arcsec)
+        centre = None
+        if "centre" in table:
+            centre, message = _parse_center(table["centre"])
+            if centre is None:
+                self.add(f"[parametric] centre: {message}")
         return ParametricSpec(lenstool=lenstool, fit=fit, model=model, z_lens=z_lens,
-                              z_source=z_source)
+                              z_source=z_source, sigma_pos=sigma_pos, centre=centre)
 
     def model(self, value):
         if value is _ABSENT:

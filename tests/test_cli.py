@@ -278,3 +278,90 @@ def test_command_line_as_a_subprocess(tmp_path):
                           capture_output=True, text=True, env=env, timeout=600)
     assert done.returncode == 2
     assert "missing.toml" in done.stderr
+
+
+LENSTOOL_NFW = """\
+runmode
+    reference     3 {ra:.7f} {dec:.7f}
+    end
+potentiel O1
+    profil        12
+    x_centre      0.0
+    y_centre      0.0
+    ellipticite   0.05
+    angle_pos     0.0
+    concentration 9.6
+    m200          5e14
+    z_lens        0.39
+    end
+cosmology
+    model       1
+    H0          70.0
+    omegaM      0.3
+    omegaX      0.7
+    end
+fini
+"""
+
+
+def _absolute_config(demo_dir):
+    cfg = tomllib.loads((demo_dir / "run.toml").read_text())
+    for arc in ("L1", "L2"):
+        for spec in cfg["arcs"][arc].values():
+            for key in ("image", "error"):
+                spec[key] = str(demo_dir / spec[key])
+    for spec in cfg["bands"].values():
+        spec["psf"] = str(demo_dir / spec["psf"])
+    return cfg
+
+
+def test_run_with_a_lenstool_model(demo_dir, tmp_path):
+    """[parametric] lenstool: the model's ratios at the pairs' sky positions."""
+    import astropy.units as u
+
+    from lensdual.parametric import read_lenstool
+    from lensdual.simulation.mock import DEFAULT_SKY_CENTER
+
+    par = tmp_path / "best.par"
+    par.write_text(LENSTOOL_NFW.format(ra=DEFAULT_SKY_CENTER.ra.deg,
+                                       dec=DEFAULT_SKY_CENTER.dec.deg))
+    cfg = _absolute_config(demo_dir)
+    cfg["parametric"] = {"lenstool": str(par), "z_lens": 0.39, "z_source": 2.2}
+    path = _write(tmp_path / "lenstool.toml", cfg)
+    out = tmp_path / "out"
+    assert main(["run", str(path), "--outdir", str(out), "--quiet"]) == 0
+    assert (out / "parametric.png").is_file()
+    table = QTable.read(out / "parametric.ecsv", format="ascii.ecsv")
+    pairs = QTable.read(out / "pairs.ecsv", format="ascii.ecsv")
+    assert "Lenstool model best.par" in (out / "report.txt").read_text()
+    # independent: the model's magnifications at the pairs' positions in its frame
+    model = read_lenstool(par)
+    system = model.lens_system(z_source=2.2)
+    mu1 = system.magnification(model.to_model_frame(pairs["sky1"]))
+    mu2 = system.magnification(model.to_model_frame(pairs["sky2"]))
+    column = "mu_model" if "mu_model" in table.colnames else "mu_lenstool"
+    np.testing.assert_allclose(np.asarray(table[column]), np.abs(mu1 / mu2), rtol=1e-8)
+    # the NFW stands in for the analogue's main halo: same fold, similar ratios
+    ratio = np.asarray(table[column]) / np.asarray(pairs["mu_size"])
+    assert np.all((ratio > 0.5) & (ratio < 2.0))
+    assert u.Quantity(model.to_model_frame(pairs["sky1"])).unit == u.arcsec
+
+
+def test_demo_parametric(tmp_path, monkeypatch):
+    """--parametric adds the fit (made cheap here) and its comparison to the outputs."""
+    import lensdual.cli as cli
+
+    monkeypatch.setattr(cli, "_DEMO_FIT", {"sigma_pos": 0.01, "n_starts": 1, "max_nfev": 60})
+    out = tmp_path / "par"
+    assert main(["demo", "--outdir", str(out), "--parametric", "--write-config", "--quiet",
+                 "--n-sources", "6", "--n-bootstrap", "50"]) == 0
+    table = QTable.read(out / "parametric.ecsv", format="ascii.ecsv")
+    assert len(table) == 6
+    for name in ("mu_flux", "mu_size", "mu_model", "snr_model", "anomalous_model"):
+        assert name in table.colnames
+    assert table.meta["parametric"]["fit_model"] == ["NFW_ELLIPSE_CSE", "SHEAR"]
+    assert (out / "parametric.png").is_file()
+    assert "parametric lenstronomy fit" in (out / "report.txt").read_text()
+    cfg = tomllib.loads((out / "run.toml").read_text())
+    assert cfg["parametric"]["fit"] is True
+    assert cfg["parametric"]["sigma_pos"] == "0.01 arcsec"
