@@ -556,8 +556,20 @@ def _report(analysis, extra=()):
     return "\n".join(parts)
 
 
-#: Settings of the demo's parametric fit (tests make it cheaper).
-_DEMO_FIT = {"sigma_pos": 0.01, "n_starts": 4}
+#: Settings of the demo's parametric fit (tests make it cheaper): the halo
+#: centre is held on the cluster centre (the BCG, known to the observer).
+_DEMO_FIT = {"sigma_pos": 0.01, "n_starts": 4, "fix_centre": True}
+
+
+def _fit_kwargs(fix_centre=False, n_starts=None, max_nfev=None):
+    kwargs = {}
+    if fix_centre:
+        kwargs["fixed_params"] = {0: {"center_x": 0.0, "center_y": 0.0}}
+    if n_starts is not None:
+        kwargs["n_starts"] = n_starts
+    if max_nfev is not None:
+        kwargs["max_nfev"] = max_nfev
+    return kwargs
 
 
 def _parametric_outputs(analysis, directory, *, lenstool=None, fit=False, model=None,
@@ -641,7 +653,8 @@ def _write_run_inputs(mocks, directory, *, estimator, n_bootstrap, snr_threshold
         centre = mocks[next(iter(mocks))].meta
         config["parametric"] = {"fit": True, "z_lens": 0.39, "z_source": 2.2,
                                 "sigma_pos": f"{_DEMO_FIT['sigma_pos']} arcsec",
-                                "centre": f"{centre['LENSRA']:.7f} {centre['LENSDEC']:.7f}"}
+                                "centre": f"{centre['LENSRA']:.7f} {centre['LENSDEC']:.7f}",
+                                "fix_centre": bool(_DEMO_FIT.get("fix_centre", False))}
     header = ("lensdual run configuration written by `lensdual demo --write-config`:\n"
               "the demo's mock images as FITS files (science, error map, PSF),\n"
               "analysed with the demo's settings. Run it with\n"
@@ -699,8 +712,9 @@ def _cmd_demo(args):
                     write_config(tmp / "run.toml", config, header=header)
             if args.parametric:
                 with progress.step("parametric fit"):
-                    fit_kwargs = dict(_DEMO_FIT)
-                    sigma = fit_kwargs.pop("sigma_pos")
+                    settings = dict(_DEMO_FIT)
+                    sigma = settings.pop("sigma_pos")
+                    fit_kwargs = _fit_kwargs(**settings)
                     table = _parametric_outputs(analysis, tmp, fit=True, z_lens=0.39,
                                                 z_source=2.2, sigma_pos=sigma, centre=centre,
                                                 seed=args.seed, fit_kwargs=fit_kwargs)
@@ -753,7 +767,8 @@ def _cmd_run(args):
                     table = _parametric_outputs(
                         analysis, tmp, lenstool=par.lenstool, fit=par.fit, model=par.model,
                         z_lens=par.z_lens, z_source=par.z_source, sigma_pos=par.sigma_pos,
-                        centre=par.centre, seed=config.seed)
+                        centre=par.centre, seed=config.seed,
+                        fit_kwargs=_fit_kwargs(par.fix_centre))
                 extra = ["", _parametric_paragraph(table)]
             report = _report(analysis, extra)
             with progress.step("write outputs"):

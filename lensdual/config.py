@@ -69,6 +69,7 @@ file. Angles are strings of a number and an angular unit (``"0.066 arcsec"``,
     z_source = 2.2                   # required with fit = true or lenstool; > z_lens
     sigma_pos = "0.01 arcsec"        # positional error of the fit (default 0.01 arcsec)
     centre = "110.827 -73.4545"      # optional origin of the fit's frame (e.g. the BCG)
+    fix_centre = false               # hold the first profile's centre there (needs centre)
 
 The output directory given to :func:`load_config` (``outdir=``, e.g. from
 the command line) replaces ``[output] outdir``; it is resolved against the
@@ -127,7 +128,8 @@ _KEYS = {
     "arcs": (),
     "catalogs": _ARCS,
     "pairing": ("method", "file"),
-    "parametric": ("lenstool", "fit", "model", "z_lens", "z_source", "sigma_pos", "centre"),
+    "parametric": ("lenstool", "fit", "model", "z_lens", "z_source", "sigma_pos", "centre",
+                   "fix_centre"),
 }
 _BAND_KEYS = ("psf", "psf_hdu", "psf_fwhm")
 _IMAGE_KEYS = ("image", "hdu", "error", "error_hdu", "weight", "weight_hdu", "unit")
@@ -297,6 +299,9 @@ class ParametricSpec:
     centre : `~astropy.coordinates.SkyCoord` or None
         Origin of the fit's frame, e.g. the brightest cluster galaxy; None:
         the Lenstool model's frame when one is given, else the pairs' frame.
+    fix_centre : bool
+        Hold the centre of the fit's first profile at the origin of its frame
+        (``centre``, which is then required), e.g. on the BCG.
     """
 
     lenstool: Path | None = None
@@ -306,6 +311,7 @@ class ParametricSpec:
     z_source: float | None = None
     sigma_pos: u.Quantity = 0.01 * u.arcsec
     centre: SkyCoord | None = None
+    fix_centre: bool = False
 
 
 @dataclass(frozen=True)
@@ -1117,8 +1123,13 @@ class _Validator:
             centre, message = _parse_center(table["centre"])
             if centre is None:
                 self.add(f"[parametric] centre: {message}")
+        fix_centre = self.get_bool(table, "fix_centre", sec, False)
+        if fix_centre is True and "centre" not in table:
+            self.add("[parametric] fix_centre: needs centre (the sky position to hold the "
+                     "first profile's centre at)")
         return ParametricSpec(lenstool=lenstool, fit=fit, model=model, z_lens=z_lens,
-                              z_source=z_source, sigma_pos=sigma_pos, centre=centre)
+                              z_source=z_source, sigma_pos=sigma_pos, centre=centre,
+                              fix_centre=fix_centre)
 
     def model(self, value):
         if value is _ABSENT:

@@ -351,7 +351,8 @@ def test_demo_parametric(tmp_path, monkeypatch):
     """--parametric adds the fit (made cheap here) and its comparison to the outputs."""
     import lensdual.cli as cli
 
-    monkeypatch.setattr(cli, "_DEMO_FIT", {"sigma_pos": 0.01, "n_starts": 1, "max_nfev": 60})
+    monkeypatch.setattr(cli, "_DEMO_FIT", {"sigma_pos": 0.01, "n_starts": 1, "max_nfev": 60,
+                                          "fix_centre": True})
     out = tmp_path / "par"
     assert main(["demo", "--outdir", str(out), "--parametric", "--write-config", "--quiet",
                  "--n-sources", "6", "--n-bootstrap", "50"]) == 0
@@ -365,3 +366,9 @@ def test_demo_parametric(tmp_path, monkeypatch):
     cfg = tomllib.loads((out / "run.toml").read_text())
     assert cfg["parametric"]["fit"] is True
     assert cfg["parametric"]["sigma_pos"] == "0.01 arcsec"
+    assert cfg["parametric"]["fix_centre"] is True
+    # the written config runs, with the same fit settings read from the file
+    from lensdual.config import load_config
+
+    spec = load_config(out / "run.toml").parametric
+    assert spec.fix_centre and spec.fit and spec.centre is not None
