@@ -673,6 +673,23 @@ def _print(args, text=""):
         print(text, flush=True)
 
 
+#: Errors that end a command with a message and exit code 1 (ConfigError, raised
+#: by load_images for a cut-out off the image, is a ValueError).
+_FAILURES = (PipelineError, ValueError, OSError)
+
+
+def _finish(args, command, progress, start, *, report=None, outdir=None, error=None):
+    """Close the progress bar; print the report (or the error); the exit code."""
+    progress.close()
+    if error is not None:
+        kind = "" if isinstance(error, PipelineError) else f"{type(error).__name__}: "
+        print(f"lensdual {command}: {kind}{error}", file=sys.stderr)
+        return EXIT_FAILED
+    _print(args, report)
+    _print(args, f"\nOutputs in {outdir} ({time.perf_counter() - start:.1f} s).")
+    return EXIT_OK
+
+
 def _cmd_demo(args):
     import astropy.units as u
     from astropy.coordinates import SkyCoord
@@ -720,14 +737,9 @@ def _cmd_demo(args):
                                                 seed=args.seed, fit_kwargs=fit_kwargs)
                 report += "\n\n" + _parametric_paragraph(table)
             _write_analysis(analysis, tmp, report, title="lensdual demo")
-    except PipelineError as err:
-        progress.close()
-        print(f"lensdual demo: {err}", file=sys.stderr)
-        return EXIT_FAILED
-    progress.close()
-    _print(args, report)
-    _print(args, f"\nOutputs in {args.outdir} ({time.perf_counter() - start:.1f} s).")
-    return EXIT_OK
+    except _FAILURES as err:
+        return _finish(args, "demo", progress, start, error=err)
+    return _finish(args, "demo", progress, start, report=report, outdir=args.outdir)
 
 
 def _cmd_run(args):
@@ -773,14 +785,9 @@ def _cmd_run(args):
             report = _report(analysis, extra)
             with progress.step("write outputs"):
                 _write_analysis(analysis, tmp, report, title=Path(args.config).stem)
-    except (PipelineError, ConfigError) as err:
-        progress.close()
-        print(f"lensdual run: {err}", file=sys.stderr)
-        return EXIT_FAILED
-    progress.close()
-    _print(args, report)
-    _print(args, f"\nOutputs in {config.outdir} ({time.perf_counter() - start:.1f} s).")
-    return EXIT_OK
+    except _FAILURES as err:
+        return _finish(args, "run", progress, start, error=err)
+    return _finish(args, "run", progress, start, report=report, outdir=config.outdir)
 
 
 def _read_catalog(path):

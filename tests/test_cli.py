@@ -145,6 +145,17 @@ def test_run_default_outdir_is_relative_to_the_config(demo_dir, tmp_path):
     assert (copy / "run-output" / "pairs.ecsv").is_file()
 
 
+def _absolute_config(demo_dir):
+    cfg = tomllib.loads((demo_dir / "run.toml").read_text())
+    for arc in ("L1", "L2"):
+        for spec in cfg["arcs"][arc].values():
+            for key in ("image", "error"):
+                spec[key] = str(demo_dir / spec[key])
+    for spec in cfg["bands"].values():
+        spec["psf"] = str(demo_dir / spec["psf"])
+    return cfg
+
+
 def _write(path, data):
     from lensdual.config import format_config
 
@@ -154,22 +165,10 @@ def _write(path, data):
 
 def _bad_configs(demo_dir):
     """(name, change to the demo's config, expected fragment) of bad configurations."""
-    good = tomllib.loads((demo_dir / "run.toml").read_text())
     data_dir = demo_dir / "data"
 
-    def absolute(cfg):
-        for arc in ("L1", "L2"):
-            for spec in cfg["arcs"][arc].values():
-                for key in ("image", "error"):
-                    spec[key] = str(data_dir.parent / spec[key])
-        for spec in cfg["bands"].values():
-            spec["psf"] = str(data_dir.parent / spec["psf"])
-        return cfg
-
     def change(fn):
-        import copy
-
-        cfg = absolute(copy.deepcopy(good))
+        cfg = _absolute_config(demo_dir)
         fn(cfg)
         return cfg
 
@@ -227,14 +226,8 @@ def test_failure_mid_run_leaves_no_output(demo_dir, tmp_path, capsys):
     cat = QTable.read(demo_dir / "catalog_L1.ecsv", format="ascii.ecsv")
     small = QTable({"id": cat["id"][:2], "sky": SkyCoord(cat["sky"][:2])})
     small.write(tmp_path / "few.ecsv", format="ascii.ecsv")
-    cfg = tomllib.loads((demo_dir / "run.toml").read_text())
+    cfg = _absolute_config(demo_dir)
     cfg["catalogs"] = {"L1": str(tmp_path / "few.ecsv"), "L2": str(tmp_path / "few.ecsv")}
-    for arc in ("L1", "L2"):
-        for spec in cfg["arcs"][arc].values():
-            for key in ("image", "error"):
-                spec[key] = str(demo_dir / spec[key])
-    for spec in cfg["bands"].values():
-        spec["psf"] = str(demo_dir / spec["psf"])
     path = _write(tmp_path / "few.toml", cfg)
     out = tmp_path / "out"
     assert main(["run", str(path), "--outdir", str(out), "--quiet"]) == 1
@@ -248,13 +241,7 @@ def test_manual_pairs_from_a_previous_run(demo_dir, tmp_path):
     previous = QTable.read(demo_dir / "pairs.ecsv", format="ascii.ecsv")
     QTable({"id1": previous["id1"][:6], "id2": previous["id2"][:6]}).write(
         tmp_path / "pairs.ecsv", format="ascii.ecsv")
-    cfg = tomllib.loads((demo_dir / "run.toml").read_text())
-    for arc in ("L1", "L2"):
-        for spec in cfg["arcs"][arc].values():
-            for key in ("image", "error"):
-                spec[key] = str(demo_dir / spec[key])
-    for spec in cfg["bands"].values():
-        spec["psf"] = str(demo_dir / spec["psf"])
+    cfg = _absolute_config(demo_dir)
     cfg["pairing"] = {"method": "manual", "file": str(tmp_path / "pairs.ecsv")}
     path = _write(tmp_path / "manual.toml", cfg)
     assert main(["run", str(path), "--outdir", str(tmp_path / "out"), "--quiet"]) == 0
@@ -302,17 +289,6 @@ cosmology
     end
 fini
 """
-
-
-def _absolute_config(demo_dir):
-    cfg = tomllib.loads((demo_dir / "run.toml").read_text())
-    for arc in ("L1", "L2"):
-        for spec in cfg["arcs"][arc].values():
-            for key in ("image", "error"):
-                spec[key] = str(demo_dir / spec[key])
-    for spec in cfg["bands"].values():
-        spec["psf"] = str(demo_dir / spec["psf"])
-    return cfg
 
 
 def test_run_with_a_lenstool_model(demo_dir, tmp_path):
