@@ -164,20 +164,16 @@ def _catalogue(images, psf, catalog=None):
     from .detection import find_point_sources
     from .photometry import psf_photometry
 
-    bands = list(images)
     if catalog is None:
-        cat = find_point_sources(images)
-        if cat is None:
+        found = find_point_sources(images)
+        if found is None:
             return None
-        out = QTable({"id": cat["id"], "sky": cat["sky_centroid"],
-                      "x_pix": cat["x_centroid"], "y_pix": cat["y_centroid"]})
-    else:
-        wcs = images[bands[0]].wcs
-        x, y = wcs.world_to_pixel(catalog["sky"])
-        out = QTable({"id": catalog["id"], "sky": catalog["sky"], "x_pix": x, "y_pix": y})
-    for band in bands:
-        image = images[band]
+        catalog = {"id": found["id"], "sky": found["sky_centroid"]}
+    out = QTable({"id": catalog["id"], "sky": catalog["sky"]})
+    for k, (band, image) in enumerate(images.items()):
         xy = np.column_stack(image.wcs.world_to_pixel(out["sky"]))
+        if k == 0:  # pixel position on the first band, for reference
+            out["x_pix"], out["y_pix"] = xy[:, 0], xy[:, 1]
         phot = psf_photometry(image, xy, psf=psf.get(band), warn=False)
         out[f"flux_{band}"] = phot["flux"]
         out[f"flux_err_{band}"] = phot["flux_err"]
@@ -412,9 +408,8 @@ def compare_with_truth(result, truth, sky_center, *, max_separation=0.1):
     out.meta.update({
         "n_true": len(truth),
         "n_matched": distinct,
-        "subhalo_flagged": (bool(out["anomalous"][out["subhalo"]].any())
-                            if sub.any() and out["subhalo"].any() else
-                            (False if sub.any() else None)),
+        "subhalo_flagged": (bool((out["anomalous"] & out["subhalo"]).any())
+                            if sub.any() else None),
         "false_flags": int(np.sum(out["anomalous"] & ~out["subhalo"])),
         "median_abs_size_error": float(np.median(errors)) if errors.size else np.nan,
         "max_abs_size_error": float(np.max(errors)) if errors.size else np.nan,
@@ -622,7 +617,7 @@ def _parametric_paragraph(table):
 
 
 def _write_run_inputs(mocks, directory, *, estimator, n_bootstrap, snr_threshold, seed,
-                      parametric=False):
+                      centre, parametric=False):
     """FITS images, error maps and PSFs of the mocks, and a config that reads them."""
     from astropy.io import fits
 
@@ -650,10 +645,9 @@ def _write_run_inputs(mocks, directory, *, estimator, n_bootstrap, snr_threshold
                          overwrite=True)
             config["bands"][band] = {"psf": f"data/psf_{band}.fits"}
     if parametric:
-        centre = mocks[next(iter(mocks))].meta
         config["parametric"] = {"fit": True, "z_lens": 0.39, "z_source": 2.2,
                                 "sigma_pos": f"{_DEMO_FIT['sigma_pos']} arcsec",
-                                "centre": f"{centre['LENSRA']:.7f} {centre['LENSDEC']:.7f}",
+                                "centre": f"{centre.ra.deg:.7f} {centre.dec.deg:.7f}",
                                 "fix_centre": bool(_DEMO_FIT.get("fix_centre", False))}
     header = ("lensdual run configuration written by `lensdual demo --write-config`:\n"
               "the demo's mock images as FITS files (science, error map, PSF),\n"
@@ -722,7 +716,7 @@ def _cmd_demo(args):
                 if args.write_config:
                     config, header = _write_run_inputs(
                         mocks, tmp, estimator=args.estimator, n_bootstrap=args.n_bootstrap,
-                        snr_threshold=args.snr_threshold, seed=args.seed,
+                        snr_threshold=args.snr_threshold, seed=args.seed, centre=centre,
                         parametric=args.parametric)
                     from .config import write_config
 
