@@ -12,13 +12,14 @@ import warnings
 import numpy as np
 from astropy import units as u
 from astropy.table import QTable, Table
-from scipy.special import chdtrc
+from scipy.special import chdtrc, erfc
 
-from ._validation import as_real
-from .estimators import size_magnification
+from ._validation import as_int, as_real
+from .estimators import DEFAULT_METHOD, size_magnification
 from .exceptions import LensdualWarning
 
-__all__ = ["POSITION_COLUMNS", "SNR_DEFINITIONS", "check_duality", "pair_bands", "flux_ratios"]
+__all__ = ["POSITION_COLUMNS", "SNR_DEFINITIONS", "check_duality", "pair_bands", "flux_ratios",
+           "holm_adjust", "null_calibration", "gaussian_p_value"]
 
 #: Position columns every pairs table needs (arcsec or any angle unit).
 POSITION_COLUMNS = ("x1", "y1", "x2", "y2")
@@ -188,9 +189,67 @@ def flux_ratios(pairs):
     return out
 
 
+def gaussian_p_value(snr):
+    """Two-sided Gaussian p-value of a duality SNR: ``P(|Z| >= snr)``.
+
+    Under the null (duality holds, errors Gaussian in ``ln``), the SNR of
+    :func:`check_duality` is ``|Z|`` with ``Z`` standard normal; SNR 3 gives
+    0.27 %.
+    """
+    snr = np.asarray(snr, dtype=float)
+    return erfc(snr / np.sqrt(2.0))
+
+
+def holm_adjust(p_values):
+    """Holm-Bonferroni adjusted p-values (family-wise error control).
+
+    A pair whose adjusted p-value is below ``alpha`` is significant with a
+    probability of at least one false rejection among all pairs of at most
+    ``alpha``, whatever the correlation between the pairs. NaN entries
+    (untested pairs) stay NaN and do not count in the family.
+
+    Parameters
+    ----------
+    p_values : array_like, shape (N,)
+
+    Returns
+    -------
+    adjusted : `~numpy.ndarray`, shape (N,)
+    """
+    p = np.asarray(p_values, dtype=float)
+    if p.ndim != 1:
+        raise ValueError(f"p_values must be one-dimensional, got shape {p.shape}")
+    out = np.full(p.shape, np.nan)
+    ok = np.flatnonzero(np.isfinite(p))
+    if ok.size == 0:
+        return out
+    m = ok.size
+    order = ok[np.argsort(p[ok], kind="stable")]
+    adj = np.minimum(1.0, (m - np.arange(m)) * p[order])
+    out[order] = np.maximum.accumulate(adj)
+    return out
+
+
+def _family_summary(snr, tested, snr_threshold):
+    """Expected false flags and family-wise probabilities under the null."""
+    n_tested = int(np.count_nonzero(tested))
+    p_thr = float(gaussian_p_value(snr_threshold))
+    if n_tested:
+        p_min = float(np.nanmin(gaussian_p_value(snr[tested])))
+    else:
+        p_min = np.nan
+    return {
+        "n_tested": n_tested,
+        "p_threshold": p_thr,
+        "expected_false_flags": n_tested * p_thr,
+        "p_any_false_flag": 1.0 - (1.0 - p_thr) ** n_tested,
+        "family_wise_p": (1.0 - (1.0 - p_min) ** n_tested) if n_tested else np.nan,
+    }
+
+
 def check_duality(
     pairs,
-    method="quad",
+    method=DEFAULT_METHOD,
     *,
     sigma_pos=0.06 * u.arcsec,
     n_bootstrap=1000,
@@ -210,9 +269,11 @@ def check_duality(
         ``flux2_<band>``, ``flux_err1_<band>``, ``flux_err2_<band>``. The
         bands are ``meta['bands']`` or, without it, every ``flux1_<band>``.
         It is not modified.
-    method : {"quad", "2v", "quad2"}
+    method : {"adaptive", "quad", "2v", "quad2"}
         Size-magnification estimator, see
-        :func:`~lensdual.estimators.relative_jacobian`.
+        :func:`~lensdual.estimators.size_magnification` (default
+        ``"adaptive"``, the only one whose errors include the estimator's
+        own truncation error).
     sigma_pos : `~astropy.units.Quantity`
         Positional uncertainty for the bootstrap of ``mu_size`` (default
         0.06 arcsec), see :func:`~lensdual.estimators.size_magnification`.
@@ -244,8 +305,24 @@ def check_duality(
         ``mu_flux_err_<band>``, ``mu_flux``, ``mu_flux_err``,
         ``chromatic_chi2``, ``chromatic_dof``, ``chromatic_pvalue``,
         ``duality_ratio`` (``mu_flux / mu_size``), ``duality_ratio_err``,
-        ``snr``, ``snr_paper`` and ``anomalous``. A ``pair_id`` column
-        (from 1) is added when missing. ``meta`` records the settings.
+        ``snr``, ``snr_paper``, ``tested``, ``p_value``, ``p_value_holm``
+        and ``anomalous``; also ``ln_mu_size_err`` and ``mu_size_status``.
+        ``tested`` is False where the pair could not be tested (no finite
+        SNR, or an adaptive ``mu_size_status`` other than ``"ok"``); such
+        pairs are never ``anomalous`` and have NaN p-values. ``p_value`` is
+        the two-sided Gaussian p-value of ``snr`` (:func:`gaussian_p_value`),
+        ``p_value_holm`` its Holm-Bonferroni adjustment over the tested
+        pairs (:func:`holm_adjust`). A ``pair_id`` column (from 1) is added
+        when missing. ``meta['duality']`` records the settings and the
+        calibration of the family of tests: ``n_tested``, ``n_flagged``,
+        ``p_threshold`` (the false-alarm probability of one pair at the
+        threshold), ``expected_false_flags`` (``n_tested * p_threshold``),
+        ``p_any_false_flag`` (the chance of at least one flag among the
+        tested pairs without any sub-halo, ``1 - (1 - p_threshold)**n``) and
+        ``family_wise_p`` (the chance, without any sub-halo, of at least one
+        pair as discrepant as the most discrepant one, Sidak-corrected).
+        For an empirical calibration of the same numbers on a simulated
+        null like the user's constellation, see :func:`null_calibration`.
 
     Raises
     ------
@@ -278,7 +355,8 @@ def check_duality(
 
     if "pair_id" not in tab.colnames:
         tab.add_column(np.arange(1, len(tab) + 1), name="pair_id", index=0)
-    for name in ("jacobian", "parity", "mu_size", "mu_size_err", "mu_size_p16", "mu_size_p84"):
+    for name in ("jacobian", "parity", "mu_size", "mu_size_err", "ln_mu_size_err",
+                 "mu_size_p16", "mu_size_p84", "mu_size_status"):
         tab[name] = size[name]
     for name in flux.colnames:
         if name != "ln_mu_flux_err":
@@ -287,9 +365,7 @@ def check_duality(
     mu_size = np.asarray(size["mu_size"], dtype=float)
     with np.errstate(invalid="ignore", divide="ignore"):
         ratio = np.asarray(flux["mu_flux"], dtype=float) / mu_size
-        ln_size_err = 0.5 * (
-            np.log(np.asarray(size["mu_size_p84"])) - np.log(np.asarray(size["mu_size_p16"]))
-        )
+        ln_size_err = np.asarray(size["ln_mu_size_err"], dtype=float)
         ln_flux_err = np.asarray(flux["ln_mu_flux_err"], dtype=float)
         ln_total = np.hypot(ln_flux_err, ln_size_err)
         snr = np.abs(np.log(ratio)) / ln_total
@@ -300,14 +376,264 @@ def check_duality(
     tab["snr"] = snr
     tab["snr_paper"] = snr_paper
     chosen = snr if snr_definition == "log" else snr_paper
-    tab["anomalous"] = np.isfinite(chosen) & (chosen > snr_threshold)
+    tested = np.isfinite(chosen) & (np.asarray(size["mu_size_status"]) == "ok")
+    pval = np.where(tested, gaussian_p_value(np.where(tested, chosen, 0.0)), np.nan)
+    tab["tested"] = tested
+    tab["p_value"] = pval
+    tab["p_value_holm"] = holm_adjust(pval)
+    tab["anomalous"] = tested & (chosen > snr_threshold)
 
     tab.meta["bands"] = bands
-    tab.meta["duality"] = {
+    meta = {
         "method": method,
         "sigma_pos": size.meta["sigma_pos"],
-        "n_bootstrap": size.meta["n_bootstrap"],
+        "n_bootstrap": size.meta.get("n_bootstrap", 0),
         "snr_threshold": snr_threshold,
         "snr_definition": snr_definition,
+        "n_flagged": int(np.count_nonzero(tab["anomalous"])),
     }
+    meta.update(_family_summary(chosen, tested, snr_threshold))
+    tab.meta["duality"] = meta
     return tab
+
+
+# ---------------------------------------------------------------------------
+# Null calibration on the user's own constellation
+# ---------------------------------------------------------------------------
+
+# Realisations per random block: each block has its own seed, so results do
+# not depend on how blocks are grouped into tasks.
+_NULL_BLOCK = 50
+_NULL_MIN_REALISATIONS = 100
+_NULL_MAX_DEGREE = 4
+
+
+def _poly_terms(u, degree):
+    """Monomials of degree <= ``degree`` and their x and y derivatives."""
+    x, y = u[:, 0], u[:, 1]
+    f, fx, fy = [], [], []
+    for deg in range(degree + 1):
+        for i in range(deg + 1):
+            px, py = deg - i, i
+            f.append(x**px * y**py)
+            fx.append(px * x ** max(px - 1, 0) * y**py)
+            fy.append(py * x**px * y ** max(py - 1, 0))
+    return np.column_stack(f), np.column_stack(fx), np.column_stack(fy)
+
+
+def _smooth_map(t1, t2, sigma, alpha=0.05):
+    """A global polynomial map L2 -> L1 fitted to the pairs (the null's truth).
+
+    The lowest degree (1 to 4) whose weighted chi-square is consistent with
+    the position errors at ``alpha``, else the highest degree the number of
+    pairs allows. Returns the mapped L2 positions, the map's Jacobian there,
+    the degree and chi2/dof.
+    """
+    from scipy.stats import chi2
+
+    n = t1.shape[0]
+    centre = t2.mean(axis=0)
+    scale = np.max(np.hypot(*(t2 - centre).T))
+    u_ = (t2 - centre) / scale
+    jnorm2 = 2.0  # pilot |J|_F^2 / 2 ~ 1 before the first fit
+    best = None
+    for degree in range(1, _NULL_MAX_DEGREE + 1):
+        f, fx, fy = _poly_terms(u_, degree)
+        if n - f.shape[1] < 2:
+            break
+        w = 1.0 / (sigma[0] ** 2 + sigma[1] ** 2 * 0.5 * jnorm2)
+        sw = np.sqrt(w)[:, None]
+        coef = np.linalg.lstsq(f * sw, t1 * sw, rcond=None)[0]
+        resid = t1 - f @ coef
+        chi = float((w[:, None] * resid**2).sum())
+        dof = 2 * (n - f.shape[1])
+        jac = np.stack([np.column_stack([fx @ coef[:, 0], fy @ coef[:, 0]]),
+                        np.column_stack([fx @ coef[:, 1], fy @ coef[:, 1]])], axis=1) / scale
+        jnorm2 = np.median((jac**2).sum(axis=(1, 2)))
+        best = (f @ coef, jac, degree, chi / dof)
+        if chi2.sf(chi, dof) >= alpha:
+            break
+    return best
+
+
+def _null_block(task):
+    """SNRs of one block of null realisations (module level: picklable)."""
+    (block, entropy, size, t1, t2, sigma, mu_true, ln_flux_err, wp) = task
+    from .estimators.core import _adaptive_batch
+
+    rng = np.random.default_rng(np.random.SeedSequence(entropy, spawn_key=(block,)))
+    n = t1.shape[0]
+    noise1 = rng.standard_normal((size, n, 2)) * sigma[0][None, :, None]
+    noise2 = rng.standard_normal((size, n, 2)) * sigma[1][None, :, None]
+    ln_flux = np.log(mu_true)[None, :] + ln_flux_err[None, :] * rng.standard_normal((size, n))
+    mu_size, ln_sd, ok = _adaptive_batch(t1, t2, noise1, noise2, sigma, wp)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        snr = np.abs(ln_flux - np.log(mu_size)) / np.hypot(ln_flux_err[None, :], ln_sd)
+    return np.where(ok & np.isfinite(snr), snr, np.nan)
+
+
+def _seed_entropy(seed):
+    if isinstance(seed, np.random.Generator):
+        return int(seed.integers(2**63))
+    if seed is None:
+        return int(np.random.SeedSequence().entropy)
+    if isinstance(seed, (int, np.integer)) and not isinstance(seed, bool) and seed >= 0:
+        return int(seed)
+    raise TypeError(f"seed must be None, a non-negative int or a numpy Generator, got {seed!r}")
+
+
+def null_calibration(pairs, *, sigma_pos, n_realisations=1000, snr_threshold=3.0, seed=None,
+                     client=None, chunk_size=4, weight_power=2):
+    """Empirical false-alarm rate and p-values of the duality test on a null like the data.
+
+    A smooth, model-independent map from arc L2 to arc L1 is fitted to the
+    pairs (a global polynomial, the lowest degree up to 4 that fits within
+    the position errors). Each null realisation takes the measured L2
+    positions as the truth, maps them through it, sets the flux ratios to the
+    map's exact ``|det J|`` (duality holds: no sub-halo), adds Gaussian
+    noise of the user's ``sigma_pos`` to every position and of the user's
+    flux-ratio errors to every ``ln mu_flux``, and runs the same adaptive
+    estimator and SNR as :func:`check_duality`. The observed SNRs are then
+    ranked against this null.
+
+    Parameters
+    ----------
+    pairs : `~astropy.table.Table`
+        The pairs table, as for :func:`check_duality` (positions and fluxes).
+    sigma_pos : `~astropy.units.Quantity`
+        Position errors, as for :func:`check_duality` (scalar, (N,) or (2, N));
+        must be > 0.
+    n_realisations : int
+        Null realisations (at least 100; default 1000).
+    snr_threshold : float
+        Threshold of the false-alarm rates (default 3).
+    seed : int, `numpy.random.Generator` or None
+        Seed; realisations come in blocks of 50, each seeded from it and its
+        block number, so that results do not depend on ``client`` or
+        ``chunk_size``.
+    client : `dask.distributed.Client` or `concurrent.futures.Executor`, optional
+        Where to run the blocks (default: here, serially).
+    chunk_size : int
+        Blocks of 50 realisations per task (default 4).
+    weight_power : float
+        Weight power of the Quad pilot, see
+        :func:`~lensdual.estimators.relative_jacobian`.
+
+    Returns
+    -------
+    table : `~astropy.table.QTable`
+        One row per pair: ``pair_id``, ``snr`` (observed, as
+        :func:`check_duality`), ``tested``, ``p_value`` (Gaussian),
+        ``p_value_empirical`` (``(1 + #null SNR >= snr) / (1 + #null)`` of
+        that pair), ``false_alarm_rate`` (fraction of that pair's null
+        realisations above the threshold) and ``null_snr`` (its
+        ``n_realisations`` null SNRs; NaN where untested). ``meta`` holds
+        ``false_alarm_rate`` (over all pairs), ``nominal_false_alarm_rate``,
+        ``expected_false_flags`` (mean number of flags per null
+        realisation), ``p_any_false_flag`` (fraction of null realisations
+        with at least one flag), ``family_wise_p_empirical`` (fraction with a
+        largest SNR at least the observed largest), ``map_degree`` and
+        ``map_chi2_dof`` of the null map, and the settings.
+
+    Raises
+    ------
+    ValueError
+        ``n_realisations`` < 100, fewer than 7 pairs, non-positive
+        ``sigma_pos`` or flux errors, and the bad inputs of
+        :func:`check_duality`.
+    TypeError
+        ``client`` without a ``map`` method; a bad ``seed``.
+
+    Notes
+    -----
+    The null map is only as rough as a global polynomial: where the real
+    map bends faster than that (``map_chi2_dof`` well above 1, with a
+    warning), the null underestimates the estimator's truncation error and
+    the empirical rates are optimistic.
+    """
+    from .estimators.core import _as_sigma
+
+    n_real = as_int(n_realisations, "n_realisations", minimum=1)
+    if n_real < _NULL_MIN_REALISATIONS:
+        raise ValueError(f"n_realisations must be >= {_NULL_MIN_REALISATIONS} for a null "
+                         f"calibration (p-values of 1/n), got {n_real}")
+    chunk = as_int(chunk_size, "chunk_size", minimum=1)
+    entropy = _seed_entropy(seed)
+    if client is not None and not callable(getattr(client, "map", None)):
+        raise TypeError("client must be None, a dask.distributed.Client or a "
+                        f"concurrent.futures.Executor, got {type(client).__name__}")
+    observed = check_duality(pairs, "adaptive", sigma_pos=sigma_pos,
+                             snr_threshold=snr_threshold, weight_power=weight_power)
+    theta1, theta2 = _positions(observed)
+    t1 = np.ascontiguousarray(theta1.to_value(u.arcsec))
+    t2 = np.ascontiguousarray(theta2.to_value(u.arcsec))
+    n = t1.shape[0]
+    sigma = _as_sigma(sigma_pos, n, positive=True)
+    flux = flux_ratios(pairs)
+    ln_flux_err = np.asarray(flux["ln_mu_flux_err"], dtype=float)
+    ln_flux_err = np.where(np.isfinite(ln_flux_err), ln_flux_err, np.inf)
+
+    mapped, jac, degree, chi2_dof = _smooth_map(t1, t2, sigma)
+    if chi2_dof > 2.0:
+        warnings.warn(
+            f"the null map (a degree-{degree} polynomial) fits the pairs with chi2/dof = "
+            f"{chi2_dof:.2g}: the real map bends faster than the null's, so the empirical "
+            "false-alarm rates may be optimistic",
+            LensdualWarning,
+            stacklevel=2,
+        )
+    mu_true = np.abs(jac[:, 0, 0] * jac[:, 1, 1] - jac[:, 0, 1] * jac[:, 1, 0])
+    mapped = np.ascontiguousarray(mapped)
+    n_blocks = -(-n_real // _NULL_BLOCK)
+    sizes = [min(_NULL_BLOCK, n_real - b * _NULL_BLOCK) for b in range(n_blocks)]
+    args = [(b, entropy, sizes[b], mapped, t2, sigma, mu_true, ln_flux_err, float(weight_power))
+            for b in range(n_blocks)]
+    tasks = [args[i:i + chunk] for i in range(0, n_blocks, chunk)]
+    if client is None:
+        parts = [_null_tasks(t) for t in tasks]
+    elif hasattr(client, "gather") and hasattr(client, "submit"):
+        parts = client.gather(client.map(_null_tasks, tasks, pure=False))
+    else:
+        parts = list(client.map(_null_tasks, tasks))
+    null = np.vstack([blk for part in parts for blk in part])  # (n_real, N)
+
+    snr = np.asarray(observed["snr"], dtype=float)
+    tested = np.asarray(observed["tested"], dtype=bool)
+    valid = np.isfinite(null)
+    n_valid = valid.sum(axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        exceed = (np.where(valid, null, -np.inf) >= snr[None, :]).sum(axis=0)
+        p_emp = np.where(tested, (1.0 + exceed) / (1.0 + n_valid), np.nan)
+        above = np.where(valid, null, -np.inf) > snr_threshold
+        far_pair = np.where(n_valid > 0, above.sum(axis=0) / n_valid, np.nan)
+    flags = above.sum(axis=1)
+    obs_max = np.nanmax(np.where(tested, snr, np.nan)) if tested.any() else np.nan
+    null_max = np.nanmax(np.where(valid, null, -np.inf), axis=1)
+
+    out = QTable()
+    out["pair_id"] = observed["pair_id"]
+    out["snr"] = snr
+    out["tested"] = tested
+    out["p_value"] = observed["p_value"]
+    out["p_value_empirical"] = p_emp
+    out["false_alarm_rate"] = far_pair
+    out["null_snr"] = null.T
+    out.meta.update({
+        "n_realisations": n_real,
+        "snr_threshold": float(snr_threshold),
+        "false_alarm_rate": float(above.sum() / max(valid.sum(), 1)),
+        "nominal_false_alarm_rate": float(gaussian_p_value(snr_threshold)),
+        "expected_false_flags": float(flags.mean()),
+        "p_any_false_flag": float((flags > 0).mean()),
+        "family_wise_p_empirical": (float((1 + (null_max >= obs_max).sum()) / (1 + n_real))
+                                    if np.isfinite(obs_max) else np.nan),
+        "map_degree": int(degree),
+        "map_chi2_dof": float(chi2_dof),
+        "seed_entropy": entropy,
+        "method": "adaptive",
+    })
+    return out
+
+
+def _null_tasks(blocks):
+    return [_null_block(b) for b in blocks]

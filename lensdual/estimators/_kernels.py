@@ -381,3 +381,334 @@ def bootstrap_determinants(t1, t2, noise1, noise2, method, weight_power, min_sin
         relative_jacobians(p1, p2, method, weight_power, min_sin, cond_max, jac, status)
         for i in range(n):
             det_out[k, i] = jac[i, 0, 0] * jac[i, 1, 1] - jac[i, 0, 1] * jac[i, 1, 0]
+
+
+# ---------------------------------------------------------------------------
+# The locality-adaptive estimator ("adaptive")
+# ---------------------------------------------------------------------------
+
+METHOD_ADAPTIVE = 3
+
+#: Largest polynomial degree of the adaptive fits (reported fits are one
+#: degree above the tested ones, which go up to ``ADAPTIVE_MAX_TEST_DEGREE``).
+ADAPTIVE_MAX_TEST_DEGREE = 2
+_ADAPTIVE_NCOEF_MAX = 10  # a full cubic in two variables
+
+ADAPTIVE_OK = 0  # a local fit consistent with the noise was found
+ADAPTIVE_MISFIT = 1  # none was: the least-bad fit, its error scaled by sqrt(chi2/dof)
+ADAPTIVE_FAILED = 2  # no usable fit (too few or degenerate baselines)
+
+
+@njit(**JIT_OPTIONS)
+def _ncoef(degree):
+    return (degree + 1) * (degree + 2) // 2
+
+
+@njit(**JIT_OPTIONS)
+def _monomials(ux, uy, out):
+    """Degree-ordered monomials 1, x, y, x^2, xy, y^2, x^3, x^2 y, x y^2, y^3."""
+    out[0] = 1.0
+    out[1] = ux
+    out[2] = uy
+    out[3] = ux * ux
+    out[4] = ux * uy
+    out[5] = uy * uy
+    out[6] = ux * ux * ux
+    out[7] = ux * ux * uy
+    out[8] = ux * uy * uy
+    out[9] = uy * uy * uy
+
+
+_MONOMIAL_DEGREE = np.array([0, 1, 1, 2, 2, 2, 3, 3, 3, 3], dtype=np.float64)
+
+
+@njit(**JIT_OPTIONS)
+def _cholesky_solve(A, p, scale, rhs, L, sol, tol):
+    """Solve ``(S A S) z = S rhs`` (S = diag(scale)) by Cholesky; ``sol = S z``.
+
+    Only the leading ``p`` x ``p`` block of ``A`` is used. ``L`` receives the
+    factor of the equilibrated matrix. Returns False when a pivot falls below
+    ``tol`` times the largest diagonal element (numerically singular).
+    """
+    for i in range(p):
+        for j in range(i + 1):
+            s = A[i, j] * scale[i] * scale[j]
+            for k in range(j):
+                s -= L[i, k] * L[j, k]
+            if i == j:
+                if not s > tol:
+                    return False
+                L[i, i] = np.sqrt(s)
+            else:
+                L[i, j] = s / L[j, j]
+    for i in range(p):
+        s = rhs[i] * scale[i]
+        for k in range(i):
+            s -= L[i, k] * sol[k]
+        sol[i] = s / L[i, i]
+    for i in range(p - 1, -1, -1):
+        s = sol[i]
+        for k in range(i + 1, p):
+            s -= L[k, i] * sol[k]
+        sol[i] = s / L[i, i]
+    for i in range(p):
+        sol[i] *= scale[i]
+    return True
+
+
+@njit(**JIT_OPTIONS)
+def _inverse_entry(L, p, scale, i, j, work):
+    """Entry (i, j) of ``(S A S)^-1`` scaled back: ``S (S A S)^-1 S`` at (i, j)."""
+    # solve L L^T x = e_j, then take x_i
+    for r in range(p):
+        s = 1.0 if r == j else 0.0
+        for k in range(r):
+            s -= L[r, k] * work[k]
+        work[r] = s / L[r, r]
+    for r in range(p - 1, -1, -1):
+        s = work[r]
+        for k in range(r + 1, p):
+            s -= L[k, r] * work[k]
+        work[r] = s / L[r, r]
+    return work[i] * scale[i] * scale[j]
+
+
+@njit(**JIT_OPTIONS)
+def _adaptive_pair(t1, t2, s1, s2, a, pilot, chi2_crit, min_extra, order, U, Yr, W,
+                   A, rhs, L, scale, beta, work, jac_out):
+    """Adaptive local-polynomial Jacobian at pair ``a``; returns (ln_sd, status).
+
+    The noise of each baseline is the effective variance
+    ``s1^2 I + s2^2 P P^T`` (P the pilot Jacobian at ``a``); in the frame of
+    the eigenvectors of ``P P^T`` the two output components are independent,
+    so each is a weighted polynomial fit of its own. Candidate fits use the
+    ``k`` nearest neighbours of ``a`` in L2 (``a`` included): a fit of degree
+    ``d`` (1 or 2) tests whether the map is that smooth there (chi-square of
+    both components against ``chi2_crit[dof]``), and the estimate reported
+    for that neighbourhood is the fit of degree ``d + 1`` on the same points,
+    whose truncation bias is one order smaller (robust bias correction).
+    Among the neighbourhoods that pass the test, the one whose reported fit
+    has the smallest error wins; if none passes, the least-bad fit is
+    returned with its error scaled by ``sqrt(chi2/dof)`` of its test.
+    """
+    n = t1.shape[0]
+    # pilot effective-variance frame
+    m00 = pilot[0, 0] * pilot[0, 0] + pilot[0, 1] * pilot[0, 1]
+    m01 = pilot[0, 0] * pilot[1, 0] + pilot[0, 1] * pilot[1, 1]
+    m11 = pilot[1, 0] * pilot[1, 0] + pilot[1, 1] * pilot[1, 1]
+    half_tr = 0.5 * (m00 + m11)
+    disc = np.sqrt(0.25 * (m00 - m11) ** 2 + m01 * m01)
+    ev0 = half_tr + disc
+    ev1 = max(half_tr - disc, 0.0)
+    ang = 0.5 * np.arctan2(2.0 * m01, m00 - m11)
+    c = np.cos(ang)
+    s = np.sin(ang)
+    # R = [[c, -s], [s, c]]: columns are the eigenvectors; y' = R^T y
+    dist = np.empty(n)
+    for b in range(n):
+        dx = t2[b, 0] - t2[a, 0]
+        dy = t2[b, 1] - t2[a, 1]
+        dist[b] = dx * dx + dy * dy
+    idx = np.argsort(dist)
+    for k in range(n):
+        order[k] = idx[k]
+    hmax = np.sqrt(dist[idx[n - 1]])
+    if not hmax > 0.0:
+        for i in range(2):
+            for j in range(2):
+                jac_out[i, j] = np.nan
+        return np.nan, ADAPTIVE_FAILED
+    for k in range(n):
+        b = order[k]
+        _monomials((t2[b, 0] - t2[a, 0]) / hmax, (t2[b, 1] - t2[a, 1]) / hmax, U[k])
+        y0 = t1[b, 0] - t1[a, 0]
+        y1 = t1[b, 1] - t1[a, 1]
+        Yr[k, 0] = c * y0 + s * y1
+        Yr[k, 1] = -s * y0 + c * y1
+        v1 = s1[b] * s1[b]
+        v2 = s2[b] * s2[b]
+        W[k, 0] = 1.0 / (v1 + v2 * ev0)
+        W[k, 1] = 1.0 / (v1 + v2 * ev1)
+    for comp in range(2):
+        for i in range(_ADAPTIVE_NCOEF_MAX):
+            rhs[comp, i] = 0.0
+            for j in range(_ADAPTIVE_NCOEF_MAX):
+                A[comp, i, j] = 0.0
+
+    best_sd = np.inf
+    best_fb = np.inf
+    found = False
+    fallback = False
+    jb = np.empty((2, 2))
+    jf = np.empty((2, 2))
+    for k in range(n):
+        # add point order[k] to both normal systems (full cubic design)
+        for comp in range(2):
+            w = W[k, comp]
+            for i in range(_ADAPTIVE_NCOEF_MAX):
+                wi = w * U[k, i]
+                rhs[comp, i] += wi * Yr[k, comp]
+                for j in range(i + 1):
+                    A[comp, i, j] += wi * U[k, j]
+        kk = k + 1
+        hk = np.sqrt(dist[order[k]])
+        if not hk > 0.0:
+            continue
+        for i in range(_ADAPTIVE_NCOEF_MAX):
+            scale[i] = (hmax / hk) ** _MONOMIAL_DEGREE[i]
+        for dt in range(1, ADAPTIVE_MAX_TEST_DEGREE + 1):
+            pt = _ncoef(dt)
+            pr = _ncoef(dt + 1)
+            if kk < pr + min_extra:
+                continue
+            # test fit: chi-square of both components at degree dt
+            chi2 = 0.0
+            ok = True
+            for comp in range(2):
+                if not _cholesky_solve(A[comp], pt, scale, rhs[comp], L, beta[comp], 1e-13):
+                    ok = False
+                    break
+                w_sum = 0.0
+                for q in range(kk):
+                    r = Yr[q, comp]
+                    for i in range(pt):
+                        r -= U[q, i] * beta[comp, i]
+                    w_sum += W[q, comp] * r * r
+                chi2 += w_sum
+            if not ok:
+                continue
+            dof = 2 * (kk - pt)
+            # reported fit: degree dt + 1 on the same points
+            var_ln = 0.0
+            for comp in range(2):
+                if not _cholesky_solve(A[comp], pr, scale, rhs[comp], L, beta[comp], 1e-13):
+                    ok = False
+                    break
+            if not ok:
+                continue
+            # J' rows (rotated frame), derivatives with respect to the unscaled offsets
+            jr00 = beta[0, 1] / hmax
+            jr01 = beta[0, 2] / hmax
+            jr10 = beta[1, 1] / hmax
+            jr11 = beta[1, 2] / hmax
+            det = jr00 * jr11 - jr01 * jr10
+            if not (np.isfinite(det) and det != 0.0):
+                continue
+            # d ln|det| / dJ' = J'^-T
+            g00 = jr11 / det
+            g01 = -jr10 / det
+            g10 = -jr01 / det
+            g11 = jr00 / det
+            for comp in range(2):
+                _cholesky_solve(A[comp], pr, scale, rhs[comp], L, beta[comp], 1e-13)
+                c11 = _inverse_entry(L, pr, scale, 1, 1, work)
+                c12 = _inverse_entry(L, pr, scale, 1, 2, work)
+                c22 = _inverse_entry(L, pr, scale, 2, 2, work)
+                ga = g00 if comp == 0 else g10
+                gb = g01 if comp == 0 else g11
+                var_ln += (ga * ga * c11 + 2.0 * ga * gb * c12 + gb * gb * c22) / (hmax * hmax)
+            if not var_ln > 0.0:
+                continue
+            sd = np.sqrt(var_ln)
+            if chi2 <= chi2_crit[dof]:
+                if sd < best_sd:
+                    best_sd = sd
+                    found = True
+                    jb[0, 0] = c * jr00 - s * jr10
+                    jb[0, 1] = c * jr01 - s * jr11
+                    jb[1, 0] = s * jr00 + c * jr10
+                    jb[1, 1] = s * jr01 + c * jr11
+            elif not found:
+                sdf = sd * np.sqrt(max(1.0, chi2 / dof))
+                if sdf < best_fb:
+                    best_fb = sdf
+                    fallback = True
+                    jf[0, 0] = c * jr00 - s * jr10
+                    jf[0, 1] = c * jr01 - s * jr11
+                    jf[1, 0] = s * jr00 + c * jr10
+                    jf[1, 1] = s * jr01 + c * jr11
+    if found:
+        for i in range(2):
+            for j in range(2):
+                jac_out[i, j] = jb[i, j]
+        return best_sd, ADAPTIVE_OK
+    if fallback:
+        for i in range(2):
+            for j in range(2):
+                jac_out[i, j] = jf[i, j]
+        return best_fb, ADAPTIVE_MISFIT
+    for i in range(2):
+        for j in range(2):
+            jac_out[i, j] = np.nan
+    return np.nan, ADAPTIVE_FAILED
+
+
+@njit(**JIT_OPTIONS)
+def adaptive_jacobians(t1, t2, s1, s2, chi2_crit, min_extra, n_pass, weight_power,
+                       cond_max, jac, ln_sd, status):
+    """The adaptive Jacobian at every pair (see :func:`_adaptive_pair`).
+
+    The pilot Jacobian of the first pass is the first-order Quad one; each
+    further pass uses the previous pass's result (its own pilot where that
+    failed). ``ln_sd`` receives the standard error of ``ln|det J|``.
+    """
+    n = t1.shape[0]
+    pilot = np.empty((n, 2, 2))
+    st = np.empty(n, dtype=np.int64)
+    relative_jacobians(t1, t2, METHOD_QUAD, weight_power, 0.0, cond_max, pilot, st)
+    for a in range(n):
+        if st[a] != STATUS_OK:
+            pilot[a, 0, 0] = 1.0
+            pilot[a, 0, 1] = 0.0
+            pilot[a, 1, 0] = 0.0
+            pilot[a, 1, 1] = 1.0
+    order = np.empty(n, dtype=np.int64)
+    U = np.empty((n, _ADAPTIVE_NCOEF_MAX))
+    Yr = np.empty((n, 2))
+    W = np.empty((n, 2))
+    A = np.empty((2, _ADAPTIVE_NCOEF_MAX, _ADAPTIVE_NCOEF_MAX))
+    rhs = np.empty((2, _ADAPTIVE_NCOEF_MAX))
+    L = np.empty((_ADAPTIVE_NCOEF_MAX, _ADAPTIVE_NCOEF_MAX))
+    scale = np.empty(_ADAPTIVE_NCOEF_MAX)
+    beta = np.empty((2, _ADAPTIVE_NCOEF_MAX))
+    work = np.empty(_ADAPTIVE_NCOEF_MAX)
+    for p in range(n_pass):
+        for a in range(n):
+            ln_sd[a], status[a] = _adaptive_pair(
+                t1, t2, s1, s2, a, pilot[a], chi2_crit, min_extra, order, U, Yr, W,
+                A, rhs, L, scale, beta, work, jac[a])
+        if p + 1 < n_pass:
+            for a in range(n):
+                if status[a] != ADAPTIVE_FAILED:
+                    for i in range(2):
+                        for j in range(2):
+                            pilot[a, i, j] = jac[a, i, j]
+
+
+@njit(**JIT_OPTIONS)
+def adaptive_batch(t1, t2, noise1, noise2, s1, s2, chi2_crit, min_extra, n_pass,
+                   weight_power, cond_max, det_out, ln_sd_out, status_out):
+    """The adaptive estimator on ``B`` noisy copies of a constellation.
+
+    ``noise1``, ``noise2`` are (B, N, 2) offsets; ``det_out``, ``ln_sd_out``
+    and ``status_out`` (B, N) receive the signed determinant, the error of
+    its logarithm and the status code.
+    """
+    nb = noise1.shape[0]
+    n = t1.shape[0]
+    p1 = np.empty((n, 2))
+    p2 = np.empty((n, 2))
+    jac = np.empty((n, 2, 2))
+    st = np.empty(n, dtype=np.int64)
+    sd = np.empty(n)
+    for k in range(nb):
+        for i in range(n):
+            for d in range(2):
+                p1[i, d] = t1[i, d] + noise1[k, i, d]
+                p2[i, d] = t2[i, d] + noise2[k, i, d]
+        adaptive_jacobians(p1, p2, s1, s2, chi2_crit, min_extra, n_pass, weight_power,
+                           cond_max, jac, sd, st)
+        for i in range(n):
+            det_out[k, i] = jac[i, 0, 0] * jac[i, 1, 1] - jac[i, 0, 1] * jac[i, 1, 0]
+            ln_sd_out[k, i] = sd[i]
+            status_out[k, i] = st[i]

@@ -6,6 +6,8 @@ import numpy as np
 from astropy import units as u
 from astropy.table import QTable
 
+from scipy.stats import chi2 as _chi2
+
 from .._validation import (
     as_angle_scalar,
     as_int,
@@ -16,17 +18,39 @@ from .._validation import (
 from ..exceptions import EstimatorWarning
 from . import _kernels
 
-__all__ = ["METHODS", "relative_jacobian", "size_magnification"]
+__all__ = ["METHODS", "DEFAULT_METHOD", "ADAPTIVE_STATUS", "relative_jacobian", "size_magnification"]
 
 #: Estimators known to :func:`relative_jacobian`, with the smallest number of
-#: pairs each one needs.
-METHODS = {"2v": 3, "quad": 3, "quad2": 3}
+#: pairs each one needs. ``"adaptive"`` (the default of
+#: :func:`size_magnification`) needs 7: its smallest fit is a quadratic on
+#: a pair and six neighbours.
+METHODS = {"2v": 3, "quad": 3, "quad2": 3, "adaptive": 7}
+
+#: The default estimator of :func:`size_magnification` and
+#: :func:`~lensdual.duality.check_duality`.
+DEFAULT_METHOD = "adaptive"
 
 _METHOD_CODES = {
     "2v": _kernels.METHOD_2V,
     "quad": _kernels.METHOD_QUAD,
     "quad2": _kernels.METHOD_QUAD2,
+    "adaptive": _kernels.METHOD_ADAPTIVE,
 }
+
+#: Status of an adaptive estimate (column ``mu_size_status``).
+ADAPTIVE_STATUS = {
+    _kernels.ADAPTIVE_OK: "ok",
+    _kernels.ADAPTIVE_MISFIT: "misfit",
+    _kernels.ADAPTIVE_FAILED: "failed",
+}
+
+# Significance of the chi-square test that decides whether a local
+# polynomial describes the map within the position noise.
+_ADAPTIVE_ALPHA = 0.05
+# Degrees of freedom a reported fit keeps beyond its coefficients.
+_ADAPTIVE_MIN_EXTRA = 1
+# Passes of the effective-variance iteration (pilot Jacobian -> estimate).
+_ADAPTIVE_PASSES = 2
 
 # Largest condition estimate accepted for the (column-equilibrated)
 # least-squares design of the Quad estimators.
@@ -106,7 +130,8 @@ def _warn_status(status, method):
         )
 
 
-def relative_jacobian(theta1, theta2, method="quad", *, weight_power=2, min_angle=5 * u.deg):
+def relative_jacobian(theta1, theta2, method="quad", *, weight_power=2, min_angle=5 * u.deg,
+                      sigma_pos=None):
     r"""Relative Jacobian :math:`J_a = \partial\theta^{(L1)}/\partial\theta^{(L2)}` per pair.
 
     The baselines :math:`D_{ab} = \theta_b - \theta_a` of every pair ``a``
@@ -132,12 +157,17 @@ def relative_jacobian(theta1, theta2, method="quad", *, weight_power=2, min_angl
         first-order fit picks up from the curvature of the map on long
         baselines. With fewer than 6 pairs, or degenerate baselines, it
         falls back to ``"quad"`` for the pairs concerned (with a warning).
+        ``"adaptive"``: the locality-adaptive local-polynomial estimator
+        (see :func:`size_magnification`); it needs ``sigma_pos``.
     weight_power : float, optional
         Power of the baseline weights of the Quad estimators (default 2,
         as in the paper).
     min_angle : `~astropy.units.Quantity`, optional
         Smallest angle between the two baselines of a 2v triangle (default
         5 deg).
+    sigma_pos : `~astropy.units.Quantity`, optional
+        Position errors, as in :func:`size_magnification`; required by
+        ``"adaptive"`` (its fits are tested against them), ignored otherwise.
 
     Returns
     -------
@@ -155,13 +185,82 @@ def relative_jacobian(theta1, theta2, method="quad", *, weight_power=2, min_angl
         duplicate positions, an unknown method.
     """
     t1, t2, code, wp, min_sin = _prepare(theta1, theta2, method, weight_power, min_angle)
+    if method == "adaptive":
+        if sigma_pos is None:
+            raise ValueError("method 'adaptive' needs sigma_pos (the position errors its "
+                             "local fits are tested against)")
+        sigma = _as_sigma(sigma_pos, t1.shape[0], positive=True)
+        jac, _, status = _adaptive(t1, t2, sigma, wp)
+        _warn_adaptive(status)
+        return jac
     jac, status = _jacobians(t1, t2, code, wp, min_sin)
     _warn_status(status, method)
     return jac
 
 
-def _as_sigma(sigma_pos, n):
-    """Return per-arc, per-pair positional sigmas as a (2, N) array in arcsec."""
+def _chi2_critical(n, alpha=_ADAPTIVE_ALPHA):
+    """Upper ``alpha`` quantiles of chi-square for 0..2n degrees of freedom."""
+    crit = np.full(2 * n + 1, np.inf)
+    crit[1:] = _chi2.isf(alpha, np.arange(1, 2 * n + 1))
+    return crit
+
+
+def _adaptive(t1, t2, sigma, wp):
+    """Run the adaptive kernel: Jacobians, errors of ln|det J|, status codes."""
+    n = t1.shape[0]
+    jac = np.empty((n, 2, 2))
+    ln_sd = np.empty(n)
+    status = np.empty(n, dtype=np.int64)
+    _kernels.adaptive_jacobians(t1, t2, sigma[0], sigma[1], _chi2_critical(n),
+                                _ADAPTIVE_MIN_EXTRA, _ADAPTIVE_PASSES, wp, _COND_MAX,
+                                jac, ln_sd, status)
+    return jac, ln_sd, status
+
+
+def _adaptive_batch(t1, t2, noise1, noise2, sigma, wp=2.0):
+    """The adaptive estimator on noisy copies ``t + noise`` (shape (B, N, 2)).
+
+    Returns ``|det J|``, the error of its logarithm and whether the status
+    is "ok", each of shape (B, N). No validation: for
+    :func:`lensdual.duality.null_calibration`.
+    """
+    b, n = noise1.shape[:2]
+    det = np.empty((b, n))
+    ln_sd = np.empty((b, n))
+    status = np.empty((b, n), dtype=np.int64)
+    _kernels.adaptive_batch(t1, t2, noise1, noise2, sigma[0], sigma[1], _chi2_critical(n),
+                            _ADAPTIVE_MIN_EXTRA, _ADAPTIVE_PASSES, float(wp), _COND_MAX,
+                            det, ln_sd, status)
+    return np.abs(det), ln_sd, status == _kernels.ADAPTIVE_OK
+
+
+def _warn_adaptive(status):
+    misfit = np.flatnonzero(status == _kernels.ADAPTIVE_MISFIT)
+    failed = np.flatnonzero(status == _kernels.ADAPTIVE_FAILED)
+    if misfit.size:
+        warnings.warn(
+            f"adaptive Jacobian: no local polynomial (up to cubic) fits the map around pair(s) "
+            f"{misfit.tolist()} within the position errors (the constellation is too sparse "
+            "for how fast the map bends there, or sigma_pos is too small); their error is "
+            "scaled by the misfit and mu_size_status is 'misfit'",
+            EstimatorWarning,
+            stacklevel=3,
+        )
+    if failed.size:
+        warnings.warn(
+            f"adaptive Jacobian: no usable local fit for pair(s) {failed.tolist()} "
+            "(too few or degenerate baselines); their Jacobian is NaN",
+            EstimatorWarning,
+            stacklevel=3,
+        )
+
+
+def _as_sigma(sigma_pos, n, positive=False):
+    """Return per-arc, per-pair positional sigmas as a (2, N) array in arcsec.
+
+    With ``positive``, zero errors are refused (the adaptive estimator
+    weights by them).
+    """
     if not isinstance(sigma_pos, u.Quantity) or sigma_pos.unit.physical_type != "angle":
         raise TypeError(
             "sigma_pos must be a Quantity with angular units (e.g. 0.06 * u.arcsec), "
@@ -180,6 +279,9 @@ def _as_sigma(sigma_pos, n):
             )
         if not np.isfinite(sig).all() or (sig < 0).any():
             raise ValueError("sigma_pos must be finite and >= 0")
+    if positive and not (sig > 0).all():
+        raise ValueError("sigma_pos must be > 0 for method 'adaptive' (its local fits are "
+                         "weighted by and tested against the position errors)")
     return np.ascontiguousarray(sig)
 
 
@@ -226,7 +328,7 @@ def _nan_percentiles(values, n_valid, qs):
 def size_magnification(
     theta1,
     theta2,
-    method="quad",
+    method=DEFAULT_METHOD,
     *,
     sigma_pos=0.06 * u.arcsec,
     n_bootstrap=1000,
@@ -234,14 +336,38 @@ def size_magnification(
     weight_power=2,
     min_angle=5 * u.deg,
 ):
-    """Size magnification ``mu_size = |det J|`` per pair, with bootstrap errors.
+    """Size magnification ``mu_size = |det J|`` per pair, with errors that hold.
+
+    The default estimator, ``"adaptive"``, fits the L2-to-L1 map around each
+    pair by weighted local polynomials on its ``k`` nearest neighbours in L2
+    (the pair included), for every ``k`` and for degrees 1 and 2. The
+    position errors of both arcs enter as the effective variance
+    ``sigma1^2 + sigma2^2 J J^T`` of each point. A fit of degree ``d`` is
+    accepted when its chi-square is consistent with those errors (5 %
+    test); the estimate of that neighbourhood is then the fit of degree
+    ``d + 1`` on the same points, whose truncation bias is one order
+    smaller than the tested fit's misfit (robust bias correction). Among
+    the accepted neighbourhoods the one with the smallest error wins. The
+    error of ``ln mu_size`` is the exact linear propagation of the position
+    errors through that fit: no bootstrap is needed, and ``n_bootstrap`` is
+    ignored. Where no local polynomial up to the cubic fits within the
+    errors, the least-bad estimate is returned with its error scaled by
+    ``sqrt(chi2 / dof)`` and ``mu_size_status`` = ``"misfit"``
+    (:func:`~lensdual.duality.check_duality` does not test such pairs).
+    See the calibration page of the docs for the measurements behind these
+    choices.
+
+    ``"2v"``, ``"quad"`` and ``"quad2"`` are the paper's estimators and
+    their second-order variant; their errors come from a bootstrap over
+    ``sigma_pos`` and hold the position noise only, not their truncation
+    error.
 
     Parameters
     ----------
     theta1, theta2 : `~astropy.units.Quantity`, shape (N, 2)
         Positions on arcs L1 and L2 (pair ``a`` is row ``a`` of both).
-    method : {"quad", "2v", "quad2"}
-        Estimator, see :func:`relative_jacobian`.
+    method : {"adaptive", "quad", "2v", "quad2"}
+        Estimator, see :func:`relative_jacobian` (default ``"adaptive"``).
     sigma_pos : `~astropy.units.Quantity`, optional
         Gaussian positional uncertainty per coordinate (default 0.06 arcsec,
         the paper's conservative JWST value). A scalar applies to every
@@ -263,11 +389,16 @@ def size_magnification(
 
         - ``mu_size``: ``|det J|`` on the measured positions;
         - ``mu_size_err``: half the 16-84 % width of the bootstrap
-          distribution of ``|det J|``;
+          distribution of ``|det J|`` (``"adaptive"``: of the log-normal
+          ``mu_size * exp(+-ln_mu_size_err)``);
+        - ``ln_mu_size_err``: the error of ``ln mu_size``;
         - ``mu_size_p16``, ``mu_size_p50``, ``mu_size_p84``: the bootstrap
-          percentiles;
+          percentiles (``"adaptive"``: ``mu_size * exp(-1, 0, +1 sigma)``);
         - ``n_bootstrap_valid``: realisations with a finite estimate (the
-          percentiles ignore the others);
+          percentiles ignore the others; 0 for ``"adaptive"``);
+        - ``mu_size_status``: ``"ok"``, ``"misfit"`` or ``"failed"``
+          (``"adaptive"``, see above; the other methods give ``"ok"`` or,
+          for a NaN Jacobian, ``"failed"``);
         - ``parity``: sign of ``det J`` (-1 for a fold pair, 0 when undefined);
         - ``jacobian``: the (2, 2) relative Jacobian.
 
@@ -275,8 +406,10 @@ def size_magnification(
     """
     t1, t2, code, wp, min_sin = _prepare(theta1, theta2, method, weight_power, min_angle)
     n = t1.shape[0]
-    sigma = _as_sigma(sigma_pos, n)
+    sigma = _as_sigma(sigma_pos, n, positive=method == "adaptive")
     n_bootstrap = as_int(n_bootstrap, "n_bootstrap", minimum=1)
+    if method == "adaptive":
+        return _adaptive_table(t1, t2, sigma, wp, sigma_pos)
     rng = np.random.default_rng(seed)
 
     jac, status = _jacobians(t1, t2, code, wp, min_sin)
@@ -299,22 +432,53 @@ def size_magnification(
             stacklevel=2,
         )
 
-    table = QTable()
-    table["mu_size"] = np.abs(det)
-    table["mu_size_err"] = 0.5 * (pct[2] - pct[0])
-    table["mu_size_p16"] = pct[0]
-    table["mu_size_p50"] = pct[1]
-    table["mu_size_p84"] = pct[2]
-    table["n_bootstrap_valid"] = n_valid
-    table["parity"] = np.where(np.isfinite(det), np.sign(det), 0).astype(int)
-    table["jacobian"] = jac
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ln_err = 0.5 * (np.log(pct[2]) - np.log(pct[0]))
+    table = _size_table(det, jac, pct, ln_err, n_valid,
+                        np.where(np.isfinite(det), "ok", "failed"))
     table.meta["method"] = method
     table.meta["n_bootstrap"] = n_bootstrap
-    table.meta["sigma_pos"] = (
-        sigma_pos if sigma_pos.isscalar else "per-pair (see sigma_pos argument)"
-    )
+    table.meta["sigma_pos"] = _sigma_meta(sigma_pos)
     if method != "2v":
         table.meta["weight_power"] = wp
     else:
         table.meta["min_angle"] = min_angle
+    return table
+
+
+def _sigma_meta(sigma_pos):
+    return sigma_pos if sigma_pos.isscalar else "per-pair (see sigma_pos argument)"
+
+
+def _size_table(det, jac, pct, ln_err, n_valid, status):
+    table = QTable()
+    table["mu_size"] = np.abs(det)
+    table["mu_size_err"] = 0.5 * (pct[2] - pct[0])
+    table["ln_mu_size_err"] = ln_err
+    table["mu_size_p16"] = pct[0]
+    table["mu_size_p50"] = pct[1]
+    table["mu_size_p84"] = pct[2]
+    table["n_bootstrap_valid"] = n_valid
+    table["mu_size_status"] = np.asarray(status, dtype="U6")
+    table["parity"] = np.where(np.isfinite(det), np.sign(det), 0).astype(int)
+    table["jacobian"] = jac
+    return table
+
+
+def _adaptive_table(t1, t2, sigma, wp, sigma_pos):
+    """size_magnification for method 'adaptive' (analytic errors, no bootstrap)."""
+    jac, ln_sd, status = _adaptive(t1, t2, sigma, wp)
+    _warn_adaptive(status)
+    det = jac[:, 0, 0] * jac[:, 1, 1] - jac[:, 0, 1] * jac[:, 1, 0]
+    mu = np.abs(det)
+    pct = np.vstack([mu * np.exp(-ln_sd), mu, mu * np.exp(ln_sd)])
+    names = np.array([ADAPTIVE_STATUS[int(c)] for c in status])
+    table = _size_table(det, jac, pct, ln_sd, np.zeros(len(mu), dtype=int), names)
+    table.meta["method"] = "adaptive"
+    table.meta["error_model"] = (
+        "linear propagation of sigma_pos through the accepted local fit (chi-square test "
+        f"at {_ADAPTIVE_ALPHA:g}, reported degree one above the tested one)"
+    )
+    table.meta["sigma_pos"] = _sigma_meta(sigma_pos)
+    table.meta["weight_power"] = wp
     return table
