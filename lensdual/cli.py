@@ -180,8 +180,9 @@ def _catalogue(images, psf, catalog=None):
     return out
 
 
-def analyse(images, *, psf=None, estimator="quad2", sigma_pos="auto", n_bootstrap=1000,
-            snr_threshold=3.0, seed=0, catalogs=None, manual_pairs=None, progress=None):
+def analyse(images, *, psf=None, estimator="adaptive", sigma_pos="auto", n_bootstrap=1000,
+            snr_threshold=3.0, seed=0, catalogs=None, manual_pairs=None, progress=None,
+            null_realisations=0):
     """Run the pipeline from images of two arcs to the duality table.
 
     Parameters
@@ -192,8 +193,8 @@ def analyse(images, *, psf=None, estimator="quad2", sigma_pos="auto", n_bootstra
     psf : dict of str to PSF, optional
         Per band, what :func:`~lensdual.photometry.psf_photometry` takes as
         ``psf`` (a FWHM, a PSF image, or None to fit a Gaussian FWHM).
-    estimator : {"quad2", "quad", "2v"}
-        Size-magnification estimator.
+    estimator : {"adaptive", "quad2", "quad", "2v"}
+        Size-magnification estimator (default ``"adaptive"``).
     sigma_pos : "auto" or `~astropy.units.Quantity`
         Positional error of the bootstrap. ``"auto"`` (default): each point
         source's own error from the PSF fits (``pos_err1``, ``pos_err2``).
@@ -206,6 +207,11 @@ def analyse(images, *, psf=None, estimator="quad2", sigma_pos="auto", n_bootstra
     manual_pairs : `~astropy.table.Table`, optional
         ``id1``, ``id2`` of the pairs (catalogue ids): manual pairing.
     progress : `_Progress`, optional
+    null_realisations : int
+        With ``estimator="adaptive"`` and a value >= 100, also run
+        :func:`~lensdual.duality.null_calibration` with that many
+        realisations: its summary goes to ``meta['duality']['null_calibration']``
+        and its per-pair empirical p-values to column ``p_value_empirical``.
 
     Returns
     -------
@@ -247,7 +253,9 @@ def analyse(images, *, psf=None, estimator="quad2", sigma_pos="auto", n_bootstra
                 raise PipelineError(f"only {len(pairs)} pair(s) found: at least 3 are needed")
         with progress.step("PSF photometry of the pairs"):
             measured = measure_pairs(images["L1"], images["L2"], pairs, psf=psf, bands=bands)
-        with progress.step(f"mu_size ({estimator}, {n_bootstrap} bootstraps)"):
+        step = (f"mu_size ({estimator})" if estimator == "adaptive"
+                else f"mu_size ({estimator}, {n_bootstrap} bootstraps)")
+        with progress.step(step):
             if isinstance(sigma_pos, str):
                 sigma = np.vstack([measured["pos_err1"].to_value(u.arcsec),
                                    measured["pos_err2"].to_value(u.arcsec)]) * u.arcsec
@@ -256,6 +264,10 @@ def analyse(images, *, psf=None, estimator="quad2", sigma_pos="auto", n_bootstra
             result = check_duality(measured, estimator, sigma_pos=sigma,
                                    n_bootstrap=n_bootstrap, snr_threshold=snr_threshold,
                                    seed=seed)
+        if null_realisations and estimator == "adaptive":
+            with progress.step(f"null calibration ({null_realisations} realisations)"):
+                _add_null_calibration(result, measured, sigma, null_realisations,
+                                      snr_threshold, seed)
     messages = list(dict.fromkeys(f"{w.category.__name__}: {w.message}" for w in caught))
     return Analysis(cats, pairs, result, sigma, messages)
 
@@ -456,12 +468,21 @@ def verdict(result, sigma_pos):
         sig_text = f"positional errors from the PSF fits (median {np.median(sig):.1f} mas)"
     else:
         sig_text = f"sigma_pos = {float(sig):.1f} mas"
+    method = meta.get("method", "?")
+    errors = ("analytic errors that include the estimator's truncation error"
+              if method == "adaptive" else
+              f"{meta.get('n_bootstrap', '?')} bootstrap realisations (position noise only)")
     text = (f"{len(result)} point-source pairs were measured on arcs L1 and L2 in "
             f"{len(bands)} band{'s' if len(bands) != 1 else ''} ({', '.join(bands)}). "
-            f"Size magnifications from the {meta.get('method', '?')} estimator with "
-            f"{sig_text} and {meta.get('n_bootstrap', '?')} bootstrap realisations; a pair is "
+            f"Size magnifications from the {method} estimator with "
+            f"{sig_text} and {errors}; a pair is "
             f"anomalous when |ln(mu_flux/mu_size)| exceeds {threshold:g} times its error. ")
+    n_tested = meta.get("n_tested", len(result))
+    if n_tested < len(result):
+        text += (f"{len(result) - n_tested} pair(s) could not be tested (column 'tested'; "
+                 "no local fit of the arc-to-arc map holds within the errors there). ")
     bad = result[np.asarray(result["anomalous"], dtype=bool)]
+    text += _calibration_sentence(len(bad), n_tested, meta)
     if len(bad) == 0:
         text += ("No pair breaks geometrical duality: flux and size magnifications agree "
                  "everywhere, so no sub-halo is detected near these point sources.")
@@ -482,6 +503,42 @@ def verdict(result, sigma_pos):
              + "; ".join(parts) + ". A flux anomaly at fixed geometry is the signature of "
              "unseen sub-structure (a sub-halo) near one of the two images. "
              f"The other {len(result) - n_bad} pairs agree with duality.")
+    return text
+
+
+def _add_null_calibration(result, measured, sigma, n_realisations, snr_threshold, seed):
+    """Run the null calibration and record it in ``result`` (in place)."""
+    from .duality import null_calibration
+
+    null = null_calibration(measured, sigma_pos=sigma, n_realisations=n_realisations,
+                            snr_threshold=snr_threshold, seed=seed)
+    result["p_value_empirical"] = null["p_value_empirical"]
+    keys = ("n_realisations", "false_alarm_rate", "nominal_false_alarm_rate",
+            "expected_false_flags", "p_any_false_flag", "family_wise_p_empirical",
+            "map_degree", "map_chi2_dof")
+    result.meta["duality"]["null_calibration"] = {k: null.meta[k] for k in keys}
+
+
+def _calibration_sentence(n_bad, n_tested, meta):
+    """'k pairs of N flagged; the chance of at least one such flag without any sub-halo...'."""
+    if "p_any_false_flag" not in meta:
+        return ""
+    text = (f"{n_bad} pair{'s' if n_bad != 1 else ''} of {n_tested} tested flagged "
+            f"(expected without any sub-halo: {meta['expected_false_flags']:.2g}); ")
+    if n_bad:
+        text += (f"the chance of at least one flag as strong without any sub-halo is "
+                 f"{meta['family_wise_p']:.2%}. ")
+    else:
+        text += (f"the chance of at least one flag without any sub-halo is "
+                 f"{meta['p_any_false_flag']:.1%}. ")
+    null = meta.get("null_calibration")
+    if null:
+        text += (f"On {null['n_realisations']} simulated clean constellations like this one "
+                 f"(null calibration) {null['false_alarm_rate']:.2%} of pairs were flagged "
+                 f"(nominal {null['nominal_false_alarm_rate']:.2%}), "
+                 f"{null['p_any_false_flag']:.1%} of them had at least one flag, and a flag "
+                 f"as strong as the strongest here occurred in "
+                 f"{null['family_wise_p_empirical']:.2%}. ")
     return text
 
 
@@ -704,7 +761,9 @@ def _cmd_demo(args):
         psf = {band: np.asarray(mocks[("L1", band)].psf) for band in DEMO_BANDS}
         analysis = analyse(images, psf=psf, estimator=args.estimator, sigma_pos="auto",
                            n_bootstrap=args.n_bootstrap, snr_threshold=args.snr_threshold,
-                           seed=args.seed, progress=progress)
+                           seed=args.seed, progress=progress,
+                           null_realisations=(args.null_realisations
+                                              if args.estimator == "adaptive" else 0))
         meta = mocks[("L1", DEMO_BANDS[0])].meta
         centre = SkyCoord(meta["LENSRA"] * u.deg, meta["LENSDEC"] * u.deg)
         comparison = compare_with_truth(analysis.result, truth, centre)
@@ -765,7 +824,8 @@ def _cmd_run(args):
         analysis = analyse(images, psf=psf, estimator=config.estimator,
                            sigma_pos=config.sigma_pos, n_bootstrap=config.n_bootstrap,
                            snr_threshold=config.snr_threshold, seed=config.seed,
-                           catalogs=catalogs, manual_pairs=manual, progress=progress)
+                           catalogs=catalogs, manual_pairs=manual, progress=progress,
+                           null_realisations=config.null_realisations)
         extra = []
         with _atomic_directory(config.outdir) as tmp:
             if par is not None and (par.lenstool is not None or par.fit):
@@ -872,9 +932,13 @@ def build_parser():
                       help="point sources in the constellation (3-18)")
     demo.add_argument("--n-bootstrap", type=_int_range(10), default=1000,
                       help="bootstrap realisations of the positional noise")
-    demo.add_argument("--estimator", choices=sorted(METHODS), default="quad2",
-                      help="size-magnification estimator (quad2: second-order fit, the most "
-                           "accurate with PSF-fit astrometry)")
+    demo.add_argument("--estimator", choices=sorted(METHODS), default="adaptive",
+                      help="size-magnification estimator (adaptive: local fits chosen by the "
+                           "data, errors that include the estimator's own; quad2, quad, 2v: "
+                           "bootstrap errors of the position noise only)")
+    demo.add_argument("--null-realisations", type=_int_range(0), default=200,
+                      help="simulated clean constellations for the null calibration of the "
+                           "adaptive test (0: off; otherwise >= 100)")
     demo.add_argument("--snr-threshold", type=_positive_float, default=3.0,
                       help="a pair is anomalous above this duality SNR")
     demo.add_argument("--write-config", action="store_true",

@@ -20,11 +20,12 @@ file. Angles are strings of a number and an angular unit (``"0.066 arcsec"``,
     outdir = "lensdual-output"       # optional; default "lensdual-output"
 
     [analysis]                       # optional, as is every key in it
-    estimator = "quad2"              # "2v", "quad" or "quad2" (default)
+    estimator = "adaptive"           # "adaptive" (default), "2v", "quad" or "quad2"
     sigma_pos = "auto"               # "auto" (errors of the PSF fits) or an angle > 0
     n_bootstrap = 1000               # integer >= 10
     snr_threshold = 3.0              # real > 0
     seed = 0                         # integer >= 0
+    null_realisations = 0            # 0 (off) or >= 100: null calibration (estimator "adaptive")
 
     [bands.F150W]                    # one table per band, at least one band
     psf = "psf_F150W.fits"           # a PSF image (FITS, odd shape, same pixel scale
@@ -123,7 +124,8 @@ _MIN_PSF_SIZE = 5
 
 _KEYS = {
     "output": ("outdir",),
-    "analysis": ("estimator", "sigma_pos", "n_bootstrap", "snr_threshold", "seed"),
+    "analysis": ("estimator", "sigma_pos", "n_bootstrap", "snr_threshold", "seed",
+                 "null_realisations"),
     "bands": (),
     "arcs": (),
     "catalogs": _ARCS,
@@ -349,6 +351,8 @@ class RunConfig:
         Significance threshold of a duality violation.
     seed : int
         Seed of the random numbers.
+    null_realisations : int
+        Realisations of :func:`lensdual.duality.null_calibration` (0: off).
     parametric : `ParametricSpec` or None
         The ``[parametric]`` table, or None without one.
     """
@@ -360,11 +364,12 @@ class RunConfig:
     catalogs: dict | None = None
     pairing_method: str = "auto"
     pairs_file: Path | None = None
-    estimator: str = "quad2"
+    estimator: str = "adaptive"
     sigma_pos: u.Quantity | str = "auto"
     n_bootstrap: int = 1000
     snr_threshold: float = 3.0
     seed: int = 0
+    null_realisations: int = 0
     parametric: ParametricSpec | None = None
 
 
@@ -785,7 +790,7 @@ class _Validator:
         table = self.section("analysis") or {}
         sec = "analysis"
         self.unknown_keys(table, _KEYS[sec], sec)
-        out = {"estimator": self.get_str(table, "estimator", sec, "quad2", choices=list(METHODS))}
+        out = {"estimator": self.get_str(table, "estimator", sec, "adaptive", choices=list(METHODS))}
         sigma = table.get("sigma_pos", "auto")
         if not isinstance(sigma, str):
             self.add(f'[{sec}] sigma_pos: expected "auto" or an angle string such as '
@@ -797,6 +802,15 @@ class _Validator:
         out["n_bootstrap"] = self.get_int(table, "n_bootstrap", sec, 1000, minimum=10)
         out["snr_threshold"] = self.get_real(table, "snr_threshold", sec, 3.0, above=0)
         out["seed"] = self.get_int(table, "seed", sec, 0, minimum=0)
+        null = self.get_int(table, "null_realisations", sec, 0, minimum=0)
+        if null is not _BAD and 0 < null < 100:
+            self.add(f"[{sec}] null_realisations: must be 0 (off) or >= 100, got {null}")
+            null = _BAD
+        elif null is not _BAD and null and out["estimator"] not in ("adaptive", _BAD):
+            self.add(f"[{sec}] null_realisations: the null calibration needs "
+                     f'estimator = "adaptive", got estimator = "{out["estimator"]}"')
+            null = _BAD
+        out["null_realisations"] = null
         return out
 
     def bands(self):

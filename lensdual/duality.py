@@ -308,8 +308,10 @@ def check_duality(
         ``snr``, ``snr_paper``, ``tested``, ``p_value``, ``p_value_holm``
         and ``anomalous``; also ``ln_mu_size_err`` and ``mu_size_status``.
         ``tested`` is False where the pair could not be tested (no finite
-        SNR, or an adaptive ``mu_size_status`` other than ``"ok"``); such
-        pairs are never ``anomalous`` and have NaN p-values. ``p_value`` is
+        SNR, or ``mu_size_status`` ``"failed"``); such pairs are never
+        ``anomalous`` and have NaN p-values. Pairs whose adaptive status is
+        ``"misfit"`` are tested with their misfit-scaled errors (see the
+        calibration page for how that holds). ``p_value`` is
         the two-sided Gaussian p-value of ``snr`` (:func:`gaussian_p_value`),
         ``p_value_holm`` its Holm-Bonferroni adjustment over the tested
         pairs (:func:`holm_adjust`). A ``pair_id`` column (from 1) is added
@@ -376,7 +378,7 @@ def check_duality(
     tab["snr"] = snr
     tab["snr_paper"] = snr_paper
     chosen = snr if snr_definition == "log" else snr_paper
-    tested = np.isfinite(chosen) & (np.asarray(size["mu_size_status"]) == "ok")
+    tested = np.isfinite(chosen) & (np.asarray(size["mu_size_status"]) != "failed")
     pval = np.where(tested, gaussian_p_value(np.where(tested, chosen, 0.0)), np.nan)
     tab["tested"] = tested
     tab["p_value"] = pval

@@ -88,3 +88,75 @@ def size_magnification(t1, t2, sigma, n_bootstrap, rng, method="quad"):
     boot = np.abs(bootstrap_determinants(t1, t2, noise1, noise2, method))
     p16, p50, p84 = np.percentile(boot, [16, 50, 84], axis=0)
     return np.abs(np.linalg.det(jac)), 0.5 * (p84 - p16), (p16, p50, p84)
+
+
+# ---------------------------------------------------------------------------
+# The adaptive estimator, one pair and one candidate fit at a time
+# ---------------------------------------------------------------------------
+
+
+def _monomials(u, degree):
+    x, y = u[:, 0], u[:, 1]
+    cols = [np.ones_like(x)]
+    for deg in range(1, degree + 1):
+        for i in range(deg + 1):
+            cols.append(x ** (deg - i) * y**i)
+    return np.column_stack(cols)
+
+
+def _gls_fit(t1, t2, a, idx, degree, s1, s2, pilot):
+    """Generalised least squares of theta1 on a polynomial of theta2 - theta2[a].
+
+    Each point's 2x2 covariance is s1^2 I + s2^2 P P^T (no rotation trick:
+    the full 2p x 2p normal system). Returns J, its 4x4 covariance, chi2, dof.
+    """
+    u = t2[idx] - t2[a]
+    x = _monomials(u, degree)
+    y = t1[idx] - t1[a]
+    cov = s1[idx, None, None] ** 2 * np.eye(2) + s2[idx, None, None] ** 2 * (pilot @ pilot.T)
+    w = np.linalg.inv(cov)
+    p = x.shape[1]
+    normal = np.einsum("bi,bj,bkl->kilj", x, x, w).reshape(2 * p, 2 * p)
+    rhs = np.einsum("bi,bkl,bl->ki", x, w, y).reshape(2 * p)
+    cinv = np.linalg.inv(normal)
+    beta = (cinv @ rhs).reshape(2, p)
+    r = y - x @ beta.T
+    chi2 = np.einsum("bk,bkl,bl->", r, w, r)
+    sel = [1, 2, p + 1, p + 2]
+    jac = np.array([[beta[0, 1], beta[0, 2]], [beta[1, 1], beta[1, 2]]])
+    return jac, cinv[np.ix_(sel, sel)], chi2, 2 * (len(idx) - p)
+
+
+def adaptive(t1, t2, s1, s2, pilot, chi2_crit, min_extra=1, report_extra=1):
+    """One pass of the adaptive estimator given pilot Jacobians (N, 2, 2).
+
+    Returns J (N, 2, 2), the error of ln|det J| and the status (0 ok, 1 misfit).
+    """
+    n = len(t1)
+    jac = np.full((n, 2, 2), np.nan)
+    sd = np.full(n, np.nan)
+    status = np.full(n, 2)
+    for a in range(n):
+        order = np.argsort(((t2 - t2[a]) ** 2).sum(axis=1), kind="stable")
+        best = fallback = None
+        for dt in range(1, 4 - report_extra):
+            dr = dt + report_extra
+            for k in range((dr + 1) * (dr + 2) // 2 + min_extra, n + 1):
+                idx = order[:k]
+                _, _, chi2, dof = _gls_fit(t1, t2, a, idx, dt, s1, s2, pilot[a])
+                j, cj, _, _ = _gls_fit(t1, t2, a, idx, dr, s1, s2, pilot[a])
+                det = np.linalg.det(j)
+                g = np.array([j[1, 1], -j[1, 0], -j[0, 1], j[0, 0]]) / det
+                s = np.sqrt(g @ cj @ g)
+                if chi2 <= chi2_crit[dof]:
+                    if best is None or s < best[1]:
+                        best = (j, s)
+                else:
+                    sf = s * np.sqrt(max(1.0, chi2 / dof))
+                    if fallback is None or sf < fallback[1]:
+                        fallback = (j, sf)
+        if best is not None:
+            jac[a], sd[a], status[a] = best[0], best[1], 0
+        elif fallback is not None:
+            jac[a], sd[a], status[a] = fallback[0], fallback[1], 1
+    return jac, sd, status

@@ -257,7 +257,7 @@ def test_command_line_as_a_subprocess(tmp_path):
     command = [str(script)] if script.is_file() else [sys.executable, "-m", "lensdual"]
     env = dict(os.environ, MPLBACKEND="agg")
     done = subprocess.run(command + ["demo", "--outdir", str(tmp_path / "sub"), "--quiet",
-                                     "--n-sources", "6", "--n-bootstrap", "100"],
+                                     "--n-sources", "8", "--n-bootstrap", "100"],
                           capture_output=True, text=True, env=env, timeout=600)
     assert done.returncode == 0, done.stderr
     assert (tmp_path / "sub" / "pairs.ecsv").is_file()

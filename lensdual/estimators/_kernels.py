@@ -474,8 +474,8 @@ def _inverse_entry(L, p, scale, i, j, work):
 
 
 @njit(**JIT_OPTIONS)
-def _adaptive_pair(t1, t2, s1, s2, a, pilot, chi2_crit, min_extra, order, U, Yr, W,
-                   A, rhs, L, scale, beta, work, jac_out):
+def _adaptive_pair(t1, t2, s1, s2, a, pilot, chi2_crit, min_extra, report_extra, order, U,
+                   Yr, W, A, rhs, L, scale, beta, work, jac_out):
     """Adaptive local-polynomial Jacobian at pair ``a``; returns (ln_sd, status).
 
     The noise of each baseline is the effective variance
@@ -556,9 +556,9 @@ def _adaptive_pair(t1, t2, s1, s2, a, pilot, chi2_crit, min_extra, order, U, Yr,
             continue
         for i in range(_ADAPTIVE_NCOEF_MAX):
             scale[i] = (hmax / hk) ** _MONOMIAL_DEGREE[i]
-        for dt in range(1, ADAPTIVE_MAX_TEST_DEGREE + 1):
+        for dt in range(1, 4 - report_extra):
             pt = _ncoef(dt)
-            pr = _ncoef(dt + 1)
+            pr = _ncoef(dt + report_extra)
             if kk < pr + min_extra:
                 continue
             # test fit: chi-square of both components at degree dt
@@ -644,8 +644,8 @@ def _adaptive_pair(t1, t2, s1, s2, a, pilot, chi2_crit, min_extra, order, U, Yr,
 
 
 @njit(**JIT_OPTIONS)
-def adaptive_jacobians(t1, t2, s1, s2, chi2_crit, min_extra, n_pass, weight_power,
-                       cond_max, jac, ln_sd, status):
+def adaptive_jacobians(t1, t2, s1, s2, chi2_crit, min_extra, report_extra, n_pass,
+                       weight_power, cond_max, jac, ln_sd, status):
     """The adaptive Jacobian at every pair (see :func:`_adaptive_pair`).
 
     The pilot Jacobian of the first pass is the first-order Quad one; each
@@ -675,8 +675,8 @@ def adaptive_jacobians(t1, t2, s1, s2, chi2_crit, min_extra, n_pass, weight_powe
     for p in range(n_pass):
         for a in range(n):
             ln_sd[a], status[a] = _adaptive_pair(
-                t1, t2, s1, s2, a, pilot[a], chi2_crit, min_extra, order, U, Yr, W,
-                A, rhs, L, scale, beta, work, jac[a])
+                t1, t2, s1, s2, a, pilot[a], chi2_crit, min_extra, report_extra, order, U,
+                Yr, W, A, rhs, L, scale, beta, work, jac[a])
         if p + 1 < n_pass:
             for a in range(n):
                 if status[a] != ADAPTIVE_FAILED:
@@ -686,8 +686,8 @@ def adaptive_jacobians(t1, t2, s1, s2, chi2_crit, min_extra, n_pass, weight_powe
 
 
 @njit(**JIT_OPTIONS)
-def adaptive_batch(t1, t2, noise1, noise2, s1, s2, chi2_crit, min_extra, n_pass,
-                   weight_power, cond_max, det_out, ln_sd_out, status_out):
+def adaptive_batch(t1, t2, noise1, noise2, s1, s2, chi2_crit, min_extra, report_extra,
+                   n_pass, weight_power, cond_max, det_out, ln_sd_out, status_out):
     """The adaptive estimator on ``B`` noisy copies of a constellation.
 
     ``noise1``, ``noise2`` are (B, N, 2) offsets; ``det_out``, ``ln_sd_out``
@@ -706,8 +706,8 @@ def adaptive_batch(t1, t2, noise1, noise2, s1, s2, chi2_crit, min_extra, n_pass,
             for d in range(2):
                 p1[i, d] = t1[i, d] + noise1[k, i, d]
                 p2[i, d] = t2[i, d] + noise2[k, i, d]
-        adaptive_jacobians(p1, p2, s1, s2, chi2_crit, min_extra, n_pass, weight_power,
-                           cond_max, jac, sd, st)
+        adaptive_jacobians(p1, p2, s1, s2, chi2_crit, min_extra, report_extra, n_pass,
+                           weight_power, cond_max, jac, sd, st)
         for i in range(n):
             det_out[k, i] = jac[i, 0, 0] * jac[i, 1, 1] - jac[i, 0, 1] * jac[i, 1, 0]
             ln_sd_out[k, i] = sd[i]

@@ -49,6 +49,8 @@ ADAPTIVE_STATUS = {
 _ADAPTIVE_ALPHA = 0.05
 # Degrees of freedom a reported fit keeps beyond its coefficients.
 _ADAPTIVE_MIN_EXTRA = 1
+# Degrees the reported fit lies above the tested one (1: robust bias correction).
+_ADAPTIVE_REPORT_EXTRA = 1
 # Passes of the effective-variance iteration (pilot Jacobian -> estimate).
 _ADAPTIVE_PASSES = 2
 
@@ -212,7 +214,8 @@ def _adaptive(t1, t2, sigma, wp):
     ln_sd = np.empty(n)
     status = np.empty(n, dtype=np.int64)
     _kernels.adaptive_jacobians(t1, t2, sigma[0], sigma[1], _chi2_critical(n),
-                                _ADAPTIVE_MIN_EXTRA, _ADAPTIVE_PASSES, wp, _COND_MAX,
+                                _ADAPTIVE_MIN_EXTRA, _ADAPTIVE_REPORT_EXTRA, _ADAPTIVE_PASSES,
+                                wp, _COND_MAX,
                                 jac, ln_sd, status)
     return jac, ln_sd, status
 
@@ -221,7 +224,7 @@ def _adaptive_batch(t1, t2, noise1, noise2, sigma, wp=2.0):
     """The adaptive estimator on noisy copies ``t + noise`` (shape (B, N, 2)).
 
     Returns ``|det J|``, the error of its logarithm and whether the status
-    is "ok", each of shape (B, N). No validation: for
+    is not "failed" (the pair is tested), each of shape (B, N). No validation: for
     :func:`lensdual.duality.null_calibration`.
     """
     b, n = noise1.shape[:2]
@@ -229,9 +232,10 @@ def _adaptive_batch(t1, t2, noise1, noise2, sigma, wp=2.0):
     ln_sd = np.empty((b, n))
     status = np.empty((b, n), dtype=np.int64)
     _kernels.adaptive_batch(t1, t2, noise1, noise2, sigma[0], sigma[1], _chi2_critical(n),
-                            _ADAPTIVE_MIN_EXTRA, _ADAPTIVE_PASSES, float(wp), _COND_MAX,
+                            _ADAPTIVE_MIN_EXTRA, _ADAPTIVE_REPORT_EXTRA, _ADAPTIVE_PASSES,
+                            float(wp), _COND_MAX,
                             det, ln_sd, status)
-    return np.abs(det), ln_sd, status == _kernels.ADAPTIVE_OK
+    return np.abs(det), ln_sd, status != _kernels.ADAPTIVE_FAILED
 
 
 def _warn_adaptive(status):

@@ -1,0 +1,245 @@
+"""The adaptive estimator, the calibrated duality test and the null calibration."""
+
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+import pytest
+from astropy import units as u
+from astropy.table import QTable
+from scipy.stats import chi2, norm
+
+from lensdual.duality import (
+    check_duality,
+    gaussian_p_value,
+    holm_adjust,
+    null_calibration,
+)
+from lensdual.estimators import relative_jacobian, size_magnification
+from lensdual.estimators import _kernels
+from lensdual.estimators.core import _chi2_critical
+from lensdual.exceptions import EstimatorWarning
+
+import _reference as ref
+
+
+def _curved_map(t2):
+    """A smooth, curved L2 -> L1 map with its exact Jacobian (fold-like parity)."""
+    x, y = t2[:, 0], t2[:, 1]
+    t1 = np.column_stack([
+        0.8 * x + 0.2 * y + 0.06 * x**2 - 0.04 * x * y + 0.02 * y**3,
+        0.1 * x - 0.7 * y + 0.05 * y**2 + 0.03 * x**2 * y,
+    ])
+    jac = np.empty((len(x), 2, 2))
+    jac[:, 0, 0] = 0.8 + 0.12 * x - 0.04 * y
+    jac[:, 0, 1] = 0.2 - 0.04 * x + 0.06 * y**2
+    jac[:, 1, 0] = 0.1 + 0.06 * x * y
+    jac[:, 1, 1] = -0.7 + 0.1 * y + 0.03 * x**2
+    return t1, jac
+
+
+def _constellation(n, seed, span=1.0):
+    rng = np.random.default_rng(seed)
+    t2 = rng.uniform(-span, span, (n, 2))
+    t1, jac = _curved_map(t2)
+    return t1, t2, np.abs(np.linalg.det(jac))
+
+
+def test_adaptive_kernel_matches_numpy_reference():
+    t1, t2, _ = _constellation(16, 0)
+    rng = np.random.default_rng(1)
+    s1 = rng.uniform(0.002, 0.006, 16)
+    s2 = rng.uniform(0.002, 0.006, 16)
+    t1 = t1 + s1[:, None] * rng.standard_normal((16, 2))
+    t2 = t2 + s2[:, None] * rng.standard_normal((16, 2))
+    pilot = relative_jacobian(t1 * u.arcsec, t2 * u.arcsec, "quad")
+    crit = _chi2_critical(16)
+    jac_ref, sd_ref, st_ref = ref.adaptive(t1, t2, s1, s2, pilot, crit)
+    jac = np.empty((16, 2, 2))
+    sd = np.empty(16)
+    st = np.empty(16, dtype=np.int64)
+    _kernels.adaptive_jacobians(t1, t2, s1, s2, crit, 1, 1, 1, 2.0, 1e10, jac, sd, st)
+    np.testing.assert_array_equal(st, st_ref)
+    np.testing.assert_allclose(jac, jac_ref, rtol=1e-7, atol=1e-9)
+    np.testing.assert_allclose(sd, sd_ref, rtol=1e-6)
+
+
+def test_adaptive_recovers_affine_map_exactly():
+    rng = np.random.default_rng(3)
+    t2 = rng.uniform(-1, 1, (12, 2))
+    a = np.array([[1.3, -0.4], [0.2, -0.9]])
+    t1 = t2 @ a.T + [0.5, -2.0]
+    tab = size_magnification(t1 * u.arcsec, t2 * u.arcsec, sigma_pos=1 * u.mas)
+    np.testing.assert_allclose(np.asarray(tab["mu_size"]), abs(np.linalg.det(a)), rtol=1e-9)
+    assert (tab["parity"] == -1).all()
+    assert (tab["mu_size_status"] == "ok").all()
+    assert tab.meta["method"] == "adaptive"
+    np.testing.assert_allclose(tab["jacobian"], np.broadcast_to(a, (12, 2, 2)), atol=1e-9)
+
+
+@pytest.mark.filterwarnings("ignore::lensdual.exceptions.EstimatorWarning")
+def test_adaptive_errors_hold_on_a_curved_map():
+    """Pulls of ln mu_size: width ~1 and Gaussian tails (independent noise draws)."""
+    pulls, n_ok, n_all = [], 0, 0
+    for seed in range(30):
+        t1, t2, mu = _constellation(20, seed)
+        rng = np.random.default_rng(100 + seed)
+        sig = 0.005
+        o1 = t1 + sig * rng.standard_normal(t1.shape)
+        o2 = t2 + sig * rng.standard_normal(t2.shape)
+        tab = size_magnification(o1 * u.arcsec, o2 * u.arcsec, sigma_pos=sig * u.arcsec)
+        ok = np.asarray(tab["mu_size_status"]) == "ok"
+        n_ok, n_all = n_ok + ok.sum(), n_all + ok.size
+        pulls.append((np.log(np.asarray(tab["mu_size"])) - np.log(mu))[ok]
+                     / np.asarray(tab["ln_mu_size_err"])[ok])
+    assert n_ok / n_all > 0.95
+    pulls = np.concatenate(pulls)
+    q16, q50, q84 = np.percentile(pulls, [15.87, 50, 84.13])
+    assert 0.8 < 0.5 * (q84 - q16) < 1.2
+    assert abs(q50) < 0.2
+    assert np.mean(np.abs(pulls) > 3) < 0.01
+    # quad2's bootstrap (position noise only) is not calibrated on the same data
+    t1, t2, mu = _constellation(20, 0, span=2.0)
+    tab = size_magnification(t1 * u.arcsec, t2 * u.arcsec, "quad", sigma_pos=1 * u.mas,
+                              n_bootstrap=100, seed=0)
+    err = np.log(np.asarray(tab["mu_size"]) / mu)
+    assert np.median(np.abs(err) / np.asarray(tab["ln_mu_size_err"])) > 3
+
+
+def test_adaptive_flags_a_misfit_and_inflates_it():
+    # a map that bends far faster than the constellation samples it
+    rng = np.random.default_rng(5)
+    t2 = rng.uniform(-1, 1, (9, 2))
+    t1 = np.column_stack([np.sin(3 * t2[:, 0]) + t2[:, 1], np.cos(3 * t2[:, 1]) - t2[:, 0]])
+    with pytest.warns(EstimatorWarning, match="no local polynomial"):
+        tab = size_magnification(t1 * u.arcsec, t2 * u.arcsec, sigma_pos=0.1 * u.mas)
+    assert (tab["mu_size_status"] == "misfit").any()
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"sigma_pos": 0 * u.arcsec}, "sigma_pos must be > 0 for method 'adaptive'"),
+        ({"sigma_pos": np.zeros(8) * u.arcsec}, "sigma_pos must be > 0"),
+        ({"sigma_pos": -np.ones(8) * u.mas}, "sigma_pos must be finite and >= 0"),
+    ],
+)
+def test_adaptive_bad_errors(kwargs, match):
+    t1, t2, _ = _constellation(8, 0)
+    with pytest.raises(ValueError, match=match):
+        size_magnification(t1 * u.arcsec, t2 * u.arcsec, **kwargs)
+
+
+def test_adaptive_too_few_pairs_and_nan():
+    t1, t2, _ = _constellation(6, 0)
+    with pytest.raises(ValueError, match="method 'adaptive' needs at least 7 pairs, got 6"):
+        size_magnification(t1 * u.arcsec, t2 * u.arcsec, sigma_pos=1 * u.mas)
+    t1, t2, _ = _constellation(8, 0)
+    t1[2, 0] = np.nan
+    with pytest.raises(ValueError, match="theta1"):
+        size_magnification(t1 * u.arcsec, t2 * u.arcsec, sigma_pos=1 * u.mas)
+    with pytest.raises(ValueError, match="needs sigma_pos"):
+        relative_jacobian(t2 * u.arcsec, t2 * u.arcsec, "adaptive")
+
+
+def test_holm_adjust_against_definition():
+    p = np.array([0.01, 0.04, np.nan, 0.03, 0.2])
+    adj = holm_adjust(p)
+    # sorted: 0.01 (x4), 0.03 (x3), 0.04 (x2), 0.2 (x1), monotone
+    np.testing.assert_allclose(adj[[0, 3, 1, 4]], [0.04, 0.09, 0.09, 0.2])
+    assert np.isnan(adj[2])
+    with pytest.raises(ValueError, match="one-dimensional"):
+        holm_adjust(np.ones((2, 2)))
+
+
+def test_gaussian_p_value():
+    np.testing.assert_allclose(gaussian_p_value(3.0), 2 * norm.sf(3.0), rtol=1e-12)
+    np.testing.assert_allclose(gaussian_p_value([0.0, 1.0]), [1.0, 2 * norm.sf(1.0)])
+
+
+def _pairs(n=16, seed=0, sig=0.003, anomaly=None, flux_err=0.01):
+    t1, t2, mu = _constellation(n, seed)
+    rng = np.random.default_rng(seed + 1000)
+    o1 = t1 + sig * rng.standard_normal(t1.shape)
+    o2 = t2 + sig * rng.standard_normal(t2.shape)
+    f2 = rng.uniform(1, 10, n)
+    f1 = f2 * mu
+    if anomaly is not None:
+        f1[anomaly[0]] *= anomaly[1]
+    e1, e2 = flux_err * f1, flux_err * f2
+    f1 = f1 + e1 * rng.standard_normal(n)
+    f2 = f2 + e2 * rng.standard_normal(n)
+    tab = QTable()
+    tab["x1"], tab["y1"] = o1[:, 0] * u.arcsec, o1[:, 1] * u.arcsec
+    tab["x2"], tab["y2"] = o2[:, 0] * u.arcsec, o2[:, 1] * u.arcsec
+    tab["flux1_F150W"], tab["flux2_F150W"] = f1 * u.nJy, f2 * u.nJy
+    tab["flux_err1_F150W"], tab["flux_err2_F150W"] = e1 * u.nJy, e2 * u.nJy
+    return tab
+
+
+@pytest.mark.filterwarnings("ignore::lensdual.exceptions.EstimatorWarning")
+def test_check_duality_calibrated_columns_and_meta():
+    res = check_duality(_pairs(anomaly=(3, 1.5)), sigma_pos=3 * u.mas)
+    assert res.meta["duality"]["method"] == "adaptive"
+    tested = np.asarray(res["tested"])
+    assert tested.all()
+    np.testing.assert_allclose(res["p_value"], gaussian_p_value(np.asarray(res["snr"])))
+    np.testing.assert_allclose(res["p_value_holm"], holm_adjust(np.asarray(res["p_value"])))
+    assert list(np.flatnonzero(res["anomalous"])) == [3]
+    meta = res.meta["duality"]
+    assert meta["n_tested"] == 16 and meta["n_flagged"] == 1
+    p3 = 2 * norm.sf(3.0)
+    np.testing.assert_allclose(meta["expected_false_flags"], 16 * p3)
+    np.testing.assert_allclose(meta["p_any_false_flag"], 1 - (1 - p3) ** 16)
+    pmin = np.min(res["p_value"])
+    np.testing.assert_allclose(meta["family_wise_p"], 1 - (1 - pmin) ** 16)
+    # the paper's quad: tested columns too, bootstrap error in ln_mu_size_err
+    res_q = check_duality(_pairs(), "quad", sigma_pos=3 * u.mas, n_bootstrap=50, seed=0)
+    assert "ln_mu_size_err" in res_q.colnames and res_q.meta["duality"]["n_tested"] == 16
+
+
+@pytest.mark.filterwarnings("ignore::lensdual.exceptions.EstimatorWarning")
+def test_null_calibration_rates_and_chunking():
+    pairs = _pairs(n=14, seed=2)
+    null = null_calibration(pairs, sigma_pos=3 * u.mas, n_realisations=300, seed=7)
+    assert null["null_snr"].shape == (14, 300)
+    meta = null.meta
+    assert meta["map_degree"] >= 2  # the map is curved
+    # the null's SNRs are |Z|-like: rates near the nominal ones
+    assert meta["false_alarm_rate"] < 0.02
+    frac1 = np.mean(np.abs(null["null_snr"]) > 1)
+    assert 0.2 < frac1 < 0.45  # Gaussian: 0.317
+    p = np.asarray(null["p_value_empirical"])
+    assert ((p > 0) & (p <= 1)).all()
+    # chunking and executor independence
+    with ThreadPoolExecutor(2) as pool:
+        other = null_calibration(pairs, sigma_pos=3 * u.mas, n_realisations=300, seed=7,
+                                 client=pool, chunk_size=1)
+    np.testing.assert_array_equal(other["null_snr"], null["null_snr"])
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "exc", "match"),
+    [
+        ({"n_realisations": 99}, ValueError, "n_realisations must be >= 100"),
+        ({"sigma_pos": 0 * u.mas}, ValueError, "sigma_pos must be > 0"),
+        ({"seed": "x"}, TypeError, "seed must be"),
+        ({"client": object()}, TypeError, "client must be"),
+        ({"chunk_size": 0}, ValueError, "chunk_size"),
+    ],
+)
+def test_null_calibration_bad_input(kwargs, exc, match):
+    args = {"sigma_pos": 3 * u.mas, "n_realisations": 100, "seed": 0}
+    args.update(kwargs)
+    with pytest.raises(exc, match=match):
+        null_calibration(_pairs(n=8), **args)
+
+
+def test_null_calibration_too_few_pairs():
+    with pytest.raises(ValueError, match="at least 7 pairs"):
+        null_calibration(_pairs(n=6), sigma_pos=3 * u.mas, n_realisations=100)
+
+
+def test_chi2_critical_values():
+    crit = _chi2_critical(5)
+    assert crit.shape == (11,) and np.isinf(crit[0])
+    np.testing.assert_allclose(crit[1:], chi2.isf(0.05, np.arange(1, 11)))
