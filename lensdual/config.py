@@ -790,7 +790,8 @@ class _Validator:
         table = self.section("analysis") or {}
         sec = "analysis"
         self.unknown_keys(table, _KEYS[sec], sec)
-        out = {"estimator": self.get_str(table, "estimator", sec, "adaptive", choices=list(METHODS))}
+        out = {"estimator": self.get_str(table, "estimator", sec, "adaptive",
+                                         choices=list(METHODS))}
         sigma = table.get("sigma_pos", "auto")
         if not isinstance(sigma, str):
             self.add(f'[{sec}] sigma_pos: expected "auto" or an angle string such as '

@@ -2,6 +2,7 @@
 
 from concurrent.futures import ThreadPoolExecutor
 
+import _reference as ref
 import numpy as np
 import pytest
 from astropy import units as u
@@ -14,12 +15,9 @@ from lensdual.duality import (
     holm_adjust,
     null_calibration,
 )
-from lensdual.estimators import relative_jacobian, size_magnification
-from lensdual.estimators import _kernels
+from lensdual.estimators import _kernels, relative_jacobian, size_magnification
 from lensdual.estimators.core import _chi2_critical
 from lensdual.exceptions import EstimatorWarning
-
-import _reference as ref
 
 
 def _curved_map(t2):

@@ -188,7 +188,7 @@ def test_defaults_and_outdir(data_dir, tmp_path, monkeypatch):
     path = write(data_dir, "minimal", minimal_config())
     cfg = load_config(path)
     assert cfg.outdir == data_dir.resolve() / "lensdual-output"
-    assert (cfg.estimator, cfg.sigma_pos, cfg.n_bootstrap) == ("quad2", "auto", 1000)
+    assert (cfg.estimator, cfg.sigma_pos, cfg.n_bootstrap) == ("adaptive", "auto", 1000)
     assert (cfg.snr_threshold, cfg.seed) == (3.0, 0)
     assert cfg.catalogs is None and cfg.parametric is None
     assert (cfg.pairing_method, cfg.pairs_file) == ("auto", None)
@@ -309,7 +309,7 @@ def _set(*keys_and_value):
 
 BAD = [
     ("estimator", _set("analysis", "estimator", "quadd"),
-     "[analysis] estimator: 'quadd' is not one of '2v', 'quad', 'quad2' (did you mean 'quad'?)"),
+     "[analysis] estimator: 'quadd' is not one of '2v', 'quad', 'quad2', 'adaptive' (did you mean 'quad'?)"),
     ("unknown-key", _set("analysis", "n_boostrap", 100),
      "[analysis] n_boostrap: unknown key (did you mean 'n_bootstrap'?)"),
     ("unknown-table", _set("anlysis", "seed", 1),

@@ -5,7 +5,6 @@ import warnings
 import numpy as np
 from astropy import units as u
 from astropy.table import QTable
-
 from scipy.stats import chi2 as _chi2
 
 from .._validation import (
@@ -18,7 +17,8 @@ from .._validation import (
 from ..exceptions import EstimatorWarning
 from . import _kernels
 
-__all__ = ["METHODS", "DEFAULT_METHOD", "ADAPTIVE_STATUS", "relative_jacobian", "size_magnification"]
+__all__ = ["METHODS", "DEFAULT_METHOD", "ADAPTIVE_STATUS", "relative_jacobian",
+           "size_magnification"]
 
 #: Estimators known to :func:`relative_jacobian`, with the smallest number of
 #: pairs each one needs. ``"adaptive"`` (the default of
