@@ -1,0 +1,617 @@
+"""Clean constellations from several lens families: a calibration suite.
+
+Every family is one fixed lens system and one fixed source region (a polygon
+inside a caustic, next to a fold or a cusp) whose point sources are imaged
+once on each of two opposite-parity arcs: L1 (positive parity) and L2
+(negative parity). :func:`clean_constellation` draws sources in that region,
+keeps those whose images are resolved from each other on both arcs and
+returns their exact pairs table. There are no sub-haloes, so ``mu_true`` is
+what a size-magnification estimator should find.
+
+The families cover the regimes a user meets (numbers measured for 8 to 40
+sources 0.08 arcsec apart, 5 seeds each; baselines are the largest image
+separations on an arc):
+
+``cluster_fold``
+    Elliptical NFW cluster (8e14 Msun, c = 6, q = 0.75, z = 0.4, source at
+    z = 2.5) with two members (tNFW, 8e11 and 2e11 Msun) about 4 arcsec
+    from arc L2; fold pair of a tangential arc, ``|mu| ~ 17-30``, ``mu_true``
+    0.76-1.01, baselines 0.7-1.8 arcsec.
+``cluster_cusp``
+    The elliptical NFW cluster of App. B (5e14 Msun, c = 9.6, q = 0.7,
+    z = 0.39 / 2.2) with a member (3e11 Msun) 5 arcsec from arc L1; the
+    middle image (L1) and an outer image (L2) of sources 0.7-0.95 arcsec
+    inside a cusp of the tangential caustic, ``|mu| ~ 12-32``, ``mu_true``
+    1.40-1.85, baselines 1.0-2.3 arcsec (a cusp stretches both images: 40
+    resolved sources do not fit in less).
+``galaxy_fold``
+    Isothermal elliptical power law (lenstronomy ``EPL_NUMBA``, slope 2,
+    theta_E = 1.5 arcsec, q = 0.7, z = 0.5, source at z = 2) in an external
+    shear of 0.1; the fold pair on the Einstein ring with sources over most
+    of the tangential caustic, the hard regime: ``|mu| ~ 1-8``, ``mu_true``
+    varying by a factor of up to 10 (0.55-5.5) over a constellation,
+    baselines 0.8-2.2 arcsec.
+``smacs_analog``
+    :func:`~lensdual.simulation.smacs0723_analog` with its two members; the
+    radial fold pair, sources spread over the demo's patch of the source
+    plane (Table 1's 0.06 arcsec Gaussian is not resolved): ``|mu| ~ 2-8``,
+    ``mu_true`` 0.30-0.56, baselines 0.7-1.6 arcsec.
+``smacs_lenstool``
+    The real Lenstool model of SMACS0723 (Mahler et al. 2023, 149 dPIEs)
+    for sources at the spectroscopic redshift of system 5 (z = 1.425);
+    sources next to the fold that makes its images 5.1 (L1) and 5.2 (L2):
+    ``|mu| ~ 15-30``, ``mu_true`` 1.00-1.03, baselines 0.9-1.3 arcsec.
+
+How the regions were found
+--------------------------
+The caustics of the full lens (members included) were traced on a 0.01-0.02
+arcsec grid in a window around the arcs. For a fold, the caustic point
+nearest to a source imaged on the wanted pair of arcs (the source of system
+5 for ``smacs_lenstool``, the centre of the demo's patch for
+``smacs_analog``) is the anchor ``fold_point`` and ``normal`` the unit vector
+from it into the multiply imaged side; for ``cluster_cusp`` the anchor is
+the cusp's tip and ``normal`` its axis (the bisector of the two fold
+branches 1 arcsec from the tip). The region is the rectangle ``fold_point +
+d * normal + s * tangent``, ``d`` in ``distance``, ``|s| <= half_length``. For
+``galaxy_fold`` the region is the tangential caustic shrunk by 0.05 arcsec
+and cut 0.45 arcsec from the fold of the pair (explicit ``polygon``). The
+sizes were chosen so that 40 sources 0.08 arcsec apart fit (the image area
+of the region must hold them) and the margins so that no image merges with
+another. Every region was then checked on 20 000 random sources: each has
+exactly one image on either arc, the two are more than 0.9 arcsec apart and
+any other image of the source more than 0.9 arcsec from them, and the
+Jacobian keeps the sign of its arc along the segments between neighbouring
+images (no critical curve crosses an arc's constellation). The rounded
+values are hard-coded in :data:`FAMILY_PARAMETERS`.
+"""
+
+import copy
+import functools
+import os
+import warnings
+from pathlib import Path
+
+import numpy as np
+from astropy import units as u
+
+from .._validation import as_angle_scalar, as_int
+from ..exceptions import LensdualWarning
+from .halos import elliptical_nfw_halo, tnfw_halo
+from .lens_system import LensComponent, LensSystem, _reference_arcs
+from .scenarios import smacs0723_analog
+
+__all__ = [
+    "FAMILIES",
+    "FAMILY_PARAMETERS",
+    "SMACS0723_LENSTOOL_DIR",
+    "calibration_system",
+    "clean_constellation",
+]
+
+#: The lens families of :func:`clean_constellation`.
+FAMILIES = ("cluster_fold", "cluster_cusp", "galaxy_fold", "smacs_analog", "smacs_lenstool")
+
+#: Folder of the real SMACS0723 Lenstool model (``best.par``) used by the
+#: ``smacs_lenstool`` family; the environment variable
+#: ``LENSDUAL_SMACS0723_DIR`` overrides it.
+SMACS0723_LENSTOOL_DIR = (Path(__file__).resolve().parents[3] / "shared" / "data"
+                          / "smacs0723_mahler2022")
+
+#: Smallest and largest number of sources of :func:`clean_constellation`.
+N_SOURCES_RANGE = (8, 40)
+
+# Every family: the lens (clusters: "main" elliptical NFW and "members", tNFW
+# (M200, c200 or None for the mass-concentration relation, position)), then the
+# source region (see the module docstring): fold_point, normal (inward, unit),
+# distance (d0, d1) and half_length, or an explicit polygon (arcsec, source
+# plane); reference: rough image-plane positions of the L1 and L2 images of the
+# region's centroid (snapped to the exact images when the system is built);
+# finder: the image-plane window of the image finder (images outside it are
+# ignored); link_length: images of equal parity closer than this form one arc.
+#: Parameters of the lens families (lens, source region, image finder).
+FAMILY_PARAMETERS = {
+    "cluster_fold": {
+        "description": "elliptical NFW cluster + 2 members, fold pair of a tangential arc",
+        "z_lens": 0.4,
+        "z_source": 2.5,
+        "main": {"mass": 8e14 * u.Msun, "concentration": 6.0, "axis_ratio": 0.75,
+                 "position_angle": 20.0 * u.deg},
+        "members": ((8e11 * u.Msun, None, (8.5, 20.0) * u.arcsec),
+                    (2e11 * u.Msun, None, (10.5, 13.0) * u.arcsec)),
+        "fold_point": (2.047, -1.160) * u.arcsec,
+        "normal": (-0.924, 0.382),
+        "distance": (0.05, 0.17) * u.arcsec,
+        "half_length": 0.11 * u.arcsec,
+        "reference": ((2.54, 17.86), (7.24, 16.02)) * u.arcsec,
+        "finder": {"center": (7.5, 16.5) * u.arcsec, "half_width": 10.0 * u.arcsec,
+                   "grid_spacing": 0.1 * u.arcsec},
+        "link_length": 1.5 * u.arcsec,
+    },
+    "cluster_cusp": {
+        "description": ("elliptical NFW cluster of App. B + 1 member, middle and outer image "
+                        "of a source next to a cusp"),
+        "z_lens": 0.39,
+        "z_source": 2.2,
+        "main": {"mass": 5e14 * u.Msun, "concentration": 9.6, "axis_ratio": 0.7,
+                 "position_angle": 0.0 * u.deg},
+        "members": ((3e11 * u.Msun, None, (-3.0, -18.0) * u.arcsec),),
+        "fold_point": (-0.107, 4.476) * u.arcsec,
+        "normal": (0.147, -0.989),
+        "distance": (0.7, 0.95) * u.arcsec,
+        "half_length": 0.05 * u.arcsec,
+        "reference": ((2.41, -15.63), (10.10, -11.82)) * u.arcsec,
+        "finder": {"center": (0.0, -14.0) * u.arcsec, "half_width": 12.0 * u.arcsec,
+                   "grid_spacing": 0.1 * u.arcsec},
+        "link_length": 1.5 * u.arcsec,
+    },
+    "galaxy_fold": {
+        "description": ("isothermal elliptical galaxy + external shear, fold pair on the "
+                        "Einstein ring, sources over most of the tangential caustic"),
+        "z_lens": 0.5,
+        "z_source": 2.0,
+        # isothermal power law: lenstronomy's SIE (a NIE with a vanishing
+        # core) has a Hessian with 1e-6 relative noise; EPL_NUMBA is exact
+        "galaxy": {"profile": "EPL_NUMBA", "theta_E": 1.5 * u.arcsec, "slope": 2.0,
+                   "axis_ratio": 0.7, "position_angle": 30.0 * u.deg},
+        "shear": {"gamma": 0.1, "angle": -60.0 * u.deg},
+        # the tangential caustic shrunk by 0.05 arcsec (a ray from the centroid
+        # every 10 deg, stopped 0.05" from the caustic), cut 0.45" from the
+        # fold of the L1/L2 pair (caustic point (-0.308, 0.096), inward normal
+        # (0.932, -0.362), critical point (-0.40, -1.42)): the caustic is 0.99"
+        # wide along that normal
+        "polygon": ((-0.295, 0.0), (-0.325, -0.057), (-0.372, -0.135), (-0.48, -0.277),
+                    (-0.303, -0.255), (-0.212, -0.253), (-0.147, -0.255), (-0.095, -0.261),
+                    (-0.047, -0.268), (0.0, -0.277), (0.027, -0.284), (0.235, 0.253),
+                    (0.212, 0.253), (0.148, 0.255), (0.095, 0.261), (0.047, 0.268),
+                    (0.0, 0.277), (-0.051, 0.29), (-0.113, 0.31), (-0.203, 0.352),
+                    (-0.212, 0.253), (-0.225, 0.189), (-0.24, 0.139), (-0.256, 0.093),
+                    (-0.274, 0.048)) * u.arcsec,
+        "reference": ((0.66, -1.56), (-1.10, -0.77)) * u.arcsec,
+        "finder": {"center": (0.0, 0.0) * u.arcsec, "half_width": 2.5 * u.arcsec,
+                   "grid_spacing": 0.05 * u.arcsec},
+        "link_length": 0.5 * u.arcsec,
+    },
+    "smacs_analog": {
+        "description": ("SMACS0723 analogue (Table 1) with its 2 members, radial fold pair, "
+                        "sources over the demo's patch of the source plane"),
+        "fold_point": (0.684, 7.280) * u.arcsec,
+        "normal": (-0.084, -0.996),
+        "distance": (0.2, 0.6) * u.arcsec,
+        "half_length": 0.35 * u.arcsec,
+        "reference": ((-0.21, -4.99), (-0.60, -9.68)) * u.arcsec,
+        "finder": {"center": (0.0, -7.0) * u.arcsec, "half_width": 6.0 * u.arcsec,
+                   "grid_spacing": 0.1 * u.arcsec},
+        "link_length": 1.5 * u.arcsec,
+    },
+    "smacs_lenstool": {
+        "description": ("real Lenstool model of SMACS0723 (Mahler et al. 2023), fold pair of "
+                        "system 5 (images 5.1 and 5.2, z = 1.425)"),
+        "z_source": 1.425,
+        "fold_point": (4.753, -1.832) * u.arcsec,
+        "normal": (-0.462, 0.887),
+        "distance": (0.05, 0.2) * u.arcsec,
+        "half_length": 0.1 * u.arcsec,
+        "reference": ((3.17, 10.11), (4.81, 6.98)) * u.arcsec,
+        "finder": {"center": (4.0, 8.6) * u.arcsec, "half_width": 6.0 * u.arcsec,
+                   "grid_spacing": 0.1 * u.arcsec},
+        "link_length": 1.0 * u.arcsec,
+    },
+}
+
+
+def _check_family(family):
+    if not isinstance(family, str) or family not in FAMILIES:
+        raise ValueError(f"family must be one of {FAMILIES}, got {family!r}")
+    return family
+
+
+def _lenstool_dir():
+    env = os.environ.get("LENSDUAL_SMACS0723_DIR")
+    return Path(env) if env else SMACS0723_LENSTOOL_DIR
+
+
+def _arcsec(value):
+    return np.asarray(u.Quantity(value, u.arcsec).value, dtype=float)
+
+
+# ---------------------------------------------------------------------------
+# the lenses
+# ---------------------------------------------------------------------------
+
+
+def _cluster_components(p):
+    zl, zs = p["z_lens"], p["z_source"]
+    main = p["main"]
+    comps = [elliptical_nfw_halo(main["mass"], main["concentration"],
+                                 axis_ratio=main["axis_ratio"],
+                                 position_angle=main["position_angle"], z_lens=zl, z_source=zs)]
+    for i, (mass, conc, pos) in enumerate(p["members"], start=1):
+        comps.append(tnfw_halo(mass, conc, pos, z_lens=zl, z_source=zs,
+                               label=f"cluster member {i}"))
+    return LensSystem(comps, z_lens=zl, z_source=zs)
+
+
+def _galaxy_components(p):
+    from lenstronomy.Util.param_util import phi_q2_ellipticity, shear_polar2cartesian
+
+    g = p["galaxy"]
+    e1, e2 = phi_q2_ellipticity(float(g["position_angle"].to_value(u.rad)), g["axis_ratio"])
+    gamma1, gamma2 = shear_polar2cartesian(float(p["shear"]["angle"].to_value(u.rad)),
+                                           p["shear"]["gamma"])
+    kwargs = {"theta_E": float(g["theta_E"].to_value(u.arcsec)), "e1": float(e1),
+              "e2": float(e2), "center_x": 0.0, "center_y": 0.0}
+    if g["profile"] in ("EPL", "EPL_NUMBA"):
+        kwargs["gamma"] = g["slope"]
+    main = LensComponent(g["profile"], kwargs, "lens galaxy", dict(g))
+    shear = LensComponent("SHEAR", {"gamma1": float(gamma1), "gamma2": float(gamma2),
+                                    "ra_0": 0.0, "dec_0": 0.0},
+                          "external shear", dict(p["shear"]))
+    return LensSystem([main, shear], z_lens=p["z_lens"], z_source=p["z_source"])
+
+
+def _smacs_analog_system(p):
+    analog = smacs0723_analog(perturbers=True)
+    return LensSystem(analog.components, z_lens=analog.z_lens, z_source=analog.z_source)
+
+
+def _lenstool_system(p):
+    from ..parametric.lenstool import read_lenstool
+
+    folder = _lenstool_dir()
+    path = folder / "best.par"
+    if not path.is_file():
+        raise FileNotFoundError(
+            f"the smacs_lenstool family needs the SMACS0723 Lenstool model {path} (the "
+            "data folder shared/data/smacs0723_mahler2022 next to the project, or the "
+            "folder named by the environment variable LENSDUAL_SMACS0723_DIR); it is "
+            "missing")
+    return read_lenstool(path).lens_system(z_source=p["z_source"])
+
+
+_LENS_BUILDERS = {
+    "cluster_fold": _cluster_components,
+    "cluster_cusp": _cluster_components,
+    "galaxy_fold": _galaxy_components,
+    "smacs_analog": _smacs_analog_system,
+    "smacs_lenstool": _lenstool_system,
+}
+
+
+# ---------------------------------------------------------------------------
+# the source region and the arcs
+# ---------------------------------------------------------------------------
+
+
+def _region(p):
+    """Vertices (K, 2) of a family's source region, arcsec.
+
+    Either the explicit ``polygon`` of the parameters, or the rectangle
+    ``fold_point + d * normal + s * tangent``, ``d`` in ``distance``,
+    ``|s| <= half_length``.
+    """
+    if "polygon" in p:
+        return _arcsec(p["polygon"])
+    anchor = _arcsec(p["fold_point"])
+    normal = np.asarray(p["normal"], dtype=float)
+    normal = normal / np.hypot(*normal)
+    tangent = np.array([normal[1], -normal[0]])
+    d0, d1 = _arcsec(p["distance"])
+    s = float(_arcsec(p["half_length"]))
+    return np.array([anchor + d * normal + t * tangent
+                     for d, t in ((d0, -s), (d0, s), (d1, s), (d1, -s))])
+
+
+def _polygon_centroid(vertices):
+    x, y = vertices[:, 0], vertices[:, 1]
+    xn, yn = np.roll(x, -1), np.roll(y, -1)
+    cross = x * yn - xn * y
+    area = 0.5 * cross.sum()
+    return np.array([((x + xn) * cross).sum(), ((y + yn) * cross).sum()]) / (6 * area)
+
+
+def _sample_region(rng, vertices, n):
+    """``n`` points uniform in the polygon (rejection from its bounding box)."""
+    from matplotlib.path import Path as MplPath
+
+    path = MplPath(vertices)
+    lo, hi = vertices.min(axis=0), vertices.max(axis=0)
+    out = np.empty((0, 2))
+    while len(out) < n:
+        pts = lo + (hi - lo) * rng.uniform(size=(2 * n, 2))
+        out = np.vstack([out, pts[path.contains_points(pts)]])
+    return out[:n]
+
+
+def _solve_kwargs(info):
+    return dict(info["finder"])
+
+
+def _arc_images(system, info, beta, link):
+    """The images of ``beta`` on the two arcs, per source.
+
+    ``beta[0]`` must be the region's centre, whose images define the arcs.
+
+    Returns
+    -------
+    n1, n2 : ndarray of int
+        Images of each source on arc L1 and on arc L2.
+    x1, x2 : ndarray, shape (M, 2)
+        Its (last) image on either arc, NaN if none.
+    others : list of ndarray
+        Per source, its images on neither arc, shape (K, 2).
+    """
+    images = system.solve_images(beta * u.arcsec, link_length=link * u.arcsec,
+                                 **_solve_kwargs(info))
+    arc1, arc2 = _reference_arcs(images, info["reference"])
+    src = np.asarray(images["source"])
+    arc = np.asarray(images["arc"])
+    xy = np.column_stack([images["x"].to_value(u.arcsec), images["y"].to_value(u.arcsec)])
+    m = len(beta)
+    n1 = np.bincount(src[arc == arc1], minlength=m)
+    n2 = np.bincount(src[arc == arc2], minlength=m)
+    x1 = np.full((m, 2), np.nan)
+    x2 = np.full((m, 2), np.nan)
+    x1[src[arc == arc1]] = xy[arc == arc1]
+    x2[src[arc == arc2]] = xy[arc == arc2]
+    rest = (arc != arc1) & (arc != arc2)
+    others = [np.empty((0, 2))] * m
+    for k in np.unique(src[rest]):
+        others[k] = xy[rest & (src == k)]
+    return n1, n2, x1, x2, others
+
+
+@functools.cache
+def _calibrated(family):
+    return _build(family, FAMILY_PARAMETERS[family])
+
+
+def _build(family, p):
+    """The system and info of a family from its parameters (uncached)."""
+    system = _LENS_BUILDERS[family](p)
+    vertices = _region(p)
+    centre = _polygon_centroid(vertices)
+    info = {
+        "family": family,
+        "description": p["description"],
+        "z_lens": system.z_lens,
+        "z_source": system.z_source,
+        "source_region": vertices * u.arcsec,
+        "source_centre": centre * u.arcsec,
+        "finder": dict(p["finder"]),
+        "link_length": u.Quantity(p["link_length"], u.arcsec),
+        "parameters": copy.deepcopy(p),
+    }
+    # snap the rough references to the exact images of the region's centre
+    rough = _arcsec(p["reference"])
+    images = system.solve_images(centre[None] * u.arcsec, **_solve_kwargs(info))
+    xy = np.column_stack([images["x"].to_value(u.arcsec), images["y"].to_value(u.arcsec)])
+    parity = np.asarray(images["parity"])
+    ref = []
+    for r, want in zip(rough, (1, -1), strict=True):
+        cand = np.flatnonzero(parity == want)
+        dist = np.hypot(*(xy[cand] - r).T) if cand.size else np.array([np.inf])
+        if not dist.min() < 1.0:
+            raise RuntimeError(f"{family}: the centre of the source region has no image of "
+                               f"parity {want:+d} within 1 arcsec of {r.tolist()}")
+        ref.append(xy[cand[np.argmin(dist)]])
+    info["reference"] = np.array(ref) * u.arcsec
+    info["mu_centre"] = tuple(float(v) for v in system.magnification(info["reference"]))
+    return system, info
+
+
+def calibration_system(family):
+    """The lens system and source region of one lens family.
+
+    The system is built once per process and cached (its image finder too);
+    ``smacs_lenstool`` reads the real Lenstool model of SMACS0723.
+
+    Parameters
+    ----------
+    family : str
+        One of :data:`FAMILIES`.
+
+    Returns
+    -------
+    system : `~lensdual.simulation.LensSystem`
+        The lens (no sub-halo, no sources); shared between calls, do not
+        modify it.
+    info : dict
+        A fresh copy at every call: ``family``, ``description``, ``z_lens``,
+        ``z_source``; ``source_region``, the vertices of the polygon the
+        sources are drawn in ((K, 2) arcsec, source plane) and
+        ``source_centre``, its centroid; ``reference``, the L1 and L2 images
+        of the centre ((2, 2) arcsec, as
+        :meth:`~lensdual.simulation.LensSystem.constellation` takes it) and
+        ``mu_centre``, their signed magnifications; ``finder``, the image
+        finder's window (keyword arguments of
+        :meth:`~lensdual.simulation.LensSystem.solve_images`);
+        ``link_length``; and ``parameters``, the family's entry of
+        :data:`FAMILY_PARAMETERS`.
+
+    Raises
+    ------
+    ValueError
+        ``family`` is not one of :data:`FAMILIES`.
+    FileNotFoundError
+        ``smacs_lenstool`` without the data folder
+        (:data:`SMACS0723_LENSTOOL_DIR`).
+    """
+    family = _check_family(family)
+    system, info = _calibrated(family)
+    return system, dict(info)
+
+
+# ---------------------------------------------------------------------------
+# the constellations
+# ---------------------------------------------------------------------------
+
+
+def _parity_breaks(system, xy, sign, k=4, n_steps=8):
+    """Whether the Jacobian leaves ``sign`` between an image and a near neighbour."""
+    from scipy.spatial import cKDTree
+
+    n = len(xy)
+    k = min(k, n - 1)
+    _, nb = cKDTree(xy).query(xy, k=k + 1)
+    a = np.repeat(np.arange(n), k)
+    b = nb[:, 1:].ravel()
+    f = np.linspace(0.0, 1.0, n_steps + 1)[None, :, None]
+    pts = xy[a, None, :] * (1 - f) + xy[b, None, :] * f
+    det = np.linalg.det(system.jacobian(pts.reshape(-1, 2) * u.arcsec))
+    return bool(np.any(np.sign(det) != sign))
+
+
+def _too_close(points, others, sep):
+    """Whether any of ``points`` lies within ``sep`` of any of ``others``."""
+    if len(points) == 0 or len(others) == 0:
+        return False
+    p = np.asarray(points)[:, None, :]
+    o = np.asarray(others)[None, :, :]
+    return bool(np.any(np.hypot(p[..., 0] - o[..., 0], p[..., 1] - o[..., 1]) < sep))
+
+
+def _max_link(xy):
+    """Longest edge of the minimum spanning tree of ``xy`` (single-linkage length)."""
+    from scipy.sparse.csgraph import minimum_spanning_tree
+    from scipy.spatial.distance import pdist, squareform
+
+    if len(xy) < 2:
+        return 0.0
+    return float(minimum_spanning_tree(squareform(pdist(xy))).data.max())
+
+
+def clean_constellation(family, n_sources, *, seed, min_separation=0.08 * u.arcsec,
+                        max_tries=40, bands=("F150W", "F200W"), flux_rel_err=0.02):
+    """A constellation of resolved point sources on the arc pair of one lens family.
+
+    Sources are drawn uniformly in the family's source region (see
+    :func:`calibration_system`), in batches of ``4 n_sources + 40``. A
+    source is kept when it has exactly one image on each arc of the pair
+    and its two images are at least ``min_separation`` from each other, from
+    its other images and from every image (on either arc, or elsewhere in
+    the finder's window) of the sources kept before it. Batches are drawn
+    until ``n_sources`` are kept. The constellation is then checked: the
+    Jacobian keeps the sign of its arc on the segments between every image
+    and its nearest neighbours (no critical curve between neighbours:
+    positive on L1, negative on L2).
+
+    Parameters
+    ----------
+    family : str
+        One of :data:`FAMILIES`.
+    n_sources : int
+        Number of pairs of the table, 8 to 40.
+    seed : int, `numpy.random.Generator` or None
+        Seed of the source positions and fluxes: the same integer seed gives
+        the same table.
+    min_separation : `~astropy.units.Quantity`
+        Smallest separation of any two images of the constellation, on
+        either arc and across the arcs (default 0.08 arcsec: resolved at
+        JWST/NIRCam resolution).
+    max_tries : int
+        Largest number of batches of candidate sources.
+    bands : sequence of str
+        Band names of the flux columns.
+    flux_rel_err : float
+        Relative flux error of the ``flux_err`` columns.
+
+    Returns
+    -------
+    pairs : `~astropy.table.QTable`
+        The table of :meth:`~lensdual.simulation.LensSystem.constellation`
+        for the kept sources, in the order they were kept: exact positions
+        and magnifications, ``mu_true``, exact fluxes ``|mu| x intrinsic``
+        (intrinsic fluxes log-uniform between 1 and 10 nJy). ``meta`` also
+        holds ``family``, ``min_separation`` and ``n_candidates`` (sources
+        drawn).
+
+    Raises
+    ------
+    ValueError
+        Unknown ``family``, ``n_sources`` outside 8..40, or a non-positive
+        ``min_separation``.
+    FileNotFoundError
+        ``smacs_lenstool`` without its data folder.
+    RuntimeError
+        ``n_sources`` resolved sources could not be placed in ``max_tries``
+        batches (``min_separation`` too large for the region).
+    """
+    family = _check_family(family)
+    n_lo, n_hi = N_SOURCES_RANGE
+    if isinstance(n_sources, bool) or not isinstance(n_sources, (int, np.integer)):
+        raise TypeError(f"n_sources must be an integer, got {n_sources!r}")
+    if not n_lo <= n_sources <= n_hi:
+        raise ValueError(f"n_sources must be between {n_lo} and {n_hi}, got {n_sources}")
+    n = int(n_sources)
+    sep = as_angle_scalar(min_separation, "min_separation", allow_zero=False)
+    max_tries = as_int(max_tries, "max_tries", minimum=1)
+    rng = np.random.default_rng(seed)
+    system, info = _calibrated(family)
+    vertices = info["source_region"].to_value(u.arcsec)
+    centre = info["source_centre"].to_value(u.arcsec)
+    link = float(info["link_length"].to_value(u.arcsec))
+    batch = 4 * n + 40
+
+    kept, on_arcs, elsewhere = [], [], []
+    drawn = 0
+    for _ in range(max_tries):
+        cand = _sample_region(rng, vertices, batch)
+        drawn += batch
+        n1, n2, x1, x2, others = _arc_images(system, info, np.vstack([centre, cand]), link)
+        for i in np.flatnonzero((n1[1:] == 1) & (n2[1:] == 1)) + 1:
+            own = np.vstack([x1[i], x2[i]])
+            if (np.hypot(*(x1[i] - x2[i])) < sep or _too_close(own, others[i], sep)
+                    or _too_close(own, on_arcs + elsewhere, sep)
+                    or _too_close(others[i], on_arcs, sep)):
+                continue
+            kept.append((cand[i - 1], x1[i], x2[i]))
+            on_arcs.extend(own)
+            elsewhere.extend(others[i])
+            if len(kept) == n:
+                break
+        if len(kept) < n:
+            continue
+        beta, im1, im2 = (np.array(v) for v in zip(*kept, strict=True))
+        pairs = _final_table(system, info, beta, im1, im2, link, rng, bands, flux_rel_err)
+        if pairs is not None:
+            pairs.meta["family"] = family
+            pairs.meta["min_separation"] = sep * u.arcsec
+            pairs.meta["n_candidates"] = drawn
+            return pairs
+        kept, on_arcs, elsewhere = [], [], []  # a check failed (not expected): start again
+    raise RuntimeError(f"{family}: could not place {n} sources with images at least {sep} "
+                       f"arcsec apart in {max_tries} batches of {batch} candidates; lower "
+                       "n_sources or min_separation, or raise max_tries")
+
+
+def _final_table(system, info, beta, x1, x2, link, rng, bands, flux_rel_err):
+    """The pairs table of the kept sources, or None if a check fails."""
+    n = len(beta)
+    # a link length that keeps each arc's constellation in one piece
+    link = max(link, 1.05 * _max_link(x1), 1.05 * _max_link(x2))
+    ref = np.vstack([x1[0], x2[0]]) * u.arcsec
+    images = system.solve_images(beta * u.arcsec, link_length=link * u.arcsec,
+                                 **_solve_kwargs(info))
+    arc1, arc2 = _reference_arcs(images, ref)
+    src = np.asarray(images["source"])
+    arc = np.asarray(images["arc"])
+    one = np.ones(n)
+    if not (np.array_equal(np.bincount(src[arc == arc1], minlength=n), one)
+            and np.array_equal(np.bincount(src[arc == arc2], minlength=n), one)):
+        return None
+    if _parity_breaks(system, x1, 1) or _parity_breaks(system, x2, -1):
+        return None
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", LensdualWarning)  # a source left out
+            pairs = system.constellation(beta * u.arcsec, bands=bands,
+                                         flux_rel_err=flux_rel_err, seed=rng, reference=ref,
+                                         link_length=link * u.arcsec, **_solve_kwargs(info))
+    except LensdualWarning:
+        return None
+    got1 = np.column_stack([pairs["x1"].to_value(u.arcsec), pairs["y1"].to_value(u.arcsec)])
+    got2 = np.column_stack([pairs["x2"].to_value(u.arcsec), pairs["y2"].to_value(u.arcsec)])
+    if (len(pairs) != n or np.any(pairs["n_images1"] != 1) or np.any(pairs["n_images2"] != 1)
+            or not np.allclose(got1, x1, atol=1e-6) or not np.allclose(got2, x2, atol=1e-6)):
+        return None
+    return pairs
