@@ -15,7 +15,7 @@ from astropy.table import QTable, Table
 from scipy.special import chdtrc, erfc
 
 from ._validation import as_int, as_real
-from .estimators import DEFAULT_METHOD, size_magnification
+from .estimators import DEFAULT_METHOD, TESTABLE_STATUS, size_magnification
 from .exceptions import LensdualWarning
 
 __all__ = ["POSITION_COLUMNS", "SNR_DEFINITIONS", "check_duality", "pair_bands", "flux_ratios",
@@ -378,7 +378,7 @@ def check_duality(
     tab["snr"] = snr
     tab["snr_paper"] = snr_paper
     chosen = snr if snr_definition == "log" else snr_paper
-    tested = np.isfinite(chosen) & (np.asarray(size["mu_size_status"]) != "failed")
+    tested = np.isfinite(chosen) & np.isin(np.asarray(size["mu_size_status"]), TESTABLE_STATUS)
     pval = np.where(tested, gaussian_p_value(np.where(tested, chosen, 0.0)), np.nan)
     tab["tested"] = tested
     tab["p_value"] = pval

@@ -395,8 +395,9 @@ ADAPTIVE_MAX_TEST_DEGREE = 2
 _ADAPTIVE_NCOEF_MAX = 10  # a full cubic in two variables
 
 ADAPTIVE_OK = 0  # a local fit consistent with the noise was found
-ADAPTIVE_MISFIT = 1  # none was: the least-bad fit, its error scaled by sqrt(chi2/dof)
+ADAPTIVE_MISFIT = 1  # no tested fit passed, but a reported fit is consistent on its own
 ADAPTIVE_FAILED = 2  # no usable fit (too few or degenerate baselines)
+ADAPTIVE_UNTESTABLE = 3  # no fit, not even the reported one, is consistent with the noise
 
 
 @njit(**JIT_OPTIONS)
@@ -420,8 +421,6 @@ def _monomials(ux, uy, out):
 
 
 _MONOMIAL_DEGREE = np.array([0, 1, 1, 2, 2, 2, 3, 3, 3, 3], dtype=np.float64)
-
-
 @njit(**JIT_OPTIONS)
 def _cholesky_solve(A, p, scale, rhs, L, sol, tol):
     """Solve ``(S A S) z = S rhs`` (S = diag(scale)) by Cholesky; ``sol = S z``.
@@ -474,8 +473,8 @@ def _inverse_entry(L, p, scale, i, j, work):
 
 
 @njit(**JIT_OPTIONS)
-def _adaptive_pair(t1, t2, s1, s2, a, pilot, chi2_crit, min_extra, report_extra, order, U,
-                   Yr, W, A, rhs, L, scale, beta, work, jac_out):
+def _adaptive_pair(t1, t2, s1, s2, a, pilot, chi2_crit, min_extra, report_extra, nested,
+                   min_candidates, order, U, Yr, W, A, rhs, L, scale, beta, work, jac_out):
     """Adaptive local-polynomial Jacobian at pair ``a``; returns (ln_sd, status).
 
     The noise of each baseline is the effective variance
@@ -537,8 +536,16 @@ def _adaptive_pair(t1, t2, s1, s2, a, pilot, chi2_crit, min_extra, report_extra,
 
     best_sd = np.inf
     best_fb = np.inf
+    best_un = np.inf
     found = False
     fallback = False
+    untestable = False
+    ju = np.empty((2, 2))
+    cand_ln = np.empty(4 * n)
+    n_cand = 0
+    best_fb_ln = 0.0
+    failed = np.zeros(4, dtype=np.bool_)
+    cov = np.empty((2, 3))
     jb = np.empty((2, 2))
     jf = np.empty((2, 2))
     for k in range(n):
@@ -578,12 +585,34 @@ def _adaptive_pair(t1, t2, s1, s2, a, pilot, chi2_crit, min_extra, report_extra,
             if not ok:
                 continue
             dof = 2 * (kk - pt)
-            # reported fit: degree dt + 1 on the same points
-            var_ln = 0.0
+            # reported fit: degree dt + report_extra on the same points, with
+            # its covariance and its leave-one-out (PRESS) misfit per component
+            press = 0.0
+            press_null = 0.0
             for comp in range(2):
                 if not _cholesky_solve(A[comp], pr, scale, rhs[comp], L, beta[comp], 1e-13):
                     ok = False
                     break
+                cov[comp, 0] = _inverse_entry(L, pr, scale, 1, 1, work)
+                cov[comp, 1] = _inverse_entry(L, pr, scale, 1, 2, work)
+                cov[comp, 2] = _inverse_entry(L, pr, scale, 2, 2, work)
+                for q in range(kk):
+                    r = Yr[q, comp]
+                    for i in range(pr):
+                        r -= U[q, i] * beta[comp, i]
+                    # leverage: w |L^-1 S u|^2
+                    lev = 0.0
+                    for i in range(pr):
+                        v = U[q, i] * scale[i]
+                        for m in range(i):
+                            v -= L[i, m] * work[m]
+                        work[i] = v / L[i, i]
+                        lev += work[i] * work[i]
+                    lev *= W[q, comp]
+                    if not lev < 1.0 - 1e-9:
+                        lev = 1.0 - 1e-9
+                    press += W[q, comp] * r * r / ((1.0 - lev) * (1.0 - lev))
+                    press_null += 1.0 / (1.0 - lev)
             if not ok:
                 continue
             # J' rows (rotated frame), derivatives with respect to the unscaled offsets
@@ -599,18 +628,16 @@ def _adaptive_pair(t1, t2, s1, s2, a, pilot, chi2_crit, min_extra, report_extra,
             g01 = -jr10 / det
             g10 = -jr01 / det
             g11 = jr00 / det
-            for comp in range(2):
-                _cholesky_solve(A[comp], pr, scale, rhs[comp], L, beta[comp], 1e-13)
-                c11 = _inverse_entry(L, pr, scale, 1, 1, work)
-                c12 = _inverse_entry(L, pr, scale, 1, 2, work)
-                c22 = _inverse_entry(L, pr, scale, 2, 2, work)
-                ga = g00 if comp == 0 else g10
-                gb = g01 if comp == 0 else g11
-                var_ln += (ga * ga * c11 + 2.0 * ga * gb * c12 + gb * gb * c22) / (hmax * hmax)
+            var_ln = ((g00 * g00 * cov[0, 0] + 2.0 * g00 * g01 * cov[0, 1] + g01 * g01 * cov[0, 2])
+                      + (g10 * g10 * cov[1, 0] + 2.0 * g10 * g11 * cov[1, 1]
+                         + g11 * g11 * cov[1, 2])) / (hmax * hmax)
             if not var_ln > 0.0:
                 continue
             sd = np.sqrt(var_ln)
-            if chi2 <= chi2_crit[dof]:
+            passed = chi2 <= chi2_crit[dof]
+            if not passed:
+                failed[dt] = True
+            if passed and not (nested and failed[dt]):
                 if sd < best_sd:
                     best_sd = sd
                     found = True
@@ -618,25 +645,60 @@ def _adaptive_pair(t1, t2, s1, s2, a, pilot, chi2_crit, min_extra, report_extra,
                     jb[0, 1] = c * jr01 - s * jr11
                     jb[1, 0] = s * jr00 + c * jr10
                     jb[1, 1] = s * jr01 + c * jr11
-            elif not found:
-                sdf = sd * np.sqrt(max(1.0, chi2 / dof))
-                if sdf < best_fb:
-                    best_fb = sdf
-                    fallback = True
-                    jf[0, 0] = c * jr00 - s * jr10
-                    jf[0, 1] = c * jr01 - s * jr11
-                    jf[1, 0] = s * jr00 + c * jr10
-                    jf[1, 1] = s * jr01 + c * jr11
+            if not found:
+                # chi-square of the reported fit itself
+                chi2_r = 0.0
+                for comp in range(2):
+                    for q in range(kk):
+                        r = Yr[q, comp]
+                        for i in range(pr):
+                            r -= U[q, i] * beta[comp, i]
+                        chi2_r += W[q, comp] * r * r
+                dof_r = 2 * (kk - pr)
+                sdf = sd * np.sqrt(max(1.0, press / press_null))
+                if chi2_r <= chi2_crit[dof_r]:
+                    if n_cand < cand_ln.shape[0]:
+                        cand_ln[n_cand] = np.log(abs(det))
+                        n_cand += 1
+                    if sdf < best_fb:
+                        best_fb_ln = np.log(abs(det))
+                        best_fb = sdf
+                        fallback = True
+                        jf[0, 0] = c * jr00 - s * jr10
+                        jf[0, 1] = c * jr01 - s * jr11
+                        jf[1, 0] = s * jr00 + c * jr10
+                        jf[1, 1] = s * jr01 + c * jr11
+                elif sdf < best_un:
+                    best_un = sdf
+                    untestable = True
+                    ju[0, 0] = c * jr00 - s * jr10
+                    ju[0, 1] = c * jr01 - s * jr11
+                    ju[1, 0] = s * jr00 + c * jr10
+                    ju[1, 1] = s * jr01 + c * jr11
     if found:
         for i in range(2):
             for j in range(2):
                 jac_out[i, j] = jb[i, j]
         return best_sd, ADAPTIVE_OK
-    if fallback:
+    if fallback and n_cand >= min_candidates:
         for i in range(2):
             for j in range(2):
                 jac_out[i, j] = jf[i, j]
-        return best_fb, ADAPTIVE_MISFIT
+        # model uncertainty: spread of the self-consistent fits around the chosen one
+        spread = 0.0
+        for i in range(n_cand):
+            spread = max(spread, (cand_ln[i] - best_fb_ln) ** 2)
+        return np.sqrt(best_fb * best_fb + spread), ADAPTIVE_MISFIT
+    if fallback:  # one self-consistent fit only: its model error cannot be judged
+        for i in range(2):
+            for j in range(2):
+                jac_out[i, j] = jf[i, j]
+        return best_fb, ADAPTIVE_UNTESTABLE
+    if untestable:
+        for i in range(2):
+            for j in range(2):
+                jac_out[i, j] = ju[i, j]
+        return best_un, ADAPTIVE_UNTESTABLE
     for i in range(2):
         for j in range(2):
             jac_out[i, j] = np.nan
@@ -644,8 +706,8 @@ def _adaptive_pair(t1, t2, s1, s2, a, pilot, chi2_crit, min_extra, report_extra,
 
 
 @njit(**JIT_OPTIONS)
-def adaptive_jacobians(t1, t2, s1, s2, chi2_crit, min_extra, report_extra, n_pass,
-                       weight_power, cond_max, jac, ln_sd, status):
+def adaptive_jacobians(t1, t2, s1, s2, chi2_crit, min_extra, report_extra, nested,
+                       min_candidates, n_pass, weight_power, cond_max, jac, ln_sd, status):
     """The adaptive Jacobian at every pair (see :func:`_adaptive_pair`).
 
     The pilot Jacobian of the first pass is the first-order Quad one; each
@@ -675,8 +737,8 @@ def adaptive_jacobians(t1, t2, s1, s2, chi2_crit, min_extra, report_extra, n_pas
     for p in range(n_pass):
         for a in range(n):
             ln_sd[a], status[a] = _adaptive_pair(
-                t1, t2, s1, s2, a, pilot[a], chi2_crit, min_extra, report_extra, order, U,
-                Yr, W, A, rhs, L, scale, beta, work, jac[a])
+                t1, t2, s1, s2, a, pilot[a], chi2_crit, min_extra, report_extra, nested,
+                min_candidates, order, U, Yr, W, A, rhs, L, scale, beta, work, jac[a])
         if p + 1 < n_pass:
             for a in range(n):
                 if status[a] != ADAPTIVE_FAILED:
@@ -687,7 +749,8 @@ def adaptive_jacobians(t1, t2, s1, s2, chi2_crit, min_extra, report_extra, n_pas
 
 @njit(**JIT_OPTIONS)
 def adaptive_batch(t1, t2, noise1, noise2, s1, s2, chi2_crit, min_extra, report_extra,
-                   n_pass, weight_power, cond_max, det_out, ln_sd_out, status_out):
+                   nested, min_candidates, n_pass, weight_power, cond_max, det_out, ln_sd_out,
+                   status_out):
     """The adaptive estimator on ``B`` noisy copies of a constellation.
 
     ``noise1``, ``noise2`` are (B, N, 2) offsets; ``det_out``, ``ln_sd_out``
@@ -706,8 +769,8 @@ def adaptive_batch(t1, t2, noise1, noise2, s1, s2, chi2_crit, min_extra, report_
             for d in range(2):
                 p1[i, d] = t1[i, d] + noise1[k, i, d]
                 p2[i, d] = t2[i, d] + noise2[k, i, d]
-        adaptive_jacobians(p1, p2, s1, s2, chi2_crit, min_extra, report_extra, n_pass,
-                           weight_power, cond_max, jac, sd, st)
+        adaptive_jacobians(p1, p2, s1, s2, chi2_crit, min_extra, report_extra, nested,
+                           min_candidates, n_pass, weight_power, cond_max, jac, sd, st)
         for i in range(n):
             det_out[k, i] = jac[i, 0, 0] * jac[i, 1, 1] - jac[i, 0, 1] * jac[i, 1, 0]
             ln_sd_out[k, i] = sd[i]

@@ -17,7 +17,7 @@ from .._validation import (
 from ..exceptions import EstimatorWarning
 from . import _kernels
 
-__all__ = ["METHODS", "DEFAULT_METHOD", "ADAPTIVE_STATUS", "relative_jacobian",
+__all__ = ["METHODS", "DEFAULT_METHOD", "ADAPTIVE_STATUS", "TESTABLE_STATUS", "relative_jacobian",
            "size_magnification"]
 
 #: Estimators known to :func:`relative_jacobian`, with the smallest number of
@@ -42,7 +42,11 @@ ADAPTIVE_STATUS = {
     _kernels.ADAPTIVE_OK: "ok",
     _kernels.ADAPTIVE_MISFIT: "misfit",
     _kernels.ADAPTIVE_FAILED: "failed",
+    _kernels.ADAPTIVE_UNTESTABLE: "untestable",
 }
+
+#: Statuses whose pairs :func:`~lensdual.duality.check_duality` tests.
+TESTABLE_STATUS = ("ok", "misfit")
 
 # Significance of the chi-square test that decides whether a local
 # polynomial describes the map within the position noise.
@@ -51,6 +55,10 @@ _ADAPTIVE_ALPHA = 0.05
 _ADAPTIVE_MIN_EXTRA = 1
 # Degrees the reported fit lies above the tested one (1: robust bias correction).
 _ADAPTIVE_REPORT_EXTRA = 1
+# Stop enlarging the neighbourhood of a degree at its first failed test.
+_ADAPTIVE_NESTED = False
+# Self-consistent fits a "misfit" estimate needs (their spread is its model error).
+_ADAPTIVE_MIN_CANDIDATES = 2
 # Passes of the effective-variance iteration (pilot Jacobian -> estimate).
 _ADAPTIVE_PASSES = 2
 
@@ -200,8 +208,9 @@ def relative_jacobian(theta1, theta2, method="quad", *, weight_power=2, min_angl
     return jac
 
 
-def _chi2_critical(n, alpha=_ADAPTIVE_ALPHA):
+def _chi2_critical(n, alpha=None):
     """Upper ``alpha`` quantiles of chi-square for 0..2n degrees of freedom."""
+    alpha = _ADAPTIVE_ALPHA if alpha is None else alpha
     crit = np.full(2 * n + 1, np.inf)
     crit[1:] = _chi2.isf(alpha, np.arange(1, 2 * n + 1))
     return crit
@@ -214,7 +223,8 @@ def _adaptive(t1, t2, sigma, wp):
     ln_sd = np.empty(n)
     status = np.empty(n, dtype=np.int64)
     _kernels.adaptive_jacobians(t1, t2, sigma[0], sigma[1], _chi2_critical(n),
-                                _ADAPTIVE_MIN_EXTRA, _ADAPTIVE_REPORT_EXTRA, _ADAPTIVE_PASSES,
+                                _ADAPTIVE_MIN_EXTRA, _ADAPTIVE_REPORT_EXTRA, _ADAPTIVE_NESTED,
+                                _ADAPTIVE_MIN_CANDIDATES, _ADAPTIVE_PASSES,
                                 wp, _COND_MAX,
                                 jac, ln_sd, status)
     return jac, ln_sd, status
@@ -232,21 +242,22 @@ def _adaptive_batch(t1, t2, noise1, noise2, sigma, wp=2.0):
     ln_sd = np.empty((b, n))
     status = np.empty((b, n), dtype=np.int64)
     _kernels.adaptive_batch(t1, t2, noise1, noise2, sigma[0], sigma[1], _chi2_critical(n),
-                            _ADAPTIVE_MIN_EXTRA, _ADAPTIVE_REPORT_EXTRA, _ADAPTIVE_PASSES,
-                            float(wp), _COND_MAX,
+                            _ADAPTIVE_MIN_EXTRA, _ADAPTIVE_REPORT_EXTRA, _ADAPTIVE_NESTED,
+                            _ADAPTIVE_MIN_CANDIDATES, _ADAPTIVE_PASSES, float(wp), _COND_MAX,
                             det, ln_sd, status)
-    return np.abs(det), ln_sd, status != _kernels.ADAPTIVE_FAILED
+    testable = (status == _kernels.ADAPTIVE_OK) | (status == _kernels.ADAPTIVE_MISFIT)
+    return np.abs(det), ln_sd, testable
 
 
 def _warn_adaptive(status):
-    misfit = np.flatnonzero(status == _kernels.ADAPTIVE_MISFIT)
+    untestable = np.flatnonzero(status == _kernels.ADAPTIVE_UNTESTABLE)
     failed = np.flatnonzero(status == _kernels.ADAPTIVE_FAILED)
-    if misfit.size:
+    if untestable.size:
         warnings.warn(
-            f"adaptive Jacobian: no local polynomial (up to cubic) fits the map around pair(s) "
-            f"{misfit.tolist()} within the position errors (the constellation is too sparse "
-            "for how fast the map bends there, or sigma_pos is too small); their error is "
-            "scaled by the misfit and mu_size_status is 'misfit'",
+            f"adaptive Jacobian: no local polynomial (up to cubic) describes the map around "
+            f"pair(s) {untestable.tolist()} within the position errors (the constellation is "
+            "too sparse for how fast the map bends there, or sigma_pos is too small); their "
+            "mu_size_status is 'untestable' and check_duality does not test them",
             EstimatorWarning,
             stacklevel=3,
         )
@@ -463,7 +474,7 @@ def _size_table(det, jac, pct, ln_err, n_valid, status):
     table["mu_size_p50"] = pct[1]
     table["mu_size_p84"] = pct[2]
     table["n_bootstrap_valid"] = n_valid
-    table["mu_size_status"] = np.asarray(status, dtype="U6")
+    table["mu_size_status"] = np.asarray(status, dtype="U10")
     table["parity"] = np.where(np.isfinite(det), np.sign(det), 0).astype(int)
     table["jacobian"] = jac
     return table
