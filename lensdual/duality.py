@@ -308,10 +308,10 @@ def check_duality(
         ``snr``, ``snr_paper``, ``tested``, ``p_value``, ``p_value_holm``
         and ``anomalous``; also ``ln_mu_size_err`` and ``mu_size_status``.
         ``tested`` is False where the pair could not be tested (no finite
-        SNR, or ``mu_size_status`` ``"failed"``); such pairs are never
-        ``anomalous`` and have NaN p-values. Pairs whose adaptive status is
-        ``"misfit"`` are tested with their misfit-scaled errors (see the
-        calibration page for how that holds). ``p_value`` is
+        SNR, or ``mu_size_status`` ``"untestable"`` or ``"failed"``); such
+        pairs are never ``anomalous`` and have NaN p-values. Pairs whose
+        adaptive status is ``"misfit"`` are tested with their widened errors
+        (see the calibration page for how that holds). ``p_value`` is
         the two-sided Gaussian p-value of ``snr`` (:func:`gaussian_p_value`),
         ``p_value_holm`` its Holm-Bonferroni adjustment over the tested
         pairs (:func:`holm_adjust`). A ``pair_id`` column (from 1) is added

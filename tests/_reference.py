@@ -127,10 +127,35 @@ def _gls_fit(t1, t2, a, idx, degree, s1, s2, pilot):
     return jac, cinv[np.ix_(sel, sel)], chi2, 2 * (len(idx) - p)
 
 
-def adaptive(t1, t2, s1, s2, pilot, chi2_crit, min_extra=1, report_extra=1):
+def _press_ratio(t1, t2, a, idx, degree, s1, s2, pilot, jac_free_fit):
+    """Leave-one-out (PRESS) misfit of a fit over its null expectation.
+
+    Per output component of the eigenframe of ``pilot pilot^T`` (where the
+    effective noise is diagonal): sum w r^2 / (1 - h)^2 over sum 1 / (1 - h),
+    with h the leverages of the weighted fit.
+    """
+    evals, evecs = np.linalg.eigh(pilot @ pilot.T)
+    u = t2[idx] - t2[a]
+    x = _monomials(u, degree)
+    y = (t1[idx] - t1[a]) @ evecs  # components along the eigenvectors
+    num = den = 0.0
+    for c in range(2):
+        w = 1.0 / (s1[idx] ** 2 + s2[idx] ** 2 * max(evals[c], 0.0))
+        xtwx = x.T @ (w[:, None] * x)
+        beta = np.linalg.solve(xtwx, x.T @ (w * y[:, c]))
+        r = y[:, c] - x @ beta
+        lev = np.minimum(w * np.einsum("bi,ij,bj->b", x, np.linalg.inv(xtwx), x), 1 - 1e-9)
+        num += np.sum(w * r**2 / (1 - lev) ** 2)
+        den += np.sum(1.0 / (1 - lev))
+    return num / den
+
+
+def adaptive(t1, t2, s1, s2, pilot, chi2_crit, min_extra=1, report_extra=1, min_candidates=2):
     """One pass of the adaptive estimator given pilot Jacobians (N, 2, 2).
 
-    Returns J (N, 2, 2), the error of ln|det J| and the status (0 ok, 1 misfit).
+    Returns J (N, 2, 2), the error of ln|det J| and the status (0 ok,
+    1 misfit, 2 failed, 3 untestable), following the rules documented in
+    :func:`lensdual.estimators.size_magnification`.
     """
     n = len(t1)
     jac = np.full((n, 2, 2), np.nan)
@@ -138,25 +163,36 @@ def adaptive(t1, t2, s1, s2, pilot, chi2_crit, min_extra=1, report_extra=1):
     status = np.full(n, 2)
     for a in range(n):
         order = np.argsort(((t2 - t2[a]) ** 2).sum(axis=1), kind="stable")
-        best = fallback = None
+        best = fallback = worst = None
+        consistent = []
         for dt in range(1, 4 - report_extra):
             dr = dt + report_extra
             for k in range((dr + 1) * (dr + 2) // 2 + min_extra, n + 1):
                 idx = order[:k]
                 _, _, chi2, dof = _gls_fit(t1, t2, a, idx, dt, s1, s2, pilot[a])
-                j, cj, _, _ = _gls_fit(t1, t2, a, idx, dr, s1, s2, pilot[a])
+                j, cj, chi2_r, dof_r = _gls_fit(t1, t2, a, idx, dr, s1, s2, pilot[a])
                 det = np.linalg.det(j)
                 g = np.array([j[1, 1], -j[1, 0], -j[0, 1], j[0, 0]]) / det
                 s = np.sqrt(g @ cj @ g)
                 if chi2 <= chi2_crit[dof]:
                     if best is None or s < best[1]:
                         best = (j, s)
-                else:
-                    sf = s * np.sqrt(max(1.0, chi2 / dof))
+                    continue
+                sf = s * np.sqrt(max(1.0, _press_ratio(t1, t2, a, idx, dr, s1, s2, pilot[a],
+                                                       j)))
+                if chi2_r <= chi2_crit[dof_r]:
+                    consistent.append(np.log(abs(det)))
                     if fallback is None or sf < fallback[1]:
-                        fallback = (j, sf)
+                        fallback = (j, sf, np.log(abs(det)))
+                elif worst is None or sf < worst[1]:
+                    worst = (j, sf)
         if best is not None:
             jac[a], sd[a], status[a] = best[0], best[1], 0
+        elif fallback is not None and len(consistent) >= min_candidates:
+            spread = max((c - fallback[2]) ** 2 for c in consistent)
+            jac[a], sd[a], status[a] = fallback[0], np.hypot(fallback[1], np.sqrt(spread)), 1
         elif fallback is not None:
-            jac[a], sd[a], status[a] = fallback[0], fallback[1], 1
+            jac[a], sd[a], status[a] = fallback[0], fallback[1], 3
+        elif worst is not None:
+            jac[a], sd[a], status[a] = worst[0], worst[1], 3
     return jac, sd, status

@@ -42,21 +42,32 @@ def _constellation(n, seed, span=1.0):
     return t1, t2, np.abs(np.linalg.det(jac))
 
 
-def test_adaptive_kernel_matches_numpy_reference():
-    t1, t2, _ = _constellation(16, 0)
-    rng = np.random.default_rng(1)
-    s1 = rng.uniform(0.002, 0.006, 16)
-    s2 = rng.uniform(0.002, 0.006, 16)
-    t1 = t1 + s1[:, None] * rng.standard_normal((16, 2))
-    t2 = t2 + s2[:, None] * rng.standard_normal((16, 2))
+def _kernel_one_pass(t1, t2, s1, s2):
+    n = len(t1)
     pilot = relative_jacobian(t1 * u.arcsec, t2 * u.arcsec, "quad")
-    crit = _chi2_critical(16)
-    jac_ref, sd_ref, st_ref = ref.adaptive(t1, t2, s1, s2, pilot, crit)
-    jac = np.empty((16, 2, 2))
-    sd = np.empty(16)
-    st = np.empty(16, dtype=np.int64)
-    _kernels.adaptive_jacobians(t1, t2, s1, s2, crit, 1, 1, 1, 2.0, 1e10, jac, sd, st)
+    crit = _chi2_critical(n)
+    jac = np.empty((n, 2, 2))
+    sd = np.empty(n)
+    st = np.empty(n, dtype=np.int64)
+    _kernels.adaptive_jacobians(t1, t2, s1, s2, crit, 1, 1, False, 2, 1, 2.0, 1e10, jac, sd, st)
+    return (jac, sd, st), ref.adaptive(t1, t2, s1, s2, pilot, crit)
+
+
+@pytest.mark.parametrize("bend", [0.0, 1.0])
+def test_adaptive_kernel_matches_numpy_reference(bend):
+    """Kernel vs the plain-numpy twin, on a smooth map and on one too curved to fit."""
+    n = 16
+    t1, t2, _ = _constellation(n, 0)
+    t1 = t1 + bend * np.column_stack([np.sin(3 * t2[:, 0]), np.cos(3 * t2[:, 1])])
+    rng = np.random.default_rng(1)
+    s1 = rng.uniform(0.002, 0.006, n) * (1 - 0.9 * bend)
+    s2 = rng.uniform(0.002, 0.006, n) * (1 - 0.9 * bend)
+    t1 = t1 + s1[:, None] * rng.standard_normal((n, 2))
+    t2 = t2 + s2[:, None] * rng.standard_normal((n, 2))
+    (jac, sd, st), (jac_ref, sd_ref, st_ref) = _kernel_one_pass(t1, t2, s1, s2)
     np.testing.assert_array_equal(st, st_ref)
+    if bend:
+        assert set(st.tolist()) - {0}, "the curved case must exercise the misfit tiers"
     np.testing.assert_allclose(jac, jac_ref, rtol=1e-7, atol=1e-9)
     np.testing.assert_allclose(sd, sd_ref, rtol=1e-6)
 
@@ -103,14 +114,26 @@ def test_adaptive_errors_hold_on_a_curved_map():
     assert np.median(np.abs(err) / np.asarray(tab["ln_mu_size_err"])) > 3
 
 
-def test_adaptive_flags_a_misfit_and_inflates_it():
+def test_untestable_pairs_are_reported_and_not_tested():
     # a map that bends far faster than the constellation samples it
     rng = np.random.default_rng(5)
     t2 = rng.uniform(-1, 1, (9, 2))
     t1 = np.column_stack([np.sin(3 * t2[:, 0]) + t2[:, 1], np.cos(3 * t2[:, 1]) - t2[:, 0]])
     with pytest.warns(EstimatorWarning, match="no local polynomial"):
         tab = size_magnification(t1 * u.arcsec, t2 * u.arcsec, sigma_pos=0.1 * u.mas)
-    assert (tab["mu_size_status"] == "misfit").any()
+    assert (tab["mu_size_status"] == "untestable").all()
+    assert np.isfinite(tab["mu_size"]).all()
+    pairs = QTable()
+    pairs["x1"], pairs["y1"] = t1[:, 0] * u.arcsec, t1[:, 1] * u.arcsec
+    pairs["x2"], pairs["y2"] = t2[:, 0] * u.arcsec, t2[:, 1] * u.arcsec
+    pairs["flux1_F150W"] = 100.0 * np.ones(9)  # far from any mu_size: would be flagged
+    pairs["flux2_F150W"] = np.ones(9)
+    pairs["flux_err1_F150W"] = pairs["flux_err2_F150W"] = 0.01 * np.ones(9)
+    with pytest.warns(EstimatorWarning):
+        res = check_duality(pairs, sigma_pos=0.1 * u.mas)
+    assert not res["tested"].any() and not res["anomalous"].any()
+    assert np.isnan(res["p_value"]).all()
+    assert res.meta["duality"]["n_tested"] == 0
 
 
 @pytest.mark.parametrize(

@@ -365,12 +365,20 @@ def size_magnification(
     the accepted neighbourhoods the one with the smallest error wins. The
     error of ``ln mu_size`` is the exact linear propagation of the position
     errors through that fit: no bootstrap is needed, and ``n_bootstrap`` is
-    ignored. Where no local polynomial up to the cubic fits within the
-    errors, the least-bad estimate is returned with its error scaled by
-    ``sqrt(chi2 / dof)`` and ``mu_size_status`` = ``"misfit"``
-    (:func:`~lensdual.duality.check_duality` does not test such pairs).
-    See the calibration page of the docs for the measurements behind these
-    choices.
+    ignored. ``mu_size_status`` is then ``"ok"``.
+
+    Where no tested fit passes (the map bends faster than the constellation
+    samples it at this precision), the reported fits that are consistent
+    with the errors on their own (chi-square test of the reported fit)
+    are used: the one with the smallest error, scaled by its leave-one-out
+    (PRESS) misfit, and widened by the largest difference between its
+    ``ln mu_size`` and that of the other self-consistent fits (the model
+    uncertainty); ``mu_size_status`` is ``"misfit"``, and the pair is tested.
+    With fewer than two self-consistent fits, or none, the least-bad
+    estimate is returned with ``mu_size_status = "untestable"``:
+    :func:`~lensdual.duality.check_duality` does not test such pairs (an
+    `~lensdual.exceptions.EstimatorWarning` names them). See the
+    calibration page of the docs for the measurements behind these choices.
 
     ``"2v"``, ``"quad"`` and ``"quad2"`` are the paper's estimators and
     their second-order variant; their errors come from a bootstrap over
@@ -411,9 +419,9 @@ def size_magnification(
           percentiles (``"adaptive"``: ``mu_size * exp(-1, 0, +1 sigma)``);
         - ``n_bootstrap_valid``: realisations with a finite estimate (the
           percentiles ignore the others; 0 for ``"adaptive"``);
-        - ``mu_size_status``: ``"ok"``, ``"misfit"`` or ``"failed"``
-          (``"adaptive"``, see above; the other methods give ``"ok"`` or,
-          for a NaN Jacobian, ``"failed"``);
+        - ``mu_size_status``: ``"ok"``, ``"misfit"``, ``"untestable"`` or
+          ``"failed"`` (``"adaptive"``, see above; the other methods give
+          ``"ok"`` or, for a NaN Jacobian, ``"failed"``);
         - ``parity``: sign of ``det J`` (-1 for a fold pair, 0 when undefined);
         - ``jacobian``: the (2, 2) relative Jacobian.
 
