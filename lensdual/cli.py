@@ -674,7 +674,7 @@ def _parametric_paragraph(table):
 
 
 def _write_run_inputs(mocks, directory, *, estimator, n_bootstrap, snr_threshold, seed,
-                      centre, parametric=False):
+                      centre, parametric=False, null_realisations=0):
     """FITS images, error maps and PSFs of the mocks, and a config that reads them."""
     from astropy.io import fits
 
@@ -684,7 +684,7 @@ def _write_run_inputs(mocks, directory, *, estimator, n_bootstrap, snr_threshold
         "output": {"outdir": "run-output"},
         "analysis": {"estimator": estimator, "sigma_pos": "auto",
                      "n_bootstrap": int(n_bootstrap), "snr_threshold": float(snr_threshold),
-                     "seed": int(seed)},
+                     "seed": int(seed), "null_realisations": int(null_realisations)},
         "bands": {}, "arcs": {"L1": {}, "L2": {}},
     }
     for (arc, band), image in mocks.items():
@@ -776,7 +776,9 @@ def _cmd_demo(args):
                     config, header = _write_run_inputs(
                         mocks, tmp, estimator=args.estimator, n_bootstrap=args.n_bootstrap,
                         snr_threshold=args.snr_threshold, seed=args.seed, centre=centre,
-                        parametric=args.parametric)
+                        parametric=args.parametric,
+                        null_realisations=(args.null_realisations
+                                           if args.estimator == "adaptive" else 0))
                     from .config import write_config
 
                     write_config(tmp / "run.toml", config, header=header)

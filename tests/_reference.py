@@ -150,7 +150,8 @@ def _press_ratio(t1, t2, a, idx, degree, s1, s2, pilot, jac_free_fit):
     return num / den
 
 
-def adaptive(t1, t2, s1, s2, pilot, chi2_crit, min_extra=1, report_extra=1, min_candidates=2):
+def adaptive(t1, t2, s1, s2, pilot, chi2_crit, min_extra=1, report_extra=1, min_candidates=2,
+             lookahead=5):
     """One pass of the adaptive estimator given pilot Jacobians (N, 2, 2).
 
     Returns J (N, 2, 2), the error of ln|det J| and the status (0 ok,
@@ -165,6 +166,7 @@ def adaptive(t1, t2, s1, s2, pilot, chi2_crit, min_extra=1, report_extra=1, min_
         order = np.argsort(((t2 - t2[a]) ** 2).sum(axis=1), kind="stable")
         best = fallback = worst = None
         consistent = []
+        reported = {}  # (degree, k) -> ln|det J| of every reported fit
         for dt in range(1, 4 - report_extra):
             dr = dt + report_extra
             for k in range((dr + 1) * (dr + 2) // 2 + min_extra, n + 1):
@@ -174,6 +176,7 @@ def adaptive(t1, t2, s1, s2, pilot, chi2_crit, min_extra=1, report_extra=1, min_
                 det = np.linalg.det(j)
                 g = np.array([j[1, 1], -j[1, 0], -j[0, 1], j[0, 0]]) / det
                 s = np.sqrt(g @ cj @ g)
+                reported[(dr, k)] = np.log(abs(det))
                 if chi2 <= chi2_crit[dof]:
                     if best is None or s < best[1]:
                         best = (j, s)
@@ -183,13 +186,16 @@ def adaptive(t1, t2, s1, s2, pilot, chi2_crit, min_extra=1, report_extra=1, min_
                 if chi2_r <= chi2_crit[dof_r]:
                     consistent.append(np.log(abs(det)))
                     if fallback is None or sf < fallback[1]:
-                        fallback = (j, sf, np.log(abs(det)))
+                        fallback = (j, sf, np.log(abs(det)), dr, k)
                 elif worst is None or sf < worst[1]:
                     worst = (j, sf)
         if best is not None:
             jac[a], sd[a], status[a] = best[0], best[1], 0
         elif fallback is not None and len(consistent) >= min_candidates:
-            spread = max((c - fallback[2]) ** 2 for c in consistent)
+            _, _, l_best, d_best, k_best = fallback
+            near = [v for (d, k), v in reported.items()
+                    if d == d_best and k_best < k <= k_best + lookahead]
+            spread = max((c - l_best) ** 2 for c in consistent + near)
             jac[a], sd[a], status[a] = fallback[0], np.hypot(fallback[1], np.sqrt(spread)), 1
         elif fallback is not None:
             jac[a], sd[a], status[a] = fallback[0], fallback[1], 3

@@ -46,8 +46,8 @@ def main_script():
         shutil.copy(demo / "run.toml", STATIC / "run.toml")
         code, out, _, _ = run(["run", str(demo / "run.toml"), "--quiet"])
         assert code == 0
-        broken = (demo / "run.toml").read_text().replace('estimator = "quad2"',
-                                                         'estimator = "quadd"')
+        broken = (demo / "run.toml").read_text().replace('estimator = "adaptive"',
+                                                         'estimator = "adaptiv"')
         broken = broken.replace('sigma_pos = "auto"', 'sigma_pos = "0.01"')
         broken = broken.replace("data/L2_F200W_err.fits", "data/L2_F200W_error.fits")
         (demo / "broken.toml").write_text(broken)

@@ -474,7 +474,8 @@ def _inverse_entry(L, p, scale, i, j, work):
 
 @njit(**JIT_OPTIONS)
 def _adaptive_pair(t1, t2, s1, s2, a, pilot, chi2_crit, min_extra, report_extra, nested,
-                   min_candidates, order, U, Yr, W, A, rhs, L, scale, beta, work, jac_out):
+                   min_candidates, lookahead, order, U, Yr, W, A, rhs, L, scale, beta, work,
+                   jac_out):
     """Adaptive local-polynomial Jacobian at pair ``a``; returns (ln_sd, status).
 
     The noise of each baseline is the effective variance
@@ -542,8 +543,14 @@ def _adaptive_pair(t1, t2, s1, s2, a, pilot, chi2_crit, min_extra, report_extra,
     untestable = False
     ju = np.empty((2, 2))
     cand_ln = np.empty(4 * n)
+    cand_k = np.empty(4 * n, dtype=np.int64)
+    cand_dr = np.empty(4 * n, dtype=np.int64)
+    cand_ok = np.empty(4 * n, dtype=np.bool_)
     n_cand = 0
+    n_consistent = 0
     best_fb_ln = 0.0
+    best_fb_k = 0
+    best_fb_dr = 0
     failed = np.zeros(4, dtype=np.bool_)
     cov = np.empty((2, 3))
     jb = np.empty((2, 2))
@@ -656,12 +663,19 @@ def _adaptive_pair(t1, t2, s1, s2, a, pilot, chi2_crit, min_extra, report_extra,
                         chi2_r += W[q, comp] * r * r
                 dof_r = 2 * (kk - pr)
                 sdf = sd * np.sqrt(max(1.0, press / press_null))
-                if chi2_r <= chi2_crit[dof_r]:
-                    if n_cand < cand_ln.shape[0]:
-                        cand_ln[n_cand] = np.log(abs(det))
-                        n_cand += 1
+                consistent = chi2_r <= chi2_crit[dof_r]
+                if n_cand < cand_ln.shape[0]:
+                    cand_ln[n_cand] = np.log(abs(det))
+                    cand_k[n_cand] = kk
+                    cand_dr[n_cand] = dt + report_extra
+                    cand_ok[n_cand] = consistent
+                    n_cand += 1
+                if consistent:
+                    n_consistent += 1
                     if sdf < best_fb:
                         best_fb_ln = np.log(abs(det))
+                        best_fb_k = kk
+                        best_fb_dr = dt + report_extra
                         best_fb = sdf
                         fallback = True
                         jf[0, 0] = c * jr00 - s * jr10
@@ -680,14 +694,19 @@ def _adaptive_pair(t1, t2, s1, s2, a, pilot, chi2_crit, min_extra, report_extra,
             for j in range(2):
                 jac_out[i, j] = jb[i, j]
         return best_sd, ADAPTIVE_OK
-    if fallback and n_cand >= min_candidates:
+    if fallback and n_consistent >= min_candidates:
         for i in range(2):
             for j in range(2):
                 jac_out[i, j] = jf[i, j]
-        # model uncertainty: spread of the self-consistent fits around the chosen one
+        # model uncertainty: the largest change of ln|det J| among the other
+        # self-consistent fits, and when the neighbourhood of the chosen fit
+        # grows by up to ``lookahead`` points at the same degree
         spread = 0.0
         for i in range(n_cand):
-            spread = max(spread, (cand_ln[i] - best_fb_ln) ** 2)
+            near = (cand_dr[i] == best_fb_dr and cand_k[i] > best_fb_k
+                    and cand_k[i] <= best_fb_k + lookahead)
+            if cand_ok[i] or near:
+                spread = max(spread, (cand_ln[i] - best_fb_ln) ** 2)
         return np.sqrt(best_fb * best_fb + spread), ADAPTIVE_MISFIT
     if fallback:  # one self-consistent fit only: its model error cannot be judged
         for i in range(2):
@@ -707,7 +726,8 @@ def _adaptive_pair(t1, t2, s1, s2, a, pilot, chi2_crit, min_extra, report_extra,
 
 @njit(**JIT_OPTIONS)
 def adaptive_jacobians(t1, t2, s1, s2, chi2_crit, min_extra, report_extra, nested,
-                       min_candidates, n_pass, weight_power, cond_max, jac, ln_sd, status):
+                       min_candidates, lookahead, n_pass, weight_power, cond_max, jac, ln_sd,
+                       status):
     """The adaptive Jacobian at every pair (see :func:`_adaptive_pair`).
 
     The pilot Jacobian of the first pass is the first-order Quad one; each
@@ -738,7 +758,8 @@ def adaptive_jacobians(t1, t2, s1, s2, chi2_crit, min_extra, report_extra, neste
         for a in range(n):
             ln_sd[a], status[a] = _adaptive_pair(
                 t1, t2, s1, s2, a, pilot[a], chi2_crit, min_extra, report_extra, nested,
-                min_candidates, order, U, Yr, W, A, rhs, L, scale, beta, work, jac[a])
+                min_candidates, lookahead, order, U, Yr, W, A, rhs, L, scale, beta, work,
+                jac[a])
         if p + 1 < n_pass:
             for a in range(n):
                 if status[a] != ADAPTIVE_FAILED:
@@ -749,7 +770,8 @@ def adaptive_jacobians(t1, t2, s1, s2, chi2_crit, min_extra, report_extra, neste
 
 @njit(**JIT_OPTIONS)
 def adaptive_batch(t1, t2, noise1, noise2, s1, s2, chi2_crit, min_extra, report_extra,
-                   nested, min_candidates, n_pass, weight_power, cond_max, det_out, ln_sd_out,
+                   nested, min_candidates, lookahead, n_pass, weight_power, cond_max, det_out,
+                   ln_sd_out,
                    status_out):
     """The adaptive estimator on ``B`` noisy copies of a constellation.
 
@@ -770,7 +792,8 @@ def adaptive_batch(t1, t2, noise1, noise2, s1, s2, chi2_crit, min_extra, report_
                 p1[i, d] = t1[i, d] + noise1[k, i, d]
                 p2[i, d] = t2[i, d] + noise2[k, i, d]
         adaptive_jacobians(p1, p2, s1, s2, chi2_crit, min_extra, report_extra, nested,
-                           min_candidates, n_pass, weight_power, cond_max, jac, sd, st)
+                           min_candidates, lookahead, n_pass, weight_power, cond_max, jac, sd,
+                           st)
         for i in range(n):
             det_out[k, i] = jac[i, 0, 0] * jac[i, 1, 1] - jac[i, 0, 1] * jac[i, 1, 0]
             ln_sd_out[k, i] = sd[i]
