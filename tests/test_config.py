@@ -309,7 +309,8 @@ def _set(*keys_and_value):
 
 BAD = [
     ("estimator", _set("analysis", "estimator", "quadd"),
-     "[analysis] estimator: 'quadd' is not one of '2v', 'quad', 'quad2', 'adaptive' (did you mean 'quad'?)"),
+     "[analysis] estimator: 'quadd' is not one of '2v', 'quad', 'quad2', 'adaptive' "
+     "(did you mean 'quad'?)"),
     ("unknown-key", _set("analysis", "n_boostrap", 100),
      "[analysis] n_boostrap: unknown key (did you mean 'n_bootstrap'?)"),
     ("unknown-table", _set("anlysis", "seed", 1),
