@@ -176,7 +176,7 @@ def adaptive(t1, t2, s1, s2, pilot, chi2_crit, min_extra=1, report_extra=1, min_
                 det = np.linalg.det(j)
                 g = np.array([j[1, 1], -j[1, 0], -j[0, 1], j[0, 0]]) / det
                 s = np.sqrt(g @ cj @ g)
-                reported[(dr, k)] = np.log(abs(det))
+                reported[(dr, k)] = (np.log(abs(det)), s**2)
                 if chi2 <= chi2_crit[dof]:
                     if best is None or s < best[1]:
                         best = (j, s)
@@ -184,7 +184,7 @@ def adaptive(t1, t2, s1, s2, pilot, chi2_crit, min_extra=1, report_extra=1, min_
                 sf = s * np.sqrt(max(1.0, _press_ratio(t1, t2, a, idx, dr, s1, s2, pilot[a],
                                                        j)))
                 if chi2_r <= chi2_crit[dof_r]:
-                    consistent.append(np.log(abs(det)))
+                    consistent.append((np.log(abs(det)), s**2))
                     if fallback is None or sf < fallback[1]:
                         fallback = (j, sf, np.log(abs(det)), dr, k)
                 elif worst is None or sf < worst[1]:
@@ -195,7 +195,7 @@ def adaptive(t1, t2, s1, s2, pilot, chi2_crit, min_extra=1, report_extra=1, min_
             _, _, l_best, d_best, k_best = fallback
             near = [v for (d, k), v in reported.items()
                     if d == d_best and k_best < k <= k_best + lookahead]
-            spread = max((c - l_best) ** 2 for c in consistent + near)
+            spread = max(max((c - l_best) ** 2 - v for c, v in consistent + near), 0.0)
             jac[a], sd[a], status[a] = fallback[0], np.hypot(fallback[1], np.sqrt(spread)), 1
         elif fallback is not None:
             jac[a], sd[a], status[a] = fallback[0], fallback[1], 3

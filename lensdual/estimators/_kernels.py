@@ -478,6 +478,7 @@ def _adaptive_pair(t1, t2, s1, s2, a, pilot, chi2_crit, min_extra, report_extra,
                    jac_out):
     """Adaptive local-polynomial Jacobian at pair ``a``; returns (ln_sd, status).
 
+
     The noise of each baseline is the effective variance
     ``s1^2 I + s2^2 P P^T`` (P the pilot Jacobian at ``a``); in the frame of
     the eigenvectors of ``P P^T`` the two output components are independent,
@@ -505,20 +506,22 @@ def _adaptive_pair(t1, t2, s1, s2, a, pilot, chi2_crit, min_extra, report_extra,
     s = np.sin(ang)
     # R = [[c, -s], [s, c]]: columns are the eigenvectors; y' = R^T y
     dist = np.empty(n)
+    nn = 0
     for b in range(n):
         dx = t2[b, 0] - t2[a, 0]
         dy = t2[b, 1] - t2[a, 1]
         dist[b] = dx * dx + dy * dy
+        nn += 1
     idx = np.argsort(dist)
-    for k in range(n):
+    for k in range(nn):
         order[k] = idx[k]
-    hmax = np.sqrt(dist[idx[n - 1]])
+    hmax = np.sqrt(dist[idx[nn - 1]]) if nn > 0 else 0.0
     if not hmax > 0.0:
         for i in range(2):
             for j in range(2):
                 jac_out[i, j] = np.nan
         return np.nan, ADAPTIVE_FAILED
-    for k in range(n):
+    for k in range(nn):
         b = order[k]
         _monomials((t2[b, 0] - t2[a, 0]) / hmax, (t2[b, 1] - t2[a, 1]) / hmax, U[k])
         y0 = t1[b, 0] - t1[a, 0]
@@ -543,6 +546,7 @@ def _adaptive_pair(t1, t2, s1, s2, a, pilot, chi2_crit, min_extra, report_extra,
     untestable = False
     ju = np.empty((2, 2))
     cand_ln = np.empty(4 * n)
+    cand_var = np.empty(4 * n)
     cand_k = np.empty(4 * n, dtype=np.int64)
     cand_dr = np.empty(4 * n, dtype=np.int64)
     cand_ok = np.empty(4 * n, dtype=np.bool_)
@@ -555,7 +559,7 @@ def _adaptive_pair(t1, t2, s1, s2, a, pilot, chi2_crit, min_extra, report_extra,
     cov = np.empty((2, 3))
     jb = np.empty((2, 2))
     jf = np.empty((2, 2))
-    for k in range(n):
+    for k in range(nn):
         # add point order[k] to both normal systems (full cubic design)
         for comp in range(2):
             w = W[k, comp]
@@ -666,6 +670,7 @@ def _adaptive_pair(t1, t2, s1, s2, a, pilot, chi2_crit, min_extra, report_extra,
                 consistent = chi2_r <= chi2_crit[dof_r]
                 if n_cand < cand_ln.shape[0]:
                     cand_ln[n_cand] = np.log(abs(det))
+                    cand_var[n_cand] = var_ln
                     cand_k[n_cand] = kk
                     cand_dr[n_cand] = dt + report_extra
                     cand_ok[n_cand] = consistent
@@ -698,15 +703,16 @@ def _adaptive_pair(t1, t2, s1, s2, a, pilot, chi2_crit, min_extra, report_extra,
         for i in range(2):
             for j in range(2):
                 jac_out[i, j] = jf[i, j]
-        # model uncertainty: the largest change of ln|det J| among the other
-        # self-consistent fits, and when the neighbourhood of the chosen fit
-        # grows by up to ``lookahead`` points at the same degree
+        # model uncertainty: the largest change of ln|det J| beyond noise among
+        # the other self-consistent fits, and when the neighbourhood of the
+        # chosen fit grows by up to ``lookahead`` points at the same degree
         spread = 0.0
         for i in range(n_cand):
             near = (cand_dr[i] == best_fb_dr and cand_k[i] > best_fb_k
                     and cand_k[i] <= best_fb_k + lookahead)
             if cand_ok[i] or near:
-                spread = max(spread, (cand_ln[i] - best_fb_ln) ** 2)
+                # a difference beyond that fit's own noise is evidence of bias
+                spread = max(spread, (cand_ln[i] - best_fb_ln) ** 2 - cand_var[i])
         return np.sqrt(best_fb * best_fb + spread), ADAPTIVE_MISFIT
     if fallback:  # one self-consistent fit only: its model error cannot be judged
         for i in range(2):
@@ -792,8 +798,8 @@ def adaptive_batch(t1, t2, noise1, noise2, s1, s2, chi2_crit, min_extra, report_
                 p1[i, d] = t1[i, d] + noise1[k, i, d]
                 p2[i, d] = t2[i, d] + noise2[k, i, d]
         adaptive_jacobians(p1, p2, s1, s2, chi2_crit, min_extra, report_extra, nested,
-                           min_candidates, lookahead, n_pass, weight_power, cond_max, jac, sd,
-                           st)
+                           min_candidates, lookahead, n_pass, weight_power, cond_max, jac,
+                           sd, st)
         for i in range(n):
             det_out[k, i] = jac[i, 0, 0] * jac[i, 1, 1] - jac[i, 0, 1] * jac[i, 1, 0]
             ln_sd_out[k, i] = sd[i]

@@ -226,9 +226,8 @@ def _adaptive(t1, t2, sigma, wp):
     status = np.empty(n, dtype=np.int64)
     _kernels.adaptive_jacobians(t1, t2, sigma[0], sigma[1], _chi2_critical(n),
                                 _ADAPTIVE_MIN_EXTRA, _ADAPTIVE_REPORT_EXTRA, _ADAPTIVE_NESTED,
-                                _ADAPTIVE_MIN_CANDIDATES, _ADAPTIVE_LOOKAHEAD, _ADAPTIVE_PASSES,
-                                wp, _COND_MAX,
-                                jac, ln_sd, status)
+                                _ADAPTIVE_MIN_CANDIDATES, _ADAPTIVE_LOOKAHEAD,
+                                _ADAPTIVE_PASSES, wp, _COND_MAX, jac, ln_sd, status)
     return jac, ln_sd, status
 
 
@@ -245,8 +244,8 @@ def _adaptive_batch(t1, t2, noise1, noise2, sigma, wp=2.0):
     status = np.empty((b, n), dtype=np.int64)
     _kernels.adaptive_batch(t1, t2, noise1, noise2, sigma[0], sigma[1], _chi2_critical(n),
                             _ADAPTIVE_MIN_EXTRA, _ADAPTIVE_REPORT_EXTRA, _ADAPTIVE_NESTED,
-                            _ADAPTIVE_MIN_CANDIDATES, _ADAPTIVE_LOOKAHEAD, _ADAPTIVE_PASSES,
-                            float(wp), _COND_MAX, det, ln_sd, status)
+                            _ADAPTIVE_MIN_CANDIDATES, _ADAPTIVE_LOOKAHEAD,
+                            _ADAPTIVE_PASSES, float(wp), _COND_MAX, det, ln_sd, status)
     testable = (status == _kernels.ADAPTIVE_OK) | (status == _kernels.ADAPTIVE_MISFIT)
     return np.abs(det), ln_sd, testable
 
