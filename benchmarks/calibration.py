@@ -78,6 +78,11 @@ def run_cell(constellations, sigma_mas, method, n_noise, seed=0):
     pull = err / sd
     out = {"n": int(tested.sum()), "tested": float(tested.mean()),
            "ok": float(np.mean(status == "ok"))}
+    if not tested.any():
+        nan = float("nan")
+        out.update(ffr=nan, ffr_exact=nan, pull_med=nan, pull_w=nan, bias=nan, sig=nan,
+                   pow10=nan, pow25=nan, pow50=nan)
+        return out
     snr0 = np.abs(ln_flux_noise - err) / tot
     out["ffr"] = float(np.mean(snr0[tested] > 3))
     out["ffr_exact"] = float(np.mean((np.abs(err) / tot)[tested] > 3))

@@ -519,6 +519,13 @@ def _add_null_calibration(result, measured, sigma, n_realisations, snr_threshold
     result.meta["duality"]["null_calibration"] = {k: null.meta[k] for k in keys}
 
 
+def _percent(p):
+    """A probability as a percentage, '< 0.01 %' below 1e-4."""
+    if not np.isfinite(p):
+        return "undefined"
+    return "< 0.01%" if p < 1e-4 else f"{100 * p:.2g}%"
+
+
 def _calibration_sentence(n_bad, n_tested, meta):
     """'k pairs of N flagged; the chance of at least one such flag without any sub-halo...'."""
     if "p_any_false_flag" not in meta:
@@ -527,18 +534,20 @@ def _calibration_sentence(n_bad, n_tested, meta):
             f"(expected without any sub-halo: {meta['expected_false_flags']:.2g}); ")
     if n_bad:
         text += (f"the chance of at least one flag as strong without any sub-halo is "
-                 f"{meta['family_wise_p']:.2%}. ")
+                 f"{_percent(meta['family_wise_p'])}. ")
     else:
         text += (f"the chance of at least one flag without any sub-halo is "
-                 f"{meta['p_any_false_flag']:.1%}. ")
+                 f"{_percent(meta['p_any_false_flag'])}. ")
     null = meta.get("null_calibration")
     if null:
+        floor = (" (the smallest p-value this many realisations can give)"
+                 if null["family_wise_p_empirical"] <= 1.5 / null["n_realisations"] else "")
         text += (f"On {null['n_realisations']} simulated clean constellations like this one "
                  f"(null calibration) {null['false_alarm_rate']:.2%} of pairs were flagged "
                  f"(nominal {null['nominal_false_alarm_rate']:.2%}), "
                  f"{null['p_any_false_flag']:.1%} of them had at least one flag, and a flag "
                  f"as strong as the strongest here occurred in "
-                 f"{null['family_wise_p_empirical']:.2%}. ")
+                 f"{_percent(null['family_wise_p_empirical'])}{floor}. ")
     return text
 
 

@@ -427,9 +427,10 @@ def _smooth_map(t1, t2, sigma, alpha=0.05):
     """A global polynomial map L2 -> L1 fitted to the pairs (the null's truth).
 
     The lowest degree (1 to 4) whose weighted chi-square is consistent with
-    the position errors at ``alpha``, else the highest degree the number of
-    pairs allows. Returns the mapped L2 positions, the map's Jacobian there,
-    the degree and chi2/dof.
+    the position errors at ``alpha``, else the highest degree with at least
+    two pairs per coefficient (a map fitted with fewer wiggles between the
+    points, rougher than any lens). Returns the mapped L2 positions, the
+    map's Jacobian there, the degree and chi2/dof.
     """
     from scipy.stats import chi2
 
@@ -441,8 +442,8 @@ def _smooth_map(t1, t2, sigma, alpha=0.05):
     best = None
     for degree in range(1, _NULL_MAX_DEGREE + 1):
         f, fx, fy = _poly_terms(u_, degree)
-        if n - f.shape[1] < 2:
-            break
+        if n < 2 * f.shape[1]:
+            break  # keep the null map well determined (at least 2 pairs per coefficient)
         w = 1.0 / (sigma[0] ** 2 + sigma[1] ** 2 * 0.5 * jnorm2)
         sw = np.sqrt(w)[:, None]
         coef = np.linalg.lstsq(f * sw, t1 * sw, rcond=None)[0]
@@ -490,9 +491,10 @@ def null_calibration(pairs, *, sigma_pos, n_realisations=1000, snr_threshold=3.0
 
     A smooth, model-independent map from arc L2 to arc L1 is fitted to the
     pairs (a global polynomial, the lowest degree up to 4 that fits within
-    the position errors). Each null realisation takes the measured L2
-    positions as the truth, maps them through it, sets the flux ratios to the
-    map's exact ``|det J|`` (duality holds: no sub-halo), adds Gaussian
+    the position errors, with at least two pairs per coefficient). Each null
+    realisation takes the measured L2 positions as the truth, maps them
+    through it, sets the flux ratios to the map's exact ``|det J|`` (duality
+    holds: no sub-halo), adds Gaussian
     noise of the user's ``sigma_pos`` to every position and of the user's
     flux-ratio errors to every ``ln mu_flux``, and runs the same adaptive
     estimator and SNR as :func:`check_duality`. The observed SNRs are then
