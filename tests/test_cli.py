@@ -21,7 +21,8 @@ DOCUMENTED_COLUMNS = [
     "jacobian", "parity", "mu_size", "mu_size_err", "mu_size_p16", "mu_size_p84",
     "mu_flux_F150W", "mu_flux_err_F150W", "mu_flux_F200W", "mu_flux_err_F200W",
     "mu_flux", "mu_flux_err", "duality_ratio", "duality_ratio_err", "snr", "snr_paper",
-    "anomalous",
+    "anomalous", "ln_mu_size_err", "mu_size_status", "tested", "p_value", "p_value_holm",
+    "p_value_empirical",
 ]
 OUTPUTS = ["pairs.ecsv", "catalog_L1.ecsv", "catalog_L2.ecsv", "pairing_map.png",
            "duality.png", "report.txt"]
@@ -53,7 +54,16 @@ def test_demo_table_columns_and_verdict(demo_dir):
     assert not missing
     assert len(table) == 8
     assert table["jacobian"].shape == (8, 2, 2)
-    assert table.meta["duality"]["method"] == "quad2"
+    meta = table.meta["duality"]
+    assert meta["method"] == "adaptive"
+    assert meta["n_tested"] == int(np.sum(table["tested"]))
+    np.testing.assert_allclose(meta["expected_false_flags"], meta["n_tested"] * 0.0026998,
+                               rtol=1e-4)
+    null = meta["null_calibration"]
+    assert null["n_realisations"] == 200 and 0 <= null["false_alarm_rate"] < 0.05
+    report = (demo_dir / "report.txt").read_text()
+    assert f"1 pair of {meta['n_tested']} tested flagged" in report
+    assert "simulated clean constellations like this one" in report
     truth = QTable.read(demo_dir / "truth_comparison.ecsv", format="ascii.ecsv")
     assert truth.meta["n_matched"] == 8
     # the sub-haloed pair is flagged, and no other
@@ -85,7 +95,7 @@ def test_demo_prints_table_and_truth(tmp_path, capsys):
 
 def test_quiet_prints_nothing(tmp_path, capsys):
     assert main(["demo", "--outdir", str(tmp_path / "q"), "--quiet", "--n-sources", "5",
-                 "--n-bootstrap", "20"]) == 0
+                 "--n-bootstrap", "20", "--estimator", "quad2"]) == 0
     captured = capsys.readouterr()
     assert captured.out == ""
     assert captured.err == ""
@@ -239,16 +249,16 @@ def test_failure_mid_run_leaves_no_output(demo_dir, tmp_path, capsys):
 def test_manual_pairs_from_a_previous_run(demo_dir, tmp_path):
     """The ids of a run's catalogues, given back as manual pairs, give the same pairs."""
     previous = QTable.read(demo_dir / "pairs.ecsv", format="ascii.ecsv")
-    QTable({"id1": previous["id1"][:6], "id2": previous["id2"][:6]}).write(
+    QTable({"id1": previous["id1"][:7], "id2": previous["id2"][:7]}).write(
         tmp_path / "pairs.ecsv", format="ascii.ecsv")
     cfg = _absolute_config(demo_dir)
     cfg["pairing"] = {"method": "manual", "file": str(tmp_path / "pairs.ecsv")}
     path = _write(tmp_path / "manual.toml", cfg)
     assert main(["run", str(path), "--outdir", str(tmp_path / "out"), "--quiet"]) == 0
     table = QTable.read(tmp_path / "out" / "pairs.ecsv", format="ascii.ecsv")
-    assert len(table) == 6
-    assert list(table["id1"]) == list(previous["id1"][:6])
-    assert list(table["id2"]) == list(previous["id2"][:6])
+    assert len(table) == 7
+    assert list(table["id1"]) == list(previous["id1"][:7])
+    assert list(table["id2"]) == list(previous["id2"][:7])
 
 
 def test_command_line_as_a_subprocess(tmp_path):
@@ -331,9 +341,9 @@ def test_demo_parametric(tmp_path, monkeypatch):
                                           "fix_centre": True})
     out = tmp_path / "par"
     assert main(["demo", "--outdir", str(out), "--parametric", "--write-config", "--quiet",
-                 "--n-sources", "6", "--n-bootstrap", "50"]) == 0
+                 "--n-sources", "7", "--n-bootstrap", "50"]) == 0
     table = QTable.read(out / "parametric.ecsv", format="ascii.ecsv")
-    assert len(table) == 6
+    assert len(table) == 7
     for name in ("mu_flux", "mu_size", "mu_model", "snr_model", "anomalous_model"):
         assert name in table.colnames
     assert table.meta["parametric"]["fit_model"] == ["NFW_ELLIPSE_CSE", "SHEAR"]

@@ -91,8 +91,10 @@ def _prepare(theta1, theta2, method, weight_power, min_angle):
         )
     n_min = METHODS[method]
     if t1.shape[0] < n_min:
+        hint = " (with fewer pairs use 'quad2', whose errors hold the position noise only)"
         raise ValueError(
             f"method {method!r} needs at least {n_min} pairs, got {t1.shape[0]}"
+            + (hint if method == "adaptive" else "")
         )
     check_unique_rows(t1, "theta1")
     check_unique_rows(t2, "theta2")
