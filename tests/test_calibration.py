@@ -49,7 +49,7 @@ def _kernel_one_pass(t1, t2, s1, s2):
     jac = np.empty((n, 2, 2))
     sd = np.empty(n)
     st = np.empty(n, dtype=np.int64)
-    _kernels.adaptive_jacobians(t1, t2, s1, s2, crit, 1, 1, False, 2, 5, 1, 2.0, 1e10, jac, sd,
+    _kernels.adaptive_jacobians(t1, t2, s1, s2, crit, 1, 1, 2, 5, 1, 2.0, 1e10, jac, sd,
                                 st)
     return (jac, sd, st), ref.adaptive(t1, t2, s1, s2, pilot, crit)
 

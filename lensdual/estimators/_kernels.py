@@ -389,10 +389,9 @@ def bootstrap_determinants(t1, t2, noise1, noise2, method, weight_power, min_sin
 
 METHOD_ADAPTIVE = 3
 
-#: Largest polynomial degree of the adaptive fits (reported fits are one
-#: degree above the tested ones, which go up to ``ADAPTIVE_MAX_TEST_DEGREE``).
-ADAPTIVE_MAX_TEST_DEGREE = 2
-_ADAPTIVE_NCOEF_MAX = 10  # a full cubic in two variables
+# Tested fits have degree 1 or 2, reported ones up to 3: a full cubic in two
+# variables has 10 coefficients.
+_ADAPTIVE_NCOEF_MAX = 10
 
 ADAPTIVE_OK = 0  # a local fit consistent with the noise was found
 ADAPTIVE_MISFIT = 1  # no tested fit passed, but a reported fit is consistent on its own
@@ -473,11 +472,10 @@ def _inverse_entry(L, p, scale, i, j, work):
 
 
 @njit(**JIT_OPTIONS)
-def _adaptive_pair(t1, t2, s1, s2, a, pilot, chi2_crit, min_extra, report_extra, nested,
+def _adaptive_pair(t1, t2, s1, s2, a, pilot, chi2_crit, min_extra, report_extra,
                    min_candidates, lookahead, order, U, Yr, W, A, rhs, L, scale, beta, work,
                    jac_out):
     """Adaptive local-polynomial Jacobian at pair ``a``; returns (ln_sd, status).
-
 
     The noise of each baseline is the effective variance
     ``s1^2 I + s2^2 P P^T`` (P the pilot Jacobian at ``a``); in the frame of
@@ -486,11 +484,18 @@ def _adaptive_pair(t1, t2, s1, s2, a, pilot, chi2_crit, min_extra, report_extra,
     ``k`` nearest neighbours of ``a`` in L2 (``a`` included): a fit of degree
     ``d`` (1 or 2) tests whether the map is that smooth there (chi-square of
     both components against ``chi2_crit[dof]``), and the estimate reported
-    for that neighbourhood is the fit of degree ``d + 1`` on the same points,
-    whose truncation bias is one order smaller (robust bias correction).
-    Among the neighbourhoods that pass the test, the one whose reported fit
-    has the smallest error wins; if none passes, the least-bad fit is
-    returned with its error scaled by ``sqrt(chi2/dof)`` of its test.
+    for that neighbourhood is the fit of degree ``d + report_extra`` on the
+    same points, whose truncation bias is one order smaller (robust bias
+    correction). Among the neighbourhoods that pass the test, the one whose
+    reported fit has the smallest error wins (``ADAPTIVE_OK``).
+
+    If none passes, the reported fits that pass the chi-square test on their
+    own are used: the one with the smallest error scaled by its
+    leave-one-out (PRESS) misfit, widened by the largest change of
+    ``ln|det J|`` beyond noise among the other such fits and over the next
+    ``lookahead`` larger neighbourhoods of its degree (``ADAPTIVE_MISFIT``,
+    when at least ``min_candidates`` fits are self-consistent). Otherwise
+    the least-bad fit is returned as ``ADAPTIVE_UNTESTABLE``.
     """
     n = t1.shape[0]
     # pilot effective-variance frame
@@ -555,7 +560,6 @@ def _adaptive_pair(t1, t2, s1, s2, a, pilot, chi2_crit, min_extra, report_extra,
     best_fb_ln = 0.0
     best_fb_k = 0
     best_fb_dr = 0
-    failed = np.zeros(4, dtype=np.bool_)
     cov = np.empty((2, 3))
     jb = np.empty((2, 2))
     jf = np.empty((2, 2))
@@ -646,9 +650,7 @@ def _adaptive_pair(t1, t2, s1, s2, a, pilot, chi2_crit, min_extra, report_extra,
                 continue
             sd = np.sqrt(var_ln)
             passed = chi2 <= chi2_crit[dof]
-            if not passed:
-                failed[dt] = True
-            if passed and not (nested and failed[dt]):
+            if passed:
                 if sd < best_sd:
                     best_sd = sd
                     found = True
@@ -731,7 +733,7 @@ def _adaptive_pair(t1, t2, s1, s2, a, pilot, chi2_crit, min_extra, report_extra,
 
 
 @njit(**JIT_OPTIONS)
-def adaptive_jacobians(t1, t2, s1, s2, chi2_crit, min_extra, report_extra, nested,
+def adaptive_jacobians(t1, t2, s1, s2, chi2_crit, min_extra, report_extra,
                        min_candidates, lookahead, n_pass, weight_power, cond_max, jac, ln_sd,
                        status):
     """The adaptive Jacobian at every pair (see :func:`_adaptive_pair`).
@@ -763,7 +765,7 @@ def adaptive_jacobians(t1, t2, s1, s2, chi2_crit, min_extra, report_extra, neste
     for p in range(n_pass):
         for a in range(n):
             ln_sd[a], status[a] = _adaptive_pair(
-                t1, t2, s1, s2, a, pilot[a], chi2_crit, min_extra, report_extra, nested,
+                t1, t2, s1, s2, a, pilot[a], chi2_crit, min_extra, report_extra,
                 min_candidates, lookahead, order, U, Yr, W, A, rhs, L, scale, beta, work,
                 jac[a])
         if p + 1 < n_pass:
@@ -776,7 +778,7 @@ def adaptive_jacobians(t1, t2, s1, s2, chi2_crit, min_extra, report_extra, neste
 
 @njit(**JIT_OPTIONS)
 def adaptive_batch(t1, t2, noise1, noise2, s1, s2, chi2_crit, min_extra, report_extra,
-                   nested, min_candidates, lookahead, n_pass, weight_power, cond_max, det_out,
+                   min_candidates, lookahead, n_pass, weight_power, cond_max, det_out,
                    ln_sd_out,
                    status_out):
     """The adaptive estimator on ``B`` noisy copies of a constellation.
@@ -797,7 +799,7 @@ def adaptive_batch(t1, t2, noise1, noise2, s1, s2, chi2_crit, min_extra, report_
             for d in range(2):
                 p1[i, d] = t1[i, d] + noise1[k, i, d]
                 p2[i, d] = t2[i, d] + noise2[k, i, d]
-        adaptive_jacobians(p1, p2, s1, s2, chi2_crit, min_extra, report_extra, nested,
+        adaptive_jacobians(p1, p2, s1, s2, chi2_crit, min_extra, report_extra,
                            min_candidates, lookahead, n_pass, weight_power, cond_max, jac,
                            sd, st)
         for i in range(n):

@@ -55,8 +55,6 @@ _ADAPTIVE_ALPHA = 0.05
 _ADAPTIVE_MIN_EXTRA = 1
 # Degrees the reported fit lies above the tested one (1: robust bias correction).
 _ADAPTIVE_REPORT_EXTRA = 1
-# Stop enlarging the neighbourhood of a degree at its first failed test.
-_ADAPTIVE_NESTED = False
 # Self-consistent fits a "misfit" estimate needs (their spread is its model error).
 _ADAPTIVE_MIN_CANDIDATES = 2
 # Larger neighbourhoods (same degree) whose change widens a "misfit" error.
@@ -227,7 +225,7 @@ def _adaptive(t1, t2, sigma, wp):
     ln_sd = np.empty(n)
     status = np.empty(n, dtype=np.int64)
     _kernels.adaptive_jacobians(t1, t2, sigma[0], sigma[1], _chi2_critical(n),
-                                _ADAPTIVE_MIN_EXTRA, _ADAPTIVE_REPORT_EXTRA, _ADAPTIVE_NESTED,
+                                _ADAPTIVE_MIN_EXTRA, _ADAPTIVE_REPORT_EXTRA,
                                 _ADAPTIVE_MIN_CANDIDATES, _ADAPTIVE_LOOKAHEAD,
                                 _ADAPTIVE_PASSES, wp, _COND_MAX, jac, ln_sd, status)
     return jac, ln_sd, status
@@ -245,7 +243,7 @@ def _adaptive_batch(t1, t2, noise1, noise2, sigma, wp=2.0):
     ln_sd = np.empty((b, n))
     status = np.empty((b, n), dtype=np.int64)
     _kernels.adaptive_batch(t1, t2, noise1, noise2, sigma[0], sigma[1], _chi2_critical(n),
-                            _ADAPTIVE_MIN_EXTRA, _ADAPTIVE_REPORT_EXTRA, _ADAPTIVE_NESTED,
+                            _ADAPTIVE_MIN_EXTRA, _ADAPTIVE_REPORT_EXTRA,
                             _ADAPTIVE_MIN_CANDIDATES, _ADAPTIVE_LOOKAHEAD,
                             _ADAPTIVE_PASSES, float(wp), _COND_MAX, det, ln_sd, status)
     testable = (status == _kernels.ADAPTIVE_OK) | (status == _kernels.ADAPTIVE_MISFIT)
