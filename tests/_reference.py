@@ -127,7 +127,7 @@ def _gls_fit(t1, t2, a, idx, degree, s1, s2, pilot):
     return jac, cinv[np.ix_(sel, sel)], chi2, 2 * (len(idx) - p)
 
 
-def _press_ratio(t1, t2, a, idx, degree, s1, s2, pilot, jac_free_fit):
+def _press_ratio(t1, t2, a, idx, degree, s1, s2, pilot):
     """Leave-one-out (PRESS) misfit of a fit over its null expectation.
 
     Per output component of the eigenframe of ``pilot pilot^T`` (where the
@@ -181,8 +181,7 @@ def adaptive(t1, t2, s1, s2, pilot, chi2_crit, min_extra=1, report_extra=1, min_
                     if best is None or s < best[1]:
                         best = (j, s)
                     continue
-                sf = s * np.sqrt(max(1.0, _press_ratio(t1, t2, a, idx, dr, s1, s2, pilot[a],
-                                                       j)))
+                sf = s * np.sqrt(max(1.0, _press_ratio(t1, t2, a, idx, dr, s1, s2, pilot[a])))
                 if chi2_r <= chi2_crit[dof_r]:
                     consistent.append((np.log(abs(det)), s**2))
                     if fallback is None or sf < fallback[1]:

@@ -420,6 +420,24 @@ def _monomials(ux, uy, out):
 
 
 _MONOMIAL_DEGREE = np.array([0, 1, 1, 2, 2, 2, 3, 3, 3, 3], dtype=np.float64)
+
+
+@njit(**JIT_OPTIONS)
+def _rotate_back(c, s, jr00, jr01, jr10, jr11, out):
+    """``out = R J'`` with ``R = [[c, -s], [s, c]]``: a rotated-frame Jacobian back."""
+    out[0, 0] = c * jr00 - s * jr10
+    out[0, 1] = c * jr01 - s * jr11
+    out[1, 0] = s * jr00 + c * jr10
+    out[1, 1] = s * jr01 + c * jr11
+
+
+@njit(**JIT_OPTIONS)
+def _copy_jacobian(src, out):
+    for i in range(2):
+        for j in range(2):
+            out[i, j] = src[i, j]
+
+
 @njit(**JIT_OPTIONS)
 def _cholesky_solve(A, p, scale, rhs, L, sol, tol):
     """Solve ``(S A S) z = S rhs`` (S = diag(scale)) by Cholesky; ``sol = S z``.
@@ -511,22 +529,18 @@ def _adaptive_pair(t1, t2, s1, s2, a, pilot, chi2_crit, min_extra, report_extra,
     s = np.sin(ang)
     # R = [[c, -s], [s, c]]: columns are the eigenvectors; y' = R^T y
     dist = np.empty(n)
-    nn = 0
     for b in range(n):
         dx = t2[b, 0] - t2[a, 0]
         dy = t2[b, 1] - t2[a, 1]
         dist[b] = dx * dx + dy * dy
-        nn += 1
     idx = np.argsort(dist)
-    for k in range(nn):
+    for k in range(n):
         order[k] = idx[k]
-    hmax = np.sqrt(dist[idx[nn - 1]]) if nn > 0 else 0.0
+    hmax = np.sqrt(dist[idx[n - 1]])
     if not hmax > 0.0:
-        for i in range(2):
-            for j in range(2):
-                jac_out[i, j] = np.nan
+        jac_out[:, :] = np.nan
         return np.nan, ADAPTIVE_FAILED
-    for k in range(nn):
+    for k in range(n):
         b = order[k]
         _monomials((t2[b, 0] - t2[a, 0]) / hmax, (t2[b, 1] - t2[a, 1]) / hmax, U[k])
         y0 = t1[b, 0] - t1[a, 0]
@@ -563,7 +577,7 @@ def _adaptive_pair(t1, t2, s1, s2, a, pilot, chi2_crit, min_extra, report_extra,
     cov = np.empty((2, 3))
     jb = np.empty((2, 2))
     jf = np.empty((2, 2))
-    for k in range(nn):
+    for k in range(n):
         # add point order[k] to both normal systems (full cubic design)
         for comp in range(2):
             w = W[k, comp]
@@ -601,7 +615,9 @@ def _adaptive_pair(t1, t2, s1, s2, a, pilot, chi2_crit, min_extra, report_extra,
                 continue
             dof = 2 * (kk - pt)
             # reported fit: degree dt + report_extra on the same points, with
-            # its covariance and its leave-one-out (PRESS) misfit per component
+            # its covariance, its chi-square and its leave-one-out (PRESS)
+            # misfit per component
+            chi2_r = 0.0
             press = 0.0
             press_null = 0.0
             for comp in range(2):
@@ -615,6 +631,7 @@ def _adaptive_pair(t1, t2, s1, s2, a, pilot, chi2_crit, min_extra, report_extra,
                     r = Yr[q, comp]
                     for i in range(pr):
                         r -= U[q, i] * beta[comp, i]
+                    chi2_r += W[q, comp] * r * r
                     # leverage: w |L^-1 S u|^2
                     lev = 0.0
                     for i in range(pr):
@@ -654,19 +671,8 @@ def _adaptive_pair(t1, t2, s1, s2, a, pilot, chi2_crit, min_extra, report_extra,
                 if sd < best_sd:
                     best_sd = sd
                     found = True
-                    jb[0, 0] = c * jr00 - s * jr10
-                    jb[0, 1] = c * jr01 - s * jr11
-                    jb[1, 0] = s * jr00 + c * jr10
-                    jb[1, 1] = s * jr01 + c * jr11
+                    _rotate_back(c, s, jr00, jr01, jr10, jr11, jb)
             if not found:
-                # chi-square of the reported fit itself
-                chi2_r = 0.0
-                for comp in range(2):
-                    for q in range(kk):
-                        r = Yr[q, comp]
-                        for i in range(pr):
-                            r -= U[q, i] * beta[comp, i]
-                        chi2_r += W[q, comp] * r * r
                 dof_r = 2 * (kk - pr)
                 sdf = sd * np.sqrt(max(1.0, press / press_null))
                 consistent = chi2_r <= chi2_crit[dof_r]
@@ -685,26 +691,16 @@ def _adaptive_pair(t1, t2, s1, s2, a, pilot, chi2_crit, min_extra, report_extra,
                         best_fb_dr = dt + report_extra
                         best_fb = sdf
                         fallback = True
-                        jf[0, 0] = c * jr00 - s * jr10
-                        jf[0, 1] = c * jr01 - s * jr11
-                        jf[1, 0] = s * jr00 + c * jr10
-                        jf[1, 1] = s * jr01 + c * jr11
+                        _rotate_back(c, s, jr00, jr01, jr10, jr11, jf)
                 elif sdf < best_un:
                     best_un = sdf
                     untestable = True
-                    ju[0, 0] = c * jr00 - s * jr10
-                    ju[0, 1] = c * jr01 - s * jr11
-                    ju[1, 0] = s * jr00 + c * jr10
-                    ju[1, 1] = s * jr01 + c * jr11
+                    _rotate_back(c, s, jr00, jr01, jr10, jr11, ju)
     if found:
-        for i in range(2):
-            for j in range(2):
-                jac_out[i, j] = jb[i, j]
+        _copy_jacobian(jb, jac_out)
         return best_sd, ADAPTIVE_OK
     if fallback and n_consistent >= min_candidates:
-        for i in range(2):
-            for j in range(2):
-                jac_out[i, j] = jf[i, j]
+        _copy_jacobian(jf, jac_out)
         # model uncertainty: the largest change of ln|det J| beyond noise among
         # the other self-consistent fits, and when the neighbourhood of the
         # chosen fit grows by up to ``lookahead`` points at the same degree
@@ -717,18 +713,12 @@ def _adaptive_pair(t1, t2, s1, s2, a, pilot, chi2_crit, min_extra, report_extra,
                 spread = max(spread, (cand_ln[i] - best_fb_ln) ** 2 - cand_var[i])
         return np.sqrt(best_fb * best_fb + spread), ADAPTIVE_MISFIT
     if fallback:  # one self-consistent fit only: its model error cannot be judged
-        for i in range(2):
-            for j in range(2):
-                jac_out[i, j] = jf[i, j]
+        _copy_jacobian(jf, jac_out)
         return best_fb, ADAPTIVE_UNTESTABLE
     if untestable:
-        for i in range(2):
-            for j in range(2):
-                jac_out[i, j] = ju[i, j]
+        _copy_jacobian(ju, jac_out)
         return best_un, ADAPTIVE_UNTESTABLE
-    for i in range(2):
-        for j in range(2):
-            jac_out[i, j] = np.nan
+    jac_out[:, :] = np.nan
     return np.nan, ADAPTIVE_FAILED
 
 

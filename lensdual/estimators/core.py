@@ -218,16 +218,21 @@ def _chi2_critical(n, alpha=None):
     return crit
 
 
+def _adaptive_settings(n, wp):
+    """The adaptive kernels' settings after the errors, for ``n`` pairs."""
+    return (_chi2_critical(n), _ADAPTIVE_MIN_EXTRA, _ADAPTIVE_REPORT_EXTRA,
+            _ADAPTIVE_MIN_CANDIDATES, _ADAPTIVE_LOOKAHEAD, _ADAPTIVE_PASSES, float(wp),
+            _COND_MAX)
+
+
 def _adaptive(t1, t2, sigma, wp):
     """Run the adaptive kernel: Jacobians, errors of ln|det J|, status codes."""
     n = t1.shape[0]
     jac = np.empty((n, 2, 2))
     ln_sd = np.empty(n)
     status = np.empty(n, dtype=np.int64)
-    _kernels.adaptive_jacobians(t1, t2, sigma[0], sigma[1], _chi2_critical(n),
-                                _ADAPTIVE_MIN_EXTRA, _ADAPTIVE_REPORT_EXTRA,
-                                _ADAPTIVE_MIN_CANDIDATES, _ADAPTIVE_LOOKAHEAD,
-                                _ADAPTIVE_PASSES, wp, _COND_MAX, jac, ln_sd, status)
+    _kernels.adaptive_jacobians(t1, t2, sigma[0], sigma[1], *_adaptive_settings(n, wp),
+                                jac, ln_sd, status)
     return jac, ln_sd, status
 
 
@@ -242,10 +247,8 @@ def _adaptive_batch(t1, t2, noise1, noise2, sigma, wp=2.0):
     det = np.empty((b, n))
     ln_sd = np.empty((b, n))
     status = np.empty((b, n), dtype=np.int64)
-    _kernels.adaptive_batch(t1, t2, noise1, noise2, sigma[0], sigma[1], _chi2_critical(n),
-                            _ADAPTIVE_MIN_EXTRA, _ADAPTIVE_REPORT_EXTRA,
-                            _ADAPTIVE_MIN_CANDIDATES, _ADAPTIVE_LOOKAHEAD,
-                            _ADAPTIVE_PASSES, float(wp), _COND_MAX, det, ln_sd, status)
+    _kernels.adaptive_batch(t1, t2, noise1, noise2, sigma[0], sigma[1],
+                            *_adaptive_settings(n, wp), det, ln_sd, status)
     testable = (status == _kernels.ADAPTIVE_OK) | (status == _kernels.ADAPTIVE_MISFIT)
     return np.abs(det), ln_sd, testable
 
