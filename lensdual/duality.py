@@ -14,6 +14,7 @@ from astropy import units as u
 from astropy.table import QTable, Table
 from scipy.special import chdtrc, erfc
 
+from ._parallel import check_client, run_tasks
 from ._validation import as_int, as_real
 from .estimators import DEFAULT_METHOD, TESTABLE_STATUS, size_magnification
 from .exceptions import LensdualWarning
@@ -563,9 +564,7 @@ def null_calibration(pairs, *, sigma_pos, n_realisations=1000, snr_threshold=3.0
                          f"calibration (p-values of 1/n), got {n_real}")
     chunk = as_int(chunk_size, "chunk_size", minimum=1)
     entropy = _seed_entropy(seed)
-    if client is not None and not callable(getattr(client, "map", None)):
-        raise TypeError("client must be None, a dask.distributed.Client or a "
-                        f"concurrent.futures.Executor, got {type(client).__name__}")
+    check_client(client)
     observed = check_duality(pairs, "adaptive", sigma_pos=sigma_pos,
                              snr_threshold=snr_threshold, weight_power=weight_power)
     theta1, theta2 = _positions(observed)
@@ -593,12 +592,7 @@ def null_calibration(pairs, *, sigma_pos, n_realisations=1000, snr_threshold=3.0
     args = [(b, entropy, sizes[b], mapped, t2, sigma, mu_true, ln_flux_err, float(weight_power))
             for b in range(n_blocks)]
     tasks = [args[i:i + chunk] for i in range(0, n_blocks, chunk)]
-    if client is None:
-        parts = [_null_tasks(t) for t in tasks]
-    elif hasattr(client, "gather") and hasattr(client, "submit"):
-        parts = client.gather(client.map(_null_tasks, tasks, pure=False))
-    else:
-        parts = list(client.map(_null_tasks, tasks))
+    parts = run_tasks(_null_tasks, tasks, client)
     null = np.vstack([blk for part in parts for blk in part])  # (n_real, N)
 
     snr = np.asarray(observed["snr"], dtype=float)

@@ -48,6 +48,7 @@ from astropy import units as u
 from astropy.table import QTable
 
 from . import _sensitivity_kernels as _k
+from ._parallel import check_client, run_tasks
 from ._validation import as_int, as_real
 
 __all__ = [
@@ -674,23 +675,10 @@ def _snr_chunk(task):
     return out
 
 
-def _run(fn, tasks, pool):
-    """``[fn(t) for t in tasks]`` serially, on a dask Client or on an Executor."""
-    if pool is None:
-        return [fn(t) for t in tasks]
-    if all(callable(getattr(pool, k, None)) for k in ("submit", "map", "gather", "scatter")):
-        return pool.gather(pool.map(fn, tasks, pure=False))  # dask.distributed.Client
-    return list(pool.map(fn, tasks))
-
-
 def _check_pool(client, executor):
     if client is not None and executor is not None:
         raise ValueError("give client or executor (its alias), not both")
-    pool = client if client is not None else executor
-    if pool is not None and not callable(getattr(pool, "map", None)):
-        raise TypeError("client must be None, a dask.distributed.Client or a "
-                        f"concurrent.futures.Executor, got {type(pool).__name__}")
-    return pool
+    return check_client(client if client is not None else executor)
 
 
 def detection_snr_map(masses, r_eff, *, jacobian=None, sigma_rel=None, sigma_pos=None,
@@ -843,7 +831,7 @@ def detection_snr_map(masses, r_eff, *, jacobian=None, sigma_rel=None, sigma_pos
     tasks = [(np.arange(i, min(i + cs, m.size)), m[i:i + cs], conc, a, r, n_ang, sigma, q,
               signal, definition, seed, zl, zs, cosmology, box, n)
              for i in range(0, m.size, cs)]
-    rows = [row for chunk in _run(_snr_chunk, tasks, pool) for row in chunk]
+    rows = [row for chunk in run_tasks(_snr_chunk, tasks, pool) for row in chunk]
     nr = r.size
     cols = {
         "mass": np.repeat(m, nr) * u.Msun,

@@ -1,0 +1,20 @@
+"""Running independent tasks here, on a dask Client or on an Executor (one home)."""
+
+__all__ = []
+
+
+def check_client(client):
+    """Return ``client`` if it is None or has a ``map`` method, else raise TypeError."""
+    if client is not None and not callable(getattr(client, "map", None)):
+        raise TypeError("client must be None, a dask.distributed.Client or a "
+                        f"concurrent.futures.Executor, got {type(client).__name__}")
+    return client
+
+
+def run_tasks(fn, tasks, client):
+    """``[fn(t) for t in tasks]`` serially, on a dask Client or on an Executor."""
+    if client is None:
+        return [fn(t) for t in tasks]
+    if all(callable(getattr(client, k, None)) for k in ("submit", "map", "gather", "scatter")):
+        return client.gather(client.map(fn, tasks, pure=False))  # dask.distributed.Client
+    return list(client.map(fn, tasks))
