@@ -768,11 +768,12 @@ def _cmd_demo(args):
             mocks = render_mock_images(system, bands=DEMO_BANDS, pairs=truth, seed=args.seed)
         images = {arc: dict(mocks.arc(arc)) for arc in ("L1", "L2")}
         psf = {band: np.asarray(mocks[("L1", band)].psf) for band in DEMO_BANDS}
+        # the null calibration is the adaptive estimator's
+        null_realisations = args.null_realisations if args.estimator == "adaptive" else 0
         analysis = analyse(images, psf=psf, estimator=args.estimator, sigma_pos="auto",
                            n_bootstrap=args.n_bootstrap, snr_threshold=args.snr_threshold,
                            seed=args.seed, progress=progress,
-                           null_realisations=(args.null_realisations
-                                              if args.estimator == "adaptive" else 0))
+                           null_realisations=null_realisations)
         meta = mocks[("L1", DEMO_BANDS[0])].meta
         centre = SkyCoord(meta["LENSRA"] * u.deg, meta["LENSDEC"] * u.deg)
         comparison = compare_with_truth(analysis.result, truth, centre)
@@ -785,9 +786,7 @@ def _cmd_demo(args):
                     config, header = _write_run_inputs(
                         mocks, tmp, estimator=args.estimator, n_bootstrap=args.n_bootstrap,
                         snr_threshold=args.snr_threshold, seed=args.seed, centre=centre,
-                        parametric=args.parametric,
-                        null_realisations=(args.null_realisations
-                                           if args.estimator == "adaptive" else 0))
+                        parametric=args.parametric, null_realisations=null_realisations)
                     from .config import write_config
 
                     write_config(tmp / "run.toml", config, header=header)
