@@ -231,14 +231,14 @@ def holm_adjust(p_values):
     return out
 
 
-def _family_summary(snr, tested, snr_threshold):
-    """Expected false flags and family-wise probabilities under the null."""
-    n_tested = int(np.count_nonzero(tested))
+def _family_summary(p_values, snr_threshold):
+    """Expected false flags and family-wise probabilities under the null.
+
+    ``p_values`` are the tested pairs' p-values, NaN for the others.
+    """
+    n_tested = int(np.count_nonzero(np.isfinite(p_values)))
     p_thr = float(gaussian_p_value(snr_threshold))
-    if n_tested:
-        p_min = float(np.nanmin(gaussian_p_value(snr[tested])))
-    else:
-        p_min = np.nan
+    p_min = float(np.nanmin(p_values)) if n_tested else np.nan
     return {
         "n_tested": n_tested,
         "p_threshold": p_thr,
@@ -395,7 +395,7 @@ def check_duality(
         "snr_definition": snr_definition,
         "n_flagged": int(np.count_nonzero(tab["anomalous"])),
     }
-    meta.update(_family_summary(chosen, tested, snr_threshold))
+    meta.update(_family_summary(pval, snr_threshold))
     tab.meta["duality"] = meta
     return tab
 
