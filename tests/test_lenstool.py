@@ -501,8 +501,9 @@ def test_cosmology_from_file_and_override(tmp_path):
      r"line 29, block 'potential G2': ellipticity 0.99999999 .* too close to 1"),
     ("    mag           20.5\n", "    mag           20.5\n    v_disp 100\n",
      r"line 39, block 'potential G2': key 'v_disp' given twice \(first at line 37\)"),
-    ("    z_lens        0.4\n    end\ncosmology", "    z_lens        0.5\n    end\ncosmology",
-     r"line 39, block 'potential G2': z_lens = 0.5 differs from 0.4"),
+    # (a z_lens that differs from the others' makes a multi-plane model: test_lenstool_hff.py)
+    ("    z_lens        0.4\n    end\ncosmology", "    z_lens        -0.5\n    end\ncosmology",
+     r"line 39, block 'potential G2', key 'z_lens': must be > 0"),
     ("    angle_pos     30.0\n", "    angle_pos     30.0 deg\n",
      r"line 19, block 'potentiel O1': key 'angle_pos' needs one value, got 2"),
     ("limit O1\n", "    x_centre 2.0\nlimit O1\n",

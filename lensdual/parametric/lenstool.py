@@ -39,6 +39,7 @@ Conventions (Lenstool's, verified on the SMACS0723 model of Mahler et al.
 import math
 import os
 import re
+import warnings
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -51,12 +52,16 @@ from astropy.table import QTable
 
 from .._validation import DEFAULT_COSMOLOGY, as_cosmology, as_int, as_positions, as_real
 from . import _kernels
+from ._multiplane import LenstoolMultiPlaneLensModel
 
-__all__ = ["LenstoolModel", "LenstoolLensModel", "DPIELensModel", "read_lenstool",
-           "read_lenstool_images"]
+__all__ = ["LenstoolModel", "LenstoolLensModel", "LenstoolMultiPlaneLensModel",
+           "DPIELensModel", "LenstoolKeywordWarning", "read_lenstool", "read_lenstool_images"]
 
 _ARCSEC_PER_RAD = 180.0 / math.pi * 3600.0
 _C_KMS = const.c.to_value(u.km / u.s)
+#: Columns of the external-shear parameters (profile 14): x_centre, y_centre, theta
+#: (rad, angle_pos), gamma, kappa (both already multiplied by D_ls / D_s).
+N_SHEAR_PARAMS = 5
 
 # Sections of a Lenstool .par file. Any other section name is an error: a key
 # line left outside its block would otherwise open a "section" and silently
@@ -90,6 +95,12 @@ _COMMON_KEYS = {
     "profile", "x_centre", "y_centre", "x_centre_wcs", "y_centre_wcs", "ellipticity",
     "ellip_pot", "angle_pos", "z_lens", "mag", "lum",
 }
+# Profile 14 (external shear): Lenstool reads 'gamma', 'ellipticite' and 'ellipticity'
+# into the same field (r_potentiel.c), so the last two are aliases of 'gamma' here.
+_SHEAR_KEYS = {
+    "profile", "x_centre", "y_centre", "x_centre_wcs", "y_centre_wcs", "angle_pos", "z_lens",
+    "gamma", "kappa", "mag", "lum",
+}
 _PROFILE_KEYS = {
     81: {"core_radius", "core_radius_kpc", "cut_radius", "cut_radius_kpc", "v_disp"},
     12: {"scale_radius", "scale_radius_kpc", "r200", "r200_kpc", "v_disp", "concentration",
@@ -102,13 +113,14 @@ _PROFILE_ALIASES = {
          "virial_radius_kpc": "r200_kpc", "c": "concentration", "beta": "concentration",
          "masse": "m200", "mass": "m200", "virial_mass": "m200", "exponent": "alpha",
          "exposant": "alpha"},
+    14: {"ellipticity": "gamma"},
 }
 _TEXT_KEYS = {"name"}
 _PROFILE_NAMES = {
     1: "SIS", 8: "PIEMD (not truncated)", 12: "NFW", 13: "Sersic", 14: "external shear",
     15: "Einasto", 16: "Hernquist", 81: "dPIE", 121: "triaxial NFW",
 }
-_SUPPORTED_PROFILES = {81, 12}
+_SUPPORTED_PROFILES = {81, 12, 14}
 
 # Lenstool's 1/G (constant.h: INVG = 2.325968e8 Msun / (km/s)^2 / Mpc), used in its
 # NFW conversions between (concentration, M200, r200, r_s) and v_disp; 3.8e-4 above
@@ -291,17 +303,109 @@ def _cosmology(path, blocks):
     return w0waCDM(H0=h0, Om0=om, Ode0=ox, w0=w0, wa=wa, Tcmb0=0.0)
 
 
+class LenstoolKeywordWarning(UserWarning):
+    """A keyword of a Lenstool file that lensdual does not interpret and does not know."""
+
+
+# Keywords of the blocks lensdual reads (runmode, grille) that it knowingly ignores,
+# with the reason ignoring them cannot change the lens model. Any other keyword of these
+# blocks draws a LenstoolKeywordWarning. See the table in docs/lenstool.rst.
+_OUTPUT = "asks Lenstool for an output (a map, a catalogue or a file); no effect on the model"
+_IGNORED_KEYS = {
+    "runmode": {
+        "image": "asks Lenstool to predict the images of a catalogue (output)",
+        "source": "asks Lenstool to lens a source catalogue (output)",
+        "mass": _OUTPUT, "dpl": _OUTPUT, "ampli": _OUTPUT, "shear": _OUTPUT,
+        "poten": _OUTPUT, "time": _OUTPUT, "pixel": _OUTPUT, "cube": _OUTPUT,
+        "arclet": _OUTPUT, "shearfield": _OUTPUT, "radialprop": _OUTPUT, "study": _OUTPUT,
+        "marker": _OUTPUT, "amplif": _OUTPUT, "mu": _OUTPUT,
+        "inverse": "the optimisation mode of the fit that produced best.par",
+        "verbose": "Lenstool's terminal output",
+        "debug": "Lenstool's terminal output",
+    },
+    "grille": {
+        "nombre": "size of Lenstool's own evaluation grid (maps, image search)",
+        "number": "size of Lenstool's own evaluation grid (maps, image search)",
+        "polaire": "polar or Cartesian layout of Lenstool's own evaluation grid",
+        "polar": "polar or Cartesian layout of Lenstool's own evaluation grid",
+        "nlens_crit": "potentials used by Lenstool's 'snake' critical-line algorithm only",
+        "nlens_opt": "number of potentials the fit optimised; best.par lists their values",
+    },
+}
+_IGNORED_KEYS["grid"] = _IGNORED_KEYS["grille"]
+# Blocks lensdual does not read at all, and why that is harmless.
+_SKIPPED_BLOCKS = {
+    "image": "the fit's constraints and redshift priors (z_m_limit); best.par's header has "
+             "the fitted redshifts, and the catalogue is read by read_lenstool_images",
+    "source": "sources for Lenstool to simulate (output)",
+    "cline": "how Lenstool draws critical lines and caustics (output)",
+    "grande": "Lenstool's drawing of arcs and iso-contours (output)",
+    "champ": "the field of Lenstool's output maps",
+    "field": "the field of Lenstool's output maps",
+    "frame": "the field of Lenstool's output maps",
+    "limit": "the priors of the fit that produced best.par",
+    "limite": "the priors of the fit that produced best.par",
+    "shapemodel": "source shapes for Lenstool to simulate (output)",
+    "shapelimit": "priors of source shapes (fit)",
+    "sourcelimit": "priors of source shapes (fit)",
+    "observ": "simulated observing conditions (output)",
+    "dynfile": "kinematic constraints of the fit",
+    "msgrid": "multi-scale grid settings of the fit",
+}
+_INTERPRETED_KEYS = {"runmode": {"reference"}, "grille": {"nlens", "nlentille"},
+                     "grid": {"nlens", "nlentille"}}
+
+
+def _ignored_keywords(path, blocks):
+    """The keywords of ``blocks`` that lensdual does not interpret.
+
+    Returns a `~astropy.table.Table`: ``block``, ``keyword``, ``line`` (the
+    first), ``count`` and ``reason``, one row per distinct (block, keyword).
+    Keywords of the ``runmode`` and ``grille`` blocks that are neither read
+    nor known to be harmless draw one `LenstoolKeywordWarning` each.
+    """
+    from astropy.table import Table
+
+    seen = {}
+    for block in blocks:
+        section = block["section"]
+        if section in _POTENTIAL_SECTIONS or section in ("cosmology", "cosmologie"):
+            continue
+        for number, key, _ in block["items"]:
+            if key in _INTERPRETED_KEYS.get(section, ()):
+                continue
+            if section in _SKIPPED_BLOCKS:
+                reason = f"block not read: {_SKIPPED_BLOCKS[section]}"
+            else:
+                reason = _IGNORED_KEYS.get(section, {}).get(key)
+            name = (section, key)
+            if name in seen:
+                seen[name][3] += 1
+                continue
+            if reason is None:
+                reason = "unknown to lensdual: not interpreted"
+                warnings.warn(
+                    f"{path}, line {number}, block '{section}': keyword {key!r} is not "
+                    "interpreted by lensdual (it is not one it knows to be harmless); check "
+                    "that it does not change the lens model", LenstoolKeywordWarning,
+                    stacklevel=3)
+            seen[name] = [section, key, number, 1, reason]
+    rows = list(seen.values())
+    return Table(rows=rows or None, names=("block", "keyword", "line", "count", "reason"),
+                 dtype=(str, str, int, int, str))
+
+
 def _check_nlens(path, blocks, n_potentials):
     for block in blocks:
         if block["section"] not in ("grille", "grid"):
             continue
         for number, key, tokens in block["items"]:
-            if key == "nlens" and tokens:
+            if key in ("nlens", "nlentille") and tokens:
                 nlens = _number(tokens[0], f"{path}, line {number}, block "
                                 f"'{block['section']}'", key)
                 if nlens < n_potentials:
                     raise ValueError(
-                        f"{path}, line {number}: nlens = {int(nlens)} but the file has "
+                        f"{path}, line {number}: {key} = {int(nlens)} but the file has "
                         f"{n_potentials} potential blocks; Lenstool would use only the first "
                         f"{int(nlens)}, which this reader does not emulate")
 
@@ -336,8 +440,8 @@ def _potential(path, block):
         name = _PROFILE_NAMES.get(profile)
         what = f"profile {profile} ({name})" if name else f"unknown profile {profile}"
         raise ValueError(f"{pwhere}: {what} is not supported (only profile 81, the dPIE, and "
-                         "profile 12, the NFW)")
-    allowed = _COMMON_KEYS | _PROFILE_KEYS[profile]
+                         "profile 12, the NFW), besides profile 14, the external shear")
+    allowed = _SHEAR_KEYS if profile == 14 else _COMMON_KEYS | _PROFILE_KEYS[profile]
     aliases = _PROFILE_ALIASES[profile]
 
     values = {"profile": profile}
@@ -366,8 +470,12 @@ def _potential(path, block):
     if "z_lens" not in values:
         raise ValueError(f"{where}: no 'z_lens'")
     for pair in (("x_centre", "x_centre_wcs"), ("y_centre", "y_centre_wcs")):
-        if sum(k in values for k in pair) != 1:
+        given = sum(k in values for k in pair)
+        # the centre of an external shear only shifts the source plane (Lenstool: 0, 0)
+        if given > 1 or (given == 0 and profile != 14):
             raise ValueError(f"{where}: give exactly one of {pair[0]!r} and {pair[1]!r}")
+    if profile == 14 and "gamma" not in values:
+        raise ValueError(f"{where}: no 'gamma' (the external shear of profile 14)")
     if profile == 81:
         if "v_disp" not in values:
             raise ValueError(f"{where}: no 'v_disp'")
@@ -384,6 +492,9 @@ def _potential(path, block):
                              f"{spelled[key]!r}: must be {cond}, got {values[key]}")
 
     check("ellipticity", lambda v: 0.0 <= v < 1.0, "in [0, 1)")
+    check("gamma", lambda v: 0.0 <= v < 1.0, "in [0, 1) (rotate 'angle_pos' by 90 deg for the "
+          "opposite sign)")
+    check("kappa", lambda v: v < 1.0, "< 1")
     if profile == 12:
         # Lenstool sets the NFW's ellipticity to 3 * ellip_pot (set_lens.c)
         check("ellip_pot", lambda v: 0.0 <= v < 1.0 / 3.0, "in [0, 1/3) (Lenstool uses "
@@ -621,35 +732,37 @@ def read_lenstool(path, *, cosmology=None):
     if not pots:
         raise ValueError(f"{path}: no potential block")
     _check_nlens(path, blocks, len(pots))
+    ignored = _ignored_keywords(path, blocks)
 
-    z_values = sorted({p["z_lens"] for p in pots})
-    if len(z_values) > 1:
-        other = next(p for p in pots if p["z_lens"] != pots[0]["z_lens"])
-        raise ValueError(
-            f"{path}, line {other['_lines']['z_lens']}, block '{other['_label']}': z_lens = "
-            f"{other['z_lens']} differs from {pots[0]['z_lens']} (line "
-            f"{pots[0]['_lines']['z_lens']}); models with several lens planes are not "
-            "supported")
-    z_lens = z_values[0]
-    kpc_per_arcsec = (cosmo.angular_diameter_distance(z_lens).to_value(u.kpc)
-                      / _ARCSEC_PER_RAD)
+    z_planes = tuple(sorted({p["z_lens"] for p in pots}))
+    z_lens = z_planes[0]
+    kpc_per_arcsec = {z: cosmo.angular_diameter_distance(z).to_value(u.kpc) / _ARCSEC_PER_RAD
+                      for z in z_planes}
 
     cosd0 = math.cos(origin.dec.radian)
     rows = []
     for p in pots:
         where = f"{path}, line {p['_line']}, block '{p['_label']}'"
+        kpc = kpc_per_arcsec[p["z_lens"]]
         if "x_centre_wcs" in p:
             dra = (p["x_centre_wcs"] - origin.ra.deg + 180.0) % 360.0 - 180.0
             x = -dra * cosd0 * 3600.0
         else:
-            x = p["x_centre"]
+            x = p.get("x_centre", 0.0)
         if "y_centre_wcs" in p:
             y = (p["y_centre_wcs"] - origin.dec.deg) * 3600.0
         else:
-            y = p["y_centre"]
+            y = p.get("y_centre", 0.0)
         nan = math.nan
-        if p["profile"] == 12:
-            nfw = _nfw_parameters(path, p, cosmo, z_lens, kpc_per_arcsec)
+        gamma = kappa = nan
+        if p["profile"] == 14:
+            # external shear (e_grad.c, e_grad2.c): psi = gamma/2 (X^2 - Y^2) in the frame
+            # of angle_pos, plus kappa/2 (X^2 + Y^2); scaled by D_ls/D_s like the others
+            gamma, kappa = p["gamma"], p.get("kappa", 0.0)
+            emass = eps = core = cut = v_disp = b0 = nan
+            extra = (nan, nan, nan, nan, nan, "gamma, kappa")
+        elif p["profile"] == 12:
+            nfw = _nfw_parameters(path, p, cosmo, p["z_lens"], kpc)
             # Lenstool's NFW takes its ellipticity in the potential: the value of
             # 'ellipticite', or 3 * 'ellip_pot' (set_lens.c, e_grad.c, e_grad2.c)
             emass = 3.0 * p["ellip_pot"] if "ellip_pot" in p else p.get("ellipticity", 0.0)
@@ -659,9 +772,9 @@ def read_lenstool(path, *, cosmology=None):
             extra = (nfw["rs"], nfw["rs_kpc"], nfw["concentration"], nfw["m200"],
                      nfw["r200_kpc"], nfw["definition"])
         else:
-            core = (p["core_radius_kpc"] / kpc_per_arcsec if "core_radius_kpc" in p
+            core = (p["core_radius_kpc"] / kpc if "core_radius_kpc" in p
                     else p["core_radius"])
-            cut = (p["cut_radius_kpc"] / kpc_per_arcsec if "cut_radius_kpc" in p
+            cut = (p["cut_radius_kpc"] / kpc if "cut_radius_kpc" in p
                    else p["cut_radius"])
             if not cut > core:
                 raise ValueError(f"{where}: the cut radius ({cut:.6g} arcsec) must be larger "
@@ -678,24 +791,26 @@ def read_lenstool(path, *, cosmology=None):
                                  "ratio 1:2000)")
             v_disp = p["v_disp"]
             extra = (nan, nan, nan, nan, nan, "v_disp, core_radius, cut_radius")
-        b0 = 6.0 * math.pi * (v_disp / _C_KMS) ** 2 * _ARCSEC_PER_RAD
+        if p["profile"] != 14:
+            b0 = 6.0 * math.pi * (v_disp / _C_KMS) ** 2 * _ARCSEC_PER_RAD
         rows.append((p["_name"], p["_line"], int(p["profile"]), x, y, emass, eps,
-                     p.get("angle_pos", 0.0), core, cut, core * kpc_per_arcsec,
-                     cut * kpc_per_arcsec, v_disp, p["z_lens"], p.get("mag", np.nan), b0,
-                     *extra))
+                     p.get("angle_pos", 0.0), core, cut, core * kpc, cut * kpc, v_disp,
+                     p["z_lens"], p.get("mag", np.nan), b0, *extra, gamma, kappa))
     names = ("name", "line", "profile", "x_centre", "y_centre", "ellipticity", "epsilon",
              "angle_pos", "core_radius", "cut_radius", "core_radius_kpc", "cut_radius_kpc",
              "v_disp", "z_lens", "mag", "b0", "scale_radius", "scale_radius_kpc",
-             "concentration", "m200", "r200_kpc", "definition")
+             "concentration", "m200", "r200_kpc", "definition", "gamma", "kappa")
     units = (None, None, None, u.arcsec, u.arcsec, None, None, u.deg, u.arcsec, u.arcsec,
              u.kpc, u.kpc, u.km / u.s, None, None, u.arcsec, u.arcsec, u.kpc, None, u.Msun,
-             u.kpc, None)
+             u.kpc, None, None, None)
     cols = list(zip(*rows, strict=True))
     table = QTable()
     for name, col, unit in zip(names, cols, units, strict=True):
         table[name] = np.array(col) * unit if unit is not None else np.array(col)
     table["b0"].description = "6 pi (v_disp / c)^2 for D_ls / D_s = 1"
     table["definition"].description = "the keys that define the potential"
+    table["gamma"].description = "external shear (profile 14) for D_ls / D_s = 1"
+    table["kappa"].description = "external convergence (profile 14) for D_ls / D_s = 1"
 
     fitted = {}
     meta = {}
@@ -710,7 +825,7 @@ def read_lenstool(path, *, cosmology=None):
             meta["dof"] = int(m.group(1))
     return LenstoolModel(path=path, origin=origin, cosmology=cosmo, z_lens=z_lens,
                          potentials=table, fitted_redshifts=fitted, reference_mode=ref_mode,
-                         meta=meta)
+                         meta=meta, ignored=ignored)
 
 
 class LenstoolModel:
@@ -727,7 +842,11 @@ class LenstoolModel:
     cosmology : `~astropy.cosmology.Cosmology`
         The file's cosmology (or the override given to :func:`read_lenstool`).
     z_lens : float
-        Redshift of the potentials.
+        Redshift of the main (lowest) lens plane: the cluster's.
+    z_planes : tuple of float
+        The distinct ``z_lens`` of the potentials, increasing (one for a
+        single-plane model); see `lens_model` for the multi-plane lens
+        equation.
     potentials : `~astropy.table.QTable`
         One row per potential, in file order: ``name``, ``line`` (of the
         block in the file), ``profile`` (81: dPIE, 12: NFW), ``x_centre``,
@@ -745,7 +864,10 @@ class LenstoolModel:
         ``scale_radius_kpc``, ``concentration``, ``m200`` (Msun, with
         respect to 200 times the critical density at ``z_lens``),
         ``r200_kpc``; ``definition`` names the keys that defined the
-        potential (see :func:`read_lenstool`).
+        potential (see :func:`read_lenstool`); ``gamma`` and ``kappa``, the
+        external shear and convergence of a profile 14 (for ``D_ls / D_s =
+        1``; NaN for the other profiles, which have NaN ``b0`` and
+        ``v_disp`` in turn).
     fitted_redshifts : dict
         System name -> best-fit redshift, from the header of ``best.par``
         (systems whose redshift Lenstool optimised).
@@ -753,10 +875,15 @@ class LenstoolModel:
         The ``reference`` mode of the file: 3 (degrees) or 1 (sexagesimal).
     meta : dict
         ``chi2`` and ``dof`` from the header, when present.
+    ignored_keywords : `~astropy.table.Table`
+        The keywords of the file that lensdual does not interpret: ``block``,
+        ``keyword``, ``line`` (first), ``count`` and ``reason`` (why ignoring
+        it cannot change the model, or that it is unknown: those drew a
+        `LenstoolKeywordWarning`).
     """
 
     def __init__(self, *, path, origin, cosmology, z_lens, potentials, fitted_redshifts,
-                 reference_mode, meta):
+                 reference_mode, meta, ignored=None):
         self.path = path
         self.origin = origin
         self.cosmology = cosmology
@@ -765,6 +892,8 @@ class LenstoolModel:
         self.fitted_redshifts = dict(fitted_redshifts)
         self.reference_mode = reference_mode
         self.meta = dict(meta)
+        self.ignored_keywords = ignored
+        self.z_planes = tuple(sorted({float(z) for z in np.asarray(potentials["z_lens"])}))
 
     def __len__(self):
         return len(self.potentials)
@@ -772,9 +901,13 @@ class LenstoolModel:
     def __repr__(self):
         profiles = np.asarray(self.potentials["profile"])
         n_dpie, n_nfw = int(np.sum(profiles == 81)), int(np.sum(profiles == 12))
-        what = f"{n_dpie} dPIE" + (f" + {n_nfw} NFW" if n_nfw else "")
+        n_shear = int(np.sum(profiles == 14))
+        what = (f"{n_dpie} dPIE" + (f" + {n_nfw} NFW" if n_nfw else "")
+                + (f" + {n_shear} external shear" if n_shear else ""))
+        where = (f"z_lens={self.z_lens}" if len(self.z_planes) == 1 else
+                 f"z_lens={self.z_lens} (planes {', '.join(map(str, self.z_planes))})")
         return (f"<LenstoolModel {self.path.name!r}: {what} potentials at "
-                f"z_lens={self.z_lens}, origin RA={self.origin.ra.deg:.6f} "
+                f"{where}, origin RA={self.origin.ra.deg:.6f} "
                 f"Dec={self.origin.dec.deg:.6f} deg>")
 
     # ------------------------------------------------------------------ frames
@@ -821,45 +954,103 @@ class LenstoolModel:
 
     # ------------------------------------------------------------------ lensing
 
-    def dls_ds(self, z_source):
-        """``D_ls / D_s`` for a source at ``z_source`` (> ``z_lens``)."""
+    def dls_ds(self, z_source, *, z_lens=None):
+        """``D_ls / D_s`` for a source at ``z_source`` (> ``z_lens``).
+
+        ``z_lens`` defaults to the main plane, `z_lens`; give another of
+        `z_planes` for the ratio of that plane.
+        """
         zs = as_real(z_source, "z_source")
-        if not zs > self.z_lens:
-            raise ValueError(f"z_source must be larger than z_lens = {self.z_lens}, got "
+        zl = self.z_lens if z_lens is None else as_real(z_lens, "z_lens")
+        if not zs > zl:
+            raise ValueError(f"z_source must be larger than z_lens = {zl}, got "
                              f"z_source={z_source}")
-        d_ls = self.cosmology.angular_diameter_distance(self.z_lens, zs)
+        d_ls = self.cosmology.angular_diameter_distance(zl, zs)
         d_s = self.cosmology.angular_diameter_distance(zs)
         return float((d_ls / d_s).to_value(u.dimensionless_unscaled))
 
-    def kernel_parameters(self, z_source=None, *, profile=81):
+    def kernel_parameters(self, z_source=None, *, profile=81, z_plane=None):
         """The float array the kernels take for the potentials of one profile.
 
         Parameters
         ----------
         z_source : float, optional
             Source redshift: the normalisations are multiplied by
-            ``D_ls / D_s`` (not scaled when None).
-        profile : {81, 12}
+            ``D_ls / D_s`` (not scaled when None), each with the ``D_ls`` of
+            its own plane; potentials at or behind the source get 0 (they do
+            not lens it).
+        profile : {81, 12, 14}
             81 (dPIE): shape (M, 7), columns ``x_centre, y_centre, theta
             (rad), epsilon, core, cut, b0`` (arcsec). 12 (NFW): shape (K, 6),
             columns ``x_centre, y_centre, theta (rad), epsilon, r_s, b0``
-            (arcsec; ``epsilon`` the ellipticity of the potential). M or K
-            may be 0.
+            (arcsec; ``epsilon`` the ellipticity of the potential). 14
+            (external shear): shape (S, 5), columns ``x_centre, y_centre,
+            theta (rad), gamma, kappa``. M, K or S may be 0.
+        z_plane : float, optional
+            Only the potentials of this plane (one of `z_planes`); by default
+            all of them. For a multi-plane model, ``z_source`` given and no
+            ``z_plane``, the parameters are those of the single-plane sum in
+            which each potential is scaled by its own plane's ``D_ls / D_s``
+            (what Lenstool 6.8 does for the Hessian), not the multi-plane lens
+            equation of `lens_model`.
         """
-        if profile not in (81, 12):
-            raise ValueError(f"profile must be 81 (dPIE) or 12 (NFW), got {profile!r}")
-        scale = 1.0 if z_source is None else self.dls_ds(z_source)
-        t = self.potentials[np.asarray(self.potentials["profile"]) == profile]
-        radii = (("core_radius", "cut_radius") if profile == 81 else ("scale_radius",))
-        params = np.column_stack([
-            t["x_centre"].to_value(u.arcsec), t["y_centre"].to_value(u.arcsec),
-            t["angle_pos"].to_value(u.rad), np.asarray(t["epsilon"], dtype=float),
-            *(t[r].to_value(u.arcsec) for r in radii), t["b0"].to_value(u.arcsec) * scale,
-        ]) if len(t) else np.empty((0, 7 if profile == 81 else _kernels.NFW_N_PARAMS))
+        if profile not in (81, 12, 14):
+            raise ValueError(f"profile must be 81 (dPIE), 12 (NFW) or 14 (external shear), "
+                             f"got {profile!r}")
+        sel = np.asarray(self.potentials["profile"]) == profile
+        if z_plane is not None:
+            if float(z_plane) not in self.z_planes:
+                raise ValueError(f"z_plane must be one of the model's planes {self.z_planes}, "
+                                 f"got {z_plane!r}")
+            sel &= np.asarray(self.potentials["z_lens"], dtype=float) == float(z_plane)
+        t = self.potentials[sel]
+        ncol = {81: _kernels.N_PARAMS, 12: _kernels.NFW_N_PARAMS, 14: N_SHEAR_PARAMS}[profile]
+        if not len(t):
+            return np.empty((0, ncol))
+        z_of = np.asarray(t["z_lens"], dtype=float)
+        if z_source is None:
+            scale = 1.0
+        elif len(self.z_planes) == 1 or z_plane is not None:
+            scale = self.dls_ds(z_source, z_lens=z_of[0])
+        else:
+            zs = as_real(z_source, "z_source")
+            if not zs > self.z_lens:
+                raise ValueError(f"z_source must be larger than z_lens = {self.z_lens}, got "
+                                 f"z_source={z_source}")
+            ratio = {z: (self.dls_ds(zs, z_lens=z) if z < zs else 0.0) for z in set(z_of)}
+            scale = np.array([ratio[z] for z in z_of])
+        base = [t["x_centre"].to_value(u.arcsec), t["y_centre"].to_value(u.arcsec),
+                t["angle_pos"].to_value(u.rad)]
+        if profile == 14:
+            params = np.column_stack([*base, np.asarray(t["gamma"], dtype=float) * scale,
+                                      np.asarray(t["kappa"], dtype=float) * scale])
+        else:
+            radii = (("core_radius", "cut_radius") if profile == 81 else ("scale_radius",))
+            params = np.column_stack([
+                *base, np.asarray(t["epsilon"], dtype=float),
+                *(t[r].to_value(u.arcsec) for r in radii), t["b0"].to_value(u.arcsec) * scale,
+            ])
         return np.ascontiguousarray(params, dtype=np.float64)
 
     def lens_model(self, z_source, *, n_threads=1):
         """The deflection model for sources at ``z_source``.
+
+        For a single-plane model (or a source in front of every plane but
+        the first) a `LenstoolLensModel` whose normalisations are scaled by
+        ``D_ls / D_s``. With potentials on two or more planes in front of the
+        source, a `LenstoolMultiPlaneLensModel` that solves the recursive
+        multi-plane lens equation
+
+        .. math::
+
+            \\theta_j = \\theta - \\sum_{i<j} \\frac{D_{ij}}{D_j}
+            \\hat\\alpha_i(\\theta_i), \\qquad
+            \\beta = \\theta - \\sum_i \\frac{D_{is}}{D_s} \\hat\\alpha_i(\\theta_i),
+
+        with :math:`\\hat\\alpha_i` the deflection of the potentials of plane
+        ``i`` for :math:`D_{ls}/D_s = 1` (their ``b0``), angular diameter
+        distances from the model's cosmology; its Hessian is the full
+        multi-plane Jacobian. Planes at or behind the source are left out.
 
         Parameters
         ----------
@@ -871,13 +1062,34 @@ class LenstoolModel:
 
         Returns
         -------
-        model : `LenstoolLensModel`
+        model : `LenstoolLensModel` or `LenstoolMultiPlaneLensModel`
             lenstronomy ``LensModel``-like (``ray_shooting``, ``alpha``,
             ``hessian``, ``magnification``, ``kappa``), model-frame arcsec.
         """
-        return LenstoolLensModel(self.kernel_parameters(z_source, profile=81),
-                                 self.kernel_parameters(z_source, profile=12),
-                                 n_threads=n_threads, z_source=float(z_source))
+        zs = as_real(z_source, "z_source")
+        if not zs > self.z_lens:
+            raise ValueError(f"z_source must be larger than z_lens = {self.z_lens}, got "
+                             f"z_source={z_source}")
+        planes = [z for z in self.z_planes if z < zs]
+        if len(self.z_planes) == 1:
+            return LenstoolLensModel(self.kernel_parameters(z_source, profile=81),
+                                     self.kernel_parameters(z_source, profile=12),
+                                     shear=self.kernel_parameters(z_source, profile=14),
+                                     n_threads=n_threads, z_source=float(z_source))
+        if len(planes) == 1:
+            zp = planes[0]
+            return LenstoolLensModel(
+                *(self.kernel_parameters(z_source, profile=k, z_plane=zp) for k in (81, 12)),
+                shear=self.kernel_parameters(z_source, profile=14, z_plane=zp),
+                n_threads=n_threads, z_source=float(z_source))
+        from ._multiplane import plane_distance_ratios
+
+        models = [LenstoolLensModel(
+            *(self.kernel_parameters(None, profile=k, z_plane=zp) for k in (81, 12)),
+            shear=self.kernel_parameters(None, profile=14, z_plane=zp), n_threads=n_threads)
+            for zp in planes]
+        ratios = plane_distance_ratios(self.cosmology, planes, zs)
+        return LenstoolMultiPlaneLensModel(models, planes, ratios, z_source=float(z_source))
 
     def lens_system(self, z_source, *, sources=None, n_threads=1):
         """A `~lensdual.simulation.LensSystem` of this model for ``z_source``.
@@ -908,7 +1120,7 @@ class LenstoolModel:
 
 
 class LenstoolLensModel:
-    """Sum of dPIE and NFW potentials with lenstronomy's ``LensModel`` interface.
+    """Sum of dPIE, NFW and external-shear potentials, lenstronomy ``LensModel``-like.
 
     Positions are plain float arrays (any shape, broadcast together) in
     arcsec in the model frame; every method takes lenstronomy's ``kwargs``
@@ -922,6 +1134,11 @@ class LenstoolLensModel:
         (see `LenstoolModel.kernel_parameters`).
     nfw : numpy.ndarray, shape (K, 6), optional
         ``x_centre, y_centre, theta (rad), epsilon, r_s, b0`` per NFW.
+    shear : numpy.ndarray, shape (S, 5), optional
+        ``x_centre, y_centre, theta (rad), gamma, kappa`` per external shear
+        (Lenstool's profile 14): the potential ``gamma / 2 (X^2 - Y^2) +
+        kappa / 2 (X^2 + Y^2)`` about the centre, X along ``theta``. Linear,
+        so evaluated in numpy.
     n_threads : int
         Threads used for inputs of more than 65536 points.
     z_source : float or None
@@ -930,11 +1147,12 @@ class LenstoolLensModel:
 
     _MIN_POINTS_PER_THREAD = 32768
 
-    def __init__(self, dpie=None, nfw=None, *, n_threads=1, z_source=None):
+    def __init__(self, dpie=None, nfw=None, *, shear=None, n_threads=1, z_source=None):
         self.params = self._checked(dpie, _kernels.N_PARAMS, "dpie")
         self.nfw_params = self._checked(nfw, _kernels.NFW_N_PARAMS, "nfw")
-        if len(self.params) + len(self.nfw_params) == 0:
-            raise ValueError("the model needs at least one component (dpie or nfw)")
+        self.shear_params = self._checked(shear, N_SHEAR_PARAMS, "shear")
+        if len(self.params) + len(self.nfw_params) + len(self.shear_params) == 0:
+            raise ValueError("the model needs at least one component (dpie, nfw or shear)")
         eps = self.params[:, _kernels.P_EPS]
         core = self.params[:, _kernels.P_CORE]
         cut = self.params[:, _kernels.P_CUT]
@@ -964,20 +1182,25 @@ class LenstoolLensModel:
 
     @property
     def centres(self):
-        """Centres ``(x, y)`` of the components, dPIEs then NFWs, shape (M + K, 2)."""
+        """Centres ``(x, y)`` of the mass components, dPIEs then NFWs, shape (M + K, 2)
+        (an external shear has no centre of mass and is not listed)."""
         return np.concatenate([self.params[:, :2], self.nfw_params[:, :2]])
 
     def __repr__(self):
-        return (f"<{type(self).__name__} {len(self.params)} dPIE + {len(self.nfw_params)} NFW "
-                f"components, z_source={self.z_source}>")
+        shear = f" + {len(self.shear_params)} shear" if len(self.shear_params) else ""
+        return (f"<{type(self).__name__} {len(self.params)} dPIE + {len(self.nfw_params)} NFW"
+                f"{shear} components, z_source={self.z_source}>")
 
     def _evaluate(self, kernels, x, y):
-        dpie_kernel, nfw_kernel = kernels
+        dpie_kernel, nfw_kernel, shear_kind = kernels
         out = None
         if len(self.params):
             out = dpie_kernel(x, y, self.params)
         if len(self.nfw_params):
             more = nfw_kernel(x, y, self.nfw_params)
+            out = more if out is None else out + more
+        if len(self.shear_params):
+            more = _shear(x, y, self.shear_params, shear_kind)
             out = more if out is None else out + more
         return out
 
@@ -1010,7 +1233,8 @@ class LenstoolLensModel:
 
     def alpha(self, x, y, kwargs=None, k=None):
         """Deflection ``(alpha_x, alpha_y)`` at ``(x, y)``, arcsec."""
-        out, shape = self._run((_kernels.dpie_deflection, _kernels.nfw_deflection), x, y)
+        out, shape = self._run((_kernels.dpie_deflection, _kernels.nfw_deflection, "alpha"),
+                               x, y)
         return self._shaped(out[:, 0], shape), self._shaped(out[:, 1], shape)
 
     def ray_shooting(self, x, y, kwargs=None, k=None):
@@ -1020,19 +1244,20 @@ class LenstoolLensModel:
 
     def hessian(self, x, y, kwargs=None, k=None, diff=None):
         """Second derivatives of the potential, ``(f_xx, f_xy, f_yx, f_yy)``."""
-        out, shape = self._run((_kernels.dpie_hessian, _kernels.nfw_hessian), x, y)
+        out, shape = self._run((_kernels.dpie_hessian, _kernels.nfw_hessian, "hessian"), x, y)
         fxy = self._shaped(out[:, 1], shape)
         return self._shaped(out[:, 0], shape), fxy, fxy, self._shaped(out[:, 2], shape)
 
     def alpha_hessian(self, x, y, kwargs=None):
         """Deflection and Hessian in one pass: ``alpha_x, alpha_y, f_xx, f_xy, f_yy``."""
         out, shape = self._run((_kernels.dpie_deflection_hessian,
-                                _kernels.nfw_deflection_hessian), x, y)
+                                _kernels.nfw_deflection_hessian, "both"), x, y)
         return tuple(self._shaped(out[:, i], shape) for i in range(5))
 
     def kappa(self, x, y, kwargs=None, k=None):
         """Convergence at ``(x, y)`` (closed form)."""
-        out, shape = self._run((_kernels.dpie_convergence, _kernels.nfw_convergence), x, y)
+        out, shape = self._run((_kernels.dpie_convergence, _kernels.nfw_convergence, "kappa"),
+                               x, y)
         return self._shaped(out, shape)
 
     def magnification(self, x, y, kwargs=None, k=None):
@@ -1041,6 +1266,32 @@ class LenstoolLensModel:
         det = (1.0 - fxx) * (1.0 - fyy) - fxy * fxy
         with np.errstate(divide="ignore"):
             return 1.0 / det
+
+
+def _shear(x, y, shear, kind):
+    """External shear and convergence (profile 14), summed over the rows of ``shear``.
+
+    ``kind``: "alpha" (N, 2), "hessian" (N, 3: f_xx, f_xy, f_yy), "both" (N, 5) or
+    "kappa" (N,). With ``c = cos 2 theta``, ``s = sin 2 theta``: f_xx = kappa + gamma c,
+    f_xy = gamma s, f_yy = kappa - gamma c, and alpha = f . (x - x_centre).
+    """
+    c2 = np.cos(2.0 * shear[:, 2])
+    s2 = np.sin(2.0 * shear[:, 2])
+    gam = shear[:, 3]
+    kap = shear[:, 4]
+    fxx, fxy, fyy = kap + gam * c2, gam * s2, kap - gam * c2
+    if kind == "kappa":
+        return np.full(x.shape, kap.sum())
+    hess = np.broadcast_to(np.array([fxx.sum(), fxy.sum(), fyy.sum()]), (x.size, 3))
+    if kind == "hessian":
+        return hess.copy()
+    dx = x[:, None] - shear[None, :, 0]
+    dy = y[:, None] - shear[None, :, 1]
+    alpha = np.column_stack([(fxx * dx + fxy * dy).sum(axis=1),
+                             (fxy * dx + fyy * dy).sum(axis=1)])
+    if kind == "alpha":
+        return alpha
+    return np.concatenate([alpha, hess], axis=1)
 
 
 class DPIELensModel(LenstoolLensModel):
