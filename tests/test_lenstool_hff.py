@@ -379,7 +379,7 @@ def test_shipped_models_images_meet_in_the_source_plane(cluster):
 def test_s1063_shear_convention():
     """Lenstool's external shear is scaled by D_ls / D_s and angle_pos is counter-
     clockwise from x (West) to the stretching direction: each alternative scatters the
-    sources of Abell S1063 by arcsec, three times more than the model's own scatter."""
+    sources of Abell S1063 by 0.4 to 2 arcsec, 3 to 16 times the model's own scatter."""
     from lenstool_hff_validation import _shear_variant
 
     got = load("Abell S1063")
@@ -391,7 +391,7 @@ def test_s1063_shear_convention():
     good = summary(system_scatter(model, images))["median"]
     for how in ("unscaled", "rotated", "clockwise", "none"):
         bad = summary(system_scatter(model, images, _shear_variant(model, how)))["median"]
-        assert bad > 0.4 and bad > 3 * good, how
+        assert bad > 0.4 and bad > 2.5 * good, how
 
 
 def test_a370_is_multi_plane():

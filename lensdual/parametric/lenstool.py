@@ -3,7 +3,8 @@
 Lenstool (Jullo et al. 2007) writes its best-fit model as a ``.par`` file made
 of blocks (``runmode``, ``potential``, ``cosmology``, ...), one ``key value``
 per line, each block closed by ``end``. :func:`read_lenstool` reads the
-potentials of such a file (dPIE, profile 81, and NFW, profile 12) into a
+potentials of such a file (dPIE, profile 81, NFW, profile 12, and external
+shear, profile 14, on one or several lens planes) into a
 :class:`LenstoolModel`, which evaluates the deflection and the Hessian with
 Numba kernels (:class:`LenstoolLensModel`, a drop-in for lenstronomy's
 ``LensModel``) and builds a `~lensdual.simulation.LensSystem`.
@@ -32,8 +33,24 @@ Conventions (Lenstool's, verified on the SMACS0723 model of Mahler et al.
   r200), m200 alone, (v_disp, scale_radius) that its block gives, with M200
   and r200 relative to 200 times the critical density at ``z_lens``;
 * ``*_radius_kpc`` take precedence over the arcsec values when both are given
-  (as in Lenstool), converted with the angular diameter distance of the lens
-  in the file's cosmology.
+  (as in Lenstool), converted with the angular diameter distance of the
+  potential's own plane in the file's cosmology;
+* profile 14 (external shear; ``e_grad.c``, ``e_grad2.c`` case 14,
+  ``r_potentiel.c``): ``psi = gamma/2 (X^2 - Y^2) + kappa/2 (X^2 + Y^2)`` with
+  X along ``angle_pos`` (degrees counter-clockwise from x, i.e. from West
+  towards North: the direction along which images are stretched), about
+  ``x_centre``, ``y_centre`` (default 0); ``gamma`` and ``kappa`` are
+  multiplied by ``D_ls / D_s`` like every potential (``e_dpl``); lenstronomy's
+  ``SHEAR`` with ``gamma1 = gamma cos 2 angle_pos``, ``gamma2 = gamma sin 2
+  angle_pos``. ``ellipticite`` is Lenstool's other name for ``gamma``;
+  ``kappa`` (a convergence sheet) is dropped by Lenstool 6.8's reader;
+* several ``z_lens``: the recursive multi-plane lens equation over the
+  distinct planes, each potential's ``b0`` referring to its own plane (see
+  `LenstoolModel.lens_model` and :mod:`lensdual.parametric._multiplane`).
+
+Keywords lensdual does not interpret are listed in
+`LenstoolModel.ignored_keywords`; unknown ones in the ``runmode`` and
+``grille`` blocks draw a `LenstoolKeywordWarning`.
 """
 
 import math
@@ -654,7 +671,7 @@ def _nfw_parameters(path, p, cosmo, z_lens, kpc_per_arcsec):
 
 
 def read_lenstool(path, *, cosmology=None):
-    """Read a Lenstool parameter file (``best.par``) of dPIE and NFW potentials.
+    """Read a Lenstool parameter file (``best.par``) of dPIE, NFW and shear potentials.
 
     Parameters
     ----------
@@ -674,21 +691,27 @@ def read_lenstool(path, *, cosmology=None):
         Anything that cannot be read unambiguously, with the file, line, block
         and key: a block without ``end`` (truncated file), a non-numeric value,
         an unknown key in a potential block (the keys depend on the profile), a
-        profile other than 81 (dPIE) and 12 (NFW), no ``runmode``
-        ``reference``, a ``potfile`` block (scaling-relation members: the
-        ``best.par`` written by Lenstool lists every member as a potential),
-        potentials at different redshifts; and for an NFW: no complete
+        profile other than 81 (dPIE), 12 (NFW) and 14 (external shear), no
+        ``runmode`` ``reference``, a ``potfile`` block (scaling-relation
+        members: the ``best.par`` written by Lenstool lists every member as a
+        potential); for a shear: no ``gamma``, ``gamma`` outside [0, 1),
+        ``kappa >= 1``; and for an NFW: no complete
         definition, negative values, a generalised NFW (``alpha`` other than 0
         or 1), or a redundant key that disagrees with the definition by more
         than 1 %.
 
     Notes
     -----
-    Only the ``runmode`` (``reference``), ``grille`` (``nlens``),
-    ``cosmology`` and ``potential`` blocks are interpreted; the others
-    (``image``, ``limit``, ``cline``, ``champ``, ...) are checked for their
-    ``end`` and skipped. The fitted redshifts Lenstool writes in the header of
-    ``best.par`` (``#4.0 z:2.174644 dlsds:0.720273``) are kept in
+    Only the ``runmode`` (``reference``), ``grille`` (``nlens`` or
+    ``nlentille``), ``cosmology`` and ``potential`` blocks are interpreted;
+    the others (``image``, ``limit``, ``cline``, ``champ``, ...) are checked
+    for their ``end`` and skipped. Every keyword not interpreted is listed in
+    `LenstoolModel.ignored_keywords` with the reason ignoring it is harmless;
+    one that lensdual does not know, in the ``runmode`` or ``grille`` block,
+    draws a `LenstoolKeywordWarning` (once per keyword). Potentials at
+    different ``z_lens`` make a multi-plane model (`LenstoolModel.z_planes`).
+    The fitted redshifts Lenstool writes in the header of ``best.par``
+    (``#4.0 z:2.174644 dlsds:0.720273``) are kept in
     `LenstoolModel.fitted_redshifts`.
 
     **NFW (profile 12).** Keys (with Lenstool's aliases): ``scale_radius``
