@@ -12,7 +12,7 @@ from collections.abc import Mapping
 
 import numpy as np
 from astropy import units as u
-from astropy.coordinates import SkyCoord, SkyOffsetFrame
+from astropy.coordinates import SkyCoord
 from astropy.modeling import Fittable2DModel, Parameter
 from astropy.nddata import (
     InverseVariance,
@@ -25,6 +25,7 @@ from astropy.wcs.wcsapi import BaseHighLevelWCS, BaseLowLevelWCS, HighLevelWCSWr
 from scipy.ndimage import gaussian_filter
 from scipy.special import erf
 
+from ._frames import mean_direction, tangent_to_sky, tangent_xy
 from ._validation import as_int, as_positions, as_real, split_image
 from .exceptions import LensdualWarning
 
@@ -444,7 +445,7 @@ def _pixel_scale(wcs, shape, name):
         sky = None
     if not isinstance(sky, SkyCoord):
         raise ValueError(f"{name} needs a celestial WCS to convert angles to pixels")
-    xs, ys = _tangent_xy(sky, sky[0])
+    xs, ys = tangent_xy(sky, sky[0])
     area = abs((xs[1] - xs[0]) * (ys[2] - ys[0]) - (xs[2] - xs[0]) * (ys[1] - ys[0]))
     return float(np.sqrt(area))
 
@@ -458,7 +459,7 @@ def _pixel_to_tangent_errors(wcs, x, y, x_err, y_err, reference):
     h = 0.5
     xs = np.concatenate([x, x + h, x - h, x, x])
     ys = np.concatenate([y, y, y, y + h, y - h])
-    tx, ty = _tangent_xy(wcs.pixel_to_world(xs, ys), reference)
+    tx, ty = tangent_xy(wcs.pixel_to_world(xs, ys), reference)
     n = x.size
     tx, ty = tx.reshape(5, n), ty.reshape(5, n)
     jxx, jyx = (tx[1] - tx[2]) / (2 * h), (ty[1] - ty[2]) / (2 * h)
@@ -1444,43 +1445,6 @@ def psf_photometry(
 # ---------------------------------------------------------------------------
 
 
-def _tangent_xy(sky, reference):
-    """Gnomonic (x west, y north) offsets of ``sky`` about ``reference``, in arcsec."""
-    frame = SkyOffsetFrame(origin=reference)
-    c = sky.transform_to(frame).cartesian
-    xc, yc, zc = c.x.value, c.y.value, c.z.value
-    rad = (1.0 * u.rad).to_value(u.arcsec)
-    return -yc / xc * rad, zc / xc * rad
-
-
-def _tangent_to_sky(x, y, reference):
-    """Inverse of :func:`_tangent_xy` (x, y in arcsec); SkyCoord in the frame of
-    ``reference``."""
-    from astropy.coordinates import CartesianRepresentation, UnitSphericalRepresentation
-
-    rad = (1.0 * u.rad).to_value(u.arcsec)
-    xi, eta = -np.asarray(x, dtype=np.float64) / rad, np.asarray(y, dtype=np.float64) / rad
-    rep = CartesianRepresentation(np.ones_like(xi), xi, eta).represent_as(
-        UnitSphericalRepresentation
-    )
-    frame = SkyOffsetFrame(origin=reference)
-    return SkyCoord(frame.realize_frame(rep)).transform_to(reference.frame.replicate_without_data())
-
-
-def _mean_position(*skies):
-    """Mean direction (normalised mean of the unit vectors) of SkyCoord arrays, in the
-    frame of the first."""
-    from astropy.coordinates import CartesianRepresentation, UnitSphericalRepresentation
-
-    frame = skies[0].frame.replicate_without_data()
-    xyz = np.concatenate(
-        [np.atleast_2d(s.transform_to(frame).cartesian.xyz.value.reshape(3, -1).T) for s in skies]
-    )
-    xyz = np.nanmean(xyz, axis=0)
-    rep = CartesianRepresentation(*(xyz / np.linalg.norm(xyz)))
-    return SkyCoord(frame.realize_frame(rep.represent_as(UnitSphericalRepresentation)))
-
-
 def _check_images(images, name):
     if not isinstance(images, Mapping):
         raise TypeError(f"{name} must be a dict {{band: CCDData}}, got {type(images).__name__}")
@@ -1533,7 +1497,7 @@ def _initial_sky(pairs, reference):
                     )
                 cols_xy.append(u.Quantity(col).to_value(u.arcsec))
             p = as_positions(np.column_stack(cols_xy) * u.arcsec, f"pairs x{arc}, y{arc}")
-            out.append(_tangent_to_sky(p[:, 0], p[:, 1], reference))
+            out.append(tangent_to_sky(p[:, 0], p[:, 1], reference))
         return tuple(out)
     raise ValueError(
         "pairs must have SkyCoord columns sky1 and sky2, or angle columns x1, y1, x2, y2 "
@@ -1681,7 +1645,7 @@ def measure_pairs(
 
     sky1_init, sky2_init = _initial_sky(pairs, reference)
     if reference is None:
-        reference = _mean_position(sky1_init, sky2_init)
+        reference = mean_direction(sky1_init, sky2_init)
 
     n = len(pairs)
     out = QTable(pairs, copy=True)
@@ -1751,7 +1715,7 @@ def measure_pairs(
         out[f"x{arc}"] = xm * u.arcsec
         out[f"y{arc}"] = ym * u.arcsec
         out[f"pos_err{arc}"] = err * u.arcsec
-        out[f"sky{arc}"] = _tangent_to_sky(xm, ym, reference)
+        out[f"sky{arc}"] = tangent_to_sky(xm, ym, reference)
     for band in bands:
         f1, e1, g1 = per_arc["1"][3][band]
         f2, e2, g2 = per_arc["2"][3][band]

@@ -11,39 +11,17 @@ import os
 
 import numpy as np
 from astropy import units as u
-from astropy.coordinates import (
-    CartesianRepresentation,
-    SkyCoord,
-    SkyOffsetFrame,
-    UnitSphericalRepresentation,
-)
+from astropy.coordinates import SkyCoord
 from astropy.table import QTable, Table
 
+from .._frames import tangent_to_sky, tangent_xy
 from .._validation import as_real
 from .fitting import compare_with_parametric, fit_parametric_lens, plot_parametric_comparison
 from .lenstool import LenstoolModel, read_lenstool
 
 __all__ = ["parametric_comparison"]
 
-_ARCSEC_PER_RAD = (1.0 * u.rad).to_value(u.arcsec)
 _POSITIONS = ("x1", "y1", "x2", "y2")
-
-
-def _tangent_to_sky(x, y, reference):
-    """Sky positions of gnomonic offsets ``x`` (west), ``y`` (north) in arcsec about
-    ``reference`` (the frame of :func:`~lensdual.photometry.measure_pairs`)."""
-    xi = -np.asarray(x, dtype=float) / _ARCSEC_PER_RAD
-    eta = np.asarray(y, dtype=float) / _ARCSEC_PER_RAD
-    rep = CartesianRepresentation(np.ones_like(xi), xi, eta).represent_as(
-        UnitSphericalRepresentation)
-    frame = SkyOffsetFrame(origin=reference)
-    return SkyCoord(frame.realize_frame(rep)).transform_to(reference.frame.replicate_without_data())
-
-
-def _tangent_xy(sky, centre):
-    """Gnomonic offsets (x west, y north, arcsec) of ``sky`` about ``centre``."""
-    c = sky.transform_to(SkyOffsetFrame(origin=centre)).cartesian
-    return -c.y.value / c.x.value * _ARCSEC_PER_RAD, c.z.value / c.x.value * _ARCSEC_PER_RAD
 
 
 def _sky_positions(tab, reference):
@@ -57,7 +35,7 @@ def _sky_positions(tab, reference):
     if reference is None:
         return None
     xy = [tab[c].to_value(u.arcsec) for c in _POSITIONS]
-    return _tangent_to_sky(xy[0], xy[1], reference), _tangent_to_sky(xy[2], xy[3], reference)
+    return tangent_to_sky(xy[0], xy[1], reference), tangent_to_sky(xy[2], xy[3], reference)
 
 
 def _with_positions(tab, xy1, xy2):
@@ -210,8 +188,8 @@ def parametric_comparison(pairs, *, lenstool=None, fit=False,
             "z_source": zs, "fit_frame": None}
     if fit:
         if centre is not None:
-            frame_tab = _with_positions(tab, _tangent_xy(sky[0], centre),
-                                        _tangent_xy(sky[1], centre))
+            frame_tab = _with_positions(tab, tangent_xy(sky[0], centre),
+                                        tangent_xy(sky[1], centre))
             meta["fit_frame"] = (f"tangent plane about RA={centre.icrs.ra.deg:.7f} "
                                  f"Dec={centre.icrs.dec.deg:.7f} deg (centre)")
         elif lt_tab is not None:
