@@ -816,6 +816,8 @@ def _cmd_run(args):
     except ConfigError as err:
         print(f"lensdual run: {err}", file=sys.stderr)
         return EXIT_USAGE
+    if config.knots is not None:
+        return _run_knots(args, config, start)
     par = config.parametric
     steps = ["read", "detect L1", "detect L2", "pair", "photometry", "mu_size", "write"]
     if par is not None:
@@ -852,6 +854,56 @@ def _cmd_run(args):
     except _FAILURES as err:
         return _finish(args, "run", progress, start, error=err)
     return _finish(args, "run", progress, start, report=report, outdir=config.outdir)
+
+
+def _run_knots(args, config, start):
+    """``lensdual run`` on a ``[knots]`` configuration: a catalogue, no images."""
+    from .pipeline import analyse_knots, knot_report
+
+    spec = config.knots
+    progress = _Progress(["analyse", "write"], quiet=args.quiet, desc="lensdual run")
+    try:
+        with progress.step("knot constellation"):
+            macro = spec.centres if spec.centres is not None else list(spec.macro_images)
+            mapping = None
+            if spec.mapping is not None:
+                from astropy.table import Table
+
+                mapping = Table.read(spec.mapping, format="ascii.ecsv")
+            sigma = spec.sigma_pos
+            analysis = analyse_knots(spec.catalogue, macro, knots=spec.knot_filter(),
+                                     assign=spec.assign, mapping=mapping,
+                                     models=list(spec.models), z_source=spec.z_source,
+                                     sigma_pos=sigma, method=config.estimator,
+                                     snr_threshold=config.snr_threshold)
+        report = knot_report(analysis)
+        with _atomic_directory(config.outdir) as tmp, progress.step("write outputs"):
+            _write_table(analysis.knot_pairs.images, tmp / "knot_images.ecsv")
+            for (m1, m2), table in analysis.tables.items():
+                stem = f"knots_{m1}_{m2}"
+                _write_table(table, tmp / f"{stem}.ecsv")
+                if table.meta.get("models"):
+                    _write_knot_figure(table, tmp / f"{stem}.png")
+            (tmp / "report.txt").write_text(report + "\n")
+    except _FAILURES as err:
+        return _finish(args, "run", progress, start, error=err)
+    return _finish(args, "run", progress, start, report=report, outdir=config.outdir)
+
+
+def _write_knot_figure(table, path):
+    import matplotlib
+
+    if matplotlib.get_backend().lower() not in ("agg", "pdf", "svg", "cairo"):
+        matplotlib.use("agg")
+    import matplotlib.pyplot as plt
+
+    from .parametric import plot_size_vs_model
+
+    fig, ax = plt.subplots(figsize=(5.5, 5.5))
+    plot_size_vs_model(table, ax=ax)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
 
 
 def _read_catalog(path):
@@ -900,7 +952,10 @@ def _config_schema():
     doc = config.__doc__
     start = doc.index("::\n\n") + 4
     end = doc.index("\n\n", doc.index("z_source", start))
-    return textwrap.dedent(doc[start:end])
+    knots = doc.index("::\n\n", doc.index("[knots]")) + 4
+    knots_end = doc.index("\n\n", doc.index("sigma_pos", knots))
+    return (textwrap.dedent(doc[start:end]) + "\n\n# or, for a catalogue-only run (no images):\n"
+            + textwrap.dedent(doc[knots:knots_end]))
 
 
 def build_parser():

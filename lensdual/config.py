@@ -72,6 +72,28 @@ file. Angles are strings of a number and an angular unit (``"0.066 arcsec"``,
     centre = "110.827 -73.4545"      # optional origin of the fit's frame (e.g. the BCG)
     fix_centre = false               # hold the first profile's centre there (needs centre)
 
+A catalogue-only run (no images) replaces ``[bands]``, ``[arcs]``,
+``[catalogs]``, ``[pairing]`` and ``[parametric]`` by one ``[knots]`` table: the
+knots of a multiply-imaged galaxy in a published multiple-image catalogue,
+paired across its macro-images (:func:`lensdual.pairing.pairs_from_knots`) and
+compared with lens models (:func:`lensdual.parametric.compare_size_with_models`)::
+
+    [knots]
+    catalogue = "knots.mul"          # Lenstool catalogue, or ECSV with 'id' and 'sky'
+                                     # (or 'ra', 'dec' in deg)
+    macro_images = ["1.1", "1.2", "1.3"]   # at least 2 names
+    centres = "catalogue"            # optional: "catalogue" (commented lines of the
+                                     # catalogue, the default) or a table of "RA Dec"
+    systems = [1000, 2000]           # optional: knot systems with integer ids in
+                                     # [lo, hi), or a list of system names; default all
+    assign = "model"                 # optional: "centre", "mapping" or "model" (default:
+                                     # "mapping" with a mapping, "model" with models)
+    mapping = "mapping.ecsv"         # ECSV with columns id, macro (assign = "mapping")
+    models = ["best.par"]            # optional Lenstool models; the first assigns
+    z_source = 1.4888                # optional (default: the catalogue's redshift)
+    sigma_pos = "auto"               # "auto" (measured per pair of macro-images from the
+                                     # constellation's residuals) or an angle
+
 The output directory given to :func:`load_config` (``outdir=``, e.g. from
 the command line) replaces ``[output] outdir``; it is resolved against the
 current directory, the configuration value against the configuration file's
@@ -106,6 +128,7 @@ __all__ = [
     "BandSpec",
     "ArcSpec",
     "ParametricSpec",
+    "KnotSpec",
     "RunConfig",
     "load_config",
     "load_images",
@@ -132,7 +155,12 @@ _KEYS = {
     "pairing": ("method", "file"),
     "parametric": ("lenstool", "fit", "model", "z_lens", "z_source", "sigma_pos", "centre",
                    "fix_centre"),
+    "knots": ("catalogue", "macro_images", "centres", "systems", "assign", "mapping", "models",
+              "z_source", "sigma_pos"),
 }
+#: Tables a catalogue-only ([knots]) run does without.
+_IMAGE_TABLES = ("bands", "arcs", "catalogs", "pairing", "parametric")
+_ASSIGN = ("centre", "mapping", "model")
 _BAND_KEYS = ("psf", "psf_hdu", "psf_fwhm")
 _IMAGE_KEYS = ("image", "hdu", "error", "error_hdu", "weight", "weight_hdu", "unit")
 _CUTOUT_KEYS = ("center", "size")
@@ -317,6 +345,62 @@ class ParametricSpec:
 
 
 @dataclass(frozen=True)
+class KnotSpec:
+    """A catalogue-only run on a knot constellation (``[knots]``).
+
+    Attributes
+    ----------
+    catalogue : `~pathlib.Path`
+        The multiple-image catalogue (Lenstool format, or ECSV).
+    macro_images : tuple of str
+        The names of the macro-images.
+    centres : dict or None
+        ``{name: SkyCoord}`` given in the configuration; None: read from the
+        commented lines of the catalogue (when an assignment needs them).
+    systems : tuple
+        ``("range", lo, hi)`` (integer system ids in ``[lo, hi)``),
+        ``("names", name, ...)``, or ``()`` for every system.
+    assign : str
+        ``"centre"``, ``"mapping"`` or ``"model"``.
+    mapping : `~pathlib.Path` or None
+        ECSV table with columns ``id`` and ``macro``.
+    models : tuple of `~pathlib.Path`
+        Lenstool models to compare with (the first assigns when ``assign =
+        "model"``).
+    z_source : float or None
+        Redshift of the knots (None: from the catalogue).
+    sigma_pos : `~astropy.units.Quantity` or str
+        Position error, or ``"auto"`` (measured per pair of macro-images).
+    """
+
+    catalogue: Path
+    macro_images: tuple
+    centres: dict | None = None
+    systems: tuple = ()
+    assign: str = "centre"
+    mapping: Path | None = None
+    models: tuple = ()
+    z_source: float | None = None
+    sigma_pos: u.Quantity | str = "auto"
+
+    def knot_filter(self):
+        """The ``knots`` argument of :func:`~lensdual.pairing.pairs_from_knots`."""
+        if not self.systems:
+            return None
+        if self.systems[0] == "range":
+            lo, hi = self.systems[1:]
+
+            def in_range(name):
+                try:
+                    return lo <= int(name) < hi
+                except ValueError:
+                    return False
+
+            return in_range
+        return list(self.systems[1:])
+
+
+@dataclass(frozen=True)
 class RunConfig:
     """A validated configuration of ``lensdual run``, as made by :func:`load_config`.
 
@@ -355,6 +439,9 @@ class RunConfig:
         Realisations of :func:`lensdual.duality.null_calibration` (0: off).
     parametric : `ParametricSpec` or None
         The ``[parametric]`` table, or None without one.
+    knots : `KnotSpec` or None
+        The ``[knots]`` table of a catalogue-only run (then ``bands`` and
+        ``arcs`` are empty), or None.
     """
 
     path: Path
@@ -371,6 +458,7 @@ class RunConfig:
     seed: int = 0
     null_realisations: int = 0
     parametric: ParametricSpec | None = None
+    knots: KnotSpec | None = None
 
 
 # ---------------------------------------------------------------------------
@@ -1167,10 +1255,117 @@ class _Validator:
 
     # --- all ------------------------------------------------------------
 
+    # --- a catalogue-only run -------------------------------------------
+
+    def knots(self):
+        table = self.section("knots")
+        if table is None:
+            return None
+        sec = "knots"
+        self.unknown_keys(table, _KEYS[sec], sec)
+        extra = [f"[{t}]" for t in _IMAGE_TABLES if t in self.data]
+        if extra:
+            self.add(f"[knots]: a knot run is catalogue-only; remove {', '.join(extra)} (or "
+                     "[knots] for a run on images)")
+        catalogue = self.get_file(table, "catalogue", sec)
+        if "catalogue" not in table:
+            self.add("[knots] catalogue: required (a Lenstool multiple-image catalogue or an "
+                     "ECSV table)")
+        names = table.get("macro_images", _ABSENT)
+        if names is _ABSENT:
+            self.add('[knots] macro_images: required, e.g. ["1.1", "1.2", "1.3"]')
+            names = _BAD
+        elif (not isinstance(names, list) or len(names) < 2
+              or not all(isinstance(n, str) and n for n in names)):
+            self.add("[knots] macro_images: expected a list of at least 2 names, got "
+                     f"{_describe(names)}")
+            names = _BAD
+        elif len(set(names)) != len(names):
+            self.add(f"[knots] macro_images: repeated names in {names}")
+            names = _BAD
+        centres = self.knot_centres(table.get("centres", "catalogue"), names)
+        systems = self.knot_systems(table.get("systems", _ABSENT))
+        mapping = self.get_file(table, "mapping", sec)
+        models = table.get("models", [])
+        if isinstance(models, str):
+            models = [models]
+        if not isinstance(models, list) or not all(isinstance(m, str) for m in models):
+            self.add(f"[knots] models: expected a list of Lenstool files, got {_describe(models)}")
+            models = _BAD
+        else:
+            models = tuple(self.get_file({"models": m}, "models", sec) for m in models)
+            models = models if _valid(*models) else _BAD
+        default = "mapping" if "mapping" in table else "model" if models else "centre"
+        assign = self.get_str(table, "assign", sec, default, choices=list(_ASSIGN))
+        if assign == "mapping" and "mapping" not in table:
+            self.add('[knots] mapping: required when assign = "mapping" (an ECSV table with '
+                     "columns id, macro)")
+        if assign == "model" and models == ():
+            self.add('[knots] models: assign = "model" needs at least one Lenstool model')
+        if mapping not in (None, _BAD):
+            tab = self.read_ecsv(mapping, "[knots] mapping")
+            if tab is not None and not {"id", "macro"} <= set(tab.colnames):
+                self.add(f"[knots] mapping: {mapping} needs columns 'id' and 'macro', has "
+                         f"{tab.colnames}")
+        z_source = self.get_real(table, "z_source", sec, None, above=0)
+        sigma = table.get("sigma_pos", "auto")
+        if sigma != "auto":
+            sigma = self.get_angle(table, "sigma_pos", sec,
+                                   prefix='expected "auto" or an angle; ')
+        if not _valid(catalogue, names, centres, systems, mapping, models, assign, z_source,
+                      sigma):
+            return _BAD
+        return KnotSpec(catalogue=catalogue, macro_images=tuple(names), centres=centres,
+                        systems=systems, assign=assign, mapping=mapping, models=models,
+                        z_source=z_source, sigma_pos=sigma)
+
+    def knot_centres(self, value, names):
+        if value == "catalogue":
+            return None
+        if not isinstance(value, dict):
+            self.add('[knots] centres: expected "catalogue" or a table {name = "RA Dec"}, got '
+                     f"{_describe(value)}")
+            return _BAD
+        centres = {}
+        for name, text in value.items():
+            centre, message = _parse_center(text)
+            if centre is None:
+                self.add(f"[knots.centres] {_toml_key(name)}: {message}")
+                return _BAD
+            centres[name] = centre
+        if names is not _BAD and set(centres) != set(names):
+            self.add(f"[knots] centres: give a centre for every macro-image {names}, got "
+                     f"{sorted(centres)}")
+            return _BAD
+        return None if names is _BAD else {n: centres[n] for n in names}
+
+    def knot_systems(self, value):
+        if value is _ABSENT:
+            return ()
+        if (isinstance(value, list) and len(value) == 2
+                and all(isinstance(v, int) and not isinstance(v, bool) for v in value)):
+            if not value[0] < value[1]:
+                self.add(f"[knots] systems: the range [lo, hi) needs lo < hi, got {value}")
+                return _BAD
+            return ("range", value[0], value[1])
+        if isinstance(value, list) and value and all(isinstance(v, str) for v in value):
+            return ("names", *value)
+        self.add("[knots] systems: expected [lo, hi] (integer system ids in [lo, hi)) or a "
+                 f"list of system names, got {_describe(value)}")
+        return _BAD
+
+    # --- all ------------------------------------------------------------
+
     def run(self):
         self.check_root()
         outdir = self.output()
         analysis = self.analysis()
+        if "knots" in self.data:
+            knots = self.knots()
+            if self.problems:
+                raise ConfigError(self.problems, self.path)
+            return RunConfig(path=self.path, outdir=outdir, bands={}, arcs={}, knots=knots,
+                             **analysis)
         bands = self.bands()
         arcs = self.arcs()
         catalogs, catalog_ids = self.catalogs()

@@ -21,20 +21,18 @@ from itertools import combinations
 
 import numpy as np
 from astropy import units as u
-from astropy.coordinates import (
-    CartesianRepresentation,
-    SkyCoord,
-    SkyOffsetFrame,
-    UnitSphericalRepresentation,
-)
+from astropy.coordinates import SkyCoord
 from astropy.table import QTable, Table
 from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 from scipy.special import fdtri
 
+from ._frames import mean_direction, tangent_xy
+from ._knots import KnotPairs, pairs_from_knots, read_macro_images
 from ._validation import as_angle_scalar, as_positions, as_real, check_unique_rows
 
-__all__ = ["pair_constellations", "pairs_from_ids"]
+__all__ = ["KnotPairs", "pair_constellations", "pairs_from_ids", "pairs_from_knots",
+           "read_macro_images"]
 
 # ---------------------------------------------------------------------------
 # tuning constants (documented in the docstring of pair_constellations)
@@ -176,23 +174,13 @@ def _raw_catalog(catalog, name, position_columns, id_column):
 
 
 def _mean_direction(sky1, sky2):
-    """Mean direction (normalised mean of the unit vectors) of both catalogues."""
-    sky2 = sky2.transform_to(sky1.frame.replicate_without_data())
-    xyz = np.concatenate([sky1.cartesian.xyz.value, sky2.cartesian.xyz.value], axis=1)
-    rep = CartesianRepresentation(*xyz.mean(axis=1))
-    rep = rep.represent_as(UnitSphericalRepresentation)
-    return SkyCoord(sky1.frame.realize_frame(rep))
+    """Mean direction of both catalogues (see :func:`lensdual._frames.mean_direction`)."""
+    return mean_direction(sky1, sky2)
 
 
 def _project(sky, centre):
-    """Gnomonic offsets (x west, y north) from ``centre`` in arcsec, shape (N, 2).
-
-    The convention of :func:`lensdual.photometry.measure_pairs`.
-    """
-    c = sky.transform_to(SkyOffsetFrame(origin=centre)).cartesian
-    xc, yc, zc = c.x.value, c.y.value, c.z.value
-    rad = (1.0 * u.rad).to_value(u.arcsec)
-    return np.column_stack([-yc / xc * rad, zc / xc * rad])
+    """Gnomonic offsets (x west, y north) from ``centre`` in arcsec, shape (N, 2)."""
+    return np.column_stack(tangent_xy(sky, centre))
 
 
 def _catalogs(catalog1, catalog2, position_columns, id_column, reference):
