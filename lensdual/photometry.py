@@ -7,6 +7,7 @@ every band of two arcs and fills a :ref:`pairs table <pairs-table>` with
 positions in one common tangent-plane frame and per-band fluxes.
 """
 
+import enum
 import warnings
 from collections.abc import Mapping
 
@@ -29,7 +30,14 @@ from ._frames import mean_direction, tangent_to_sky, tangent_xy
 from ._validation import as_int, as_positions, as_real, split_image
 from .exceptions import LensdualWarning
 
-__all__ = ["BACKGROUND_STRATEGIES", "psf_photometry", "measure_pairs"]
+__all__ = [
+    "BACKGROUND_STRATEGIES",
+    "PhotometryFlag",
+    "UNUSABLE_FLAGS",
+    "describe_flags",
+    "psf_photometry",
+    "measure_pairs",
+]
 
 #: The background strategies of :func:`psf_photometry` (see its ``background``).
 BACKGROUND_STRATEGIES = (
@@ -73,8 +81,103 @@ _BKG_TERMS = {
 _X_NAMES = ("x_fit", "x_centroid", "xcentroid", "x_init", "x_0", "x")
 _Y_NAMES = ("y_fit", "y_centroid", "ycentroid", "y_init", "y_0", "y")
 
-# photutils flags that make a measurement unusable (NaN position or flux)
-_BAD_FLAGS = 4 | 8 | 16 | 64 | 128 | 256 | 512 | 1024
+
+class PhotometryFlag(enum.IntFlag):
+    """The bits of the ``flags`` columns of :func:`psf_photometry` and :func:`measure_pairs`.
+
+    Bits 1 to 2048 are photutils' `~photutils.psf.PSFPhotometry` flags, with
+    the same meaning (see `~photutils.psf.decode_psf_flags`); lensdual's own
+    bits start at 2**16 and never reuse a photutils bit. A flag in
+    :data:`UNUSABLE_FLAGS` makes the measurement unusable: :func:`measure_pairs`
+    sets its fluxes (and its share of the position) to NaN.
+    """
+
+    N_PIXELS_FIT_PARTIAL = 1
+    OUTSIDE_BOUNDS = 2
+    NON_POSITIVE_FLUX = 4
+    NO_CONVERGENCE = 8
+    NO_COVARIANCE = 16
+    NEAR_BOUND = 32
+    NO_OVERLAP = 64
+    FULLY_MASKED = 128
+    TOO_FEW_PIXELS = 256
+    NON_FINITE_POSITION = 512
+    NON_FINITE_FLUX = 1024
+    NON_FINITE_LOCALBKG = 2048
+    OUTSIDE_IMAGE = 1 << 16
+    BAD_ERROR = 1 << 17
+    FIT_FAILED = 1 << 18
+
+
+_FLAG_WORDS = {
+    PhotometryFlag.N_PIXELS_FIT_PARTIAL: "fitting box partly off the image or masked",
+    PhotometryFlag.OUTSIDE_BOUNDS: "fitted position outside the image",
+    PhotometryFlag.NON_POSITIVE_FLUX: "non-positive flux",
+    PhotometryFlag.NO_CONVERGENCE: "fit may not have converged",
+    PhotometryFlag.NO_COVARIANCE: "no covariance (no errors) from the fit",
+    PhotometryFlag.NEAR_BOUND: "fitted position at its bound (xy_bounds)",
+    PhotometryFlag.NO_OVERLAP: "fitting box does not overlap the data",
+    PhotometryFlag.FULLY_MASKED: "fitting box fully masked",
+    PhotometryFlag.TOO_FEW_PIXELS: "too few valid pixels to fit",
+    PhotometryFlag.NON_FINITE_POSITION: "non-finite fitted position",
+    PhotometryFlag.NON_FINITE_FLUX: "non-finite fitted flux",
+    PhotometryFlag.NON_FINITE_LOCALBKG: "non-finite local background",
+    PhotometryFlag.OUTSIDE_IMAGE: "initial position outside the image or not finite (not fitted)",
+    PhotometryFlag.BAD_ERROR: "flux error not finite and positive",
+    PhotometryFlag.FIT_FAILED: "the fitter raised an error",
+}
+
+#: The flags that make a measurement unusable (its flux and position are not used).
+UNUSABLE_FLAGS = (
+    PhotometryFlag.NON_POSITIVE_FLUX
+    | PhotometryFlag.NO_CONVERGENCE
+    | PhotometryFlag.NO_COVARIANCE
+    | PhotometryFlag.NO_OVERLAP
+    | PhotometryFlag.FULLY_MASKED
+    | PhotometryFlag.TOO_FEW_PIXELS
+    | PhotometryFlag.NON_FINITE_POSITION
+    | PhotometryFlag.NON_FINITE_FLUX
+    | PhotometryFlag.OUTSIDE_IMAGE
+    | PhotometryFlag.BAD_ERROR
+    | PhotometryFlag.FIT_FAILED
+)
+_BAD_FLAGS = int(UNUSABLE_FLAGS)
+
+
+def describe_flags(flags, *, unusable_only=False):
+    """The flags of one measurement in words.
+
+    Parameters
+    ----------
+    flags : int or `PhotometryFlag`
+        A value of a ``flags`` column.
+    unusable_only : bool, optional
+        Name only the flags of :data:`UNUSABLE_FLAGS`.
+
+    Returns
+    -------
+    str
+        The reasons, separated by ", " ("" for 0); an unknown bit is named
+        by its value.
+
+    Examples
+    --------
+    >>> from lensdual.photometry import describe_flags
+    >>> describe_flags(4 | 16)
+    'non-positive flux, no covariance (no errors) from the fit'
+    """
+    value = int(flags)
+    if unusable_only:
+        value &= _BAD_FLAGS
+    words = []
+    for bit in range(value.bit_length()):
+        b = 1 << bit
+        if value & b:
+            try:
+                words.append(_FLAG_WORDS[PhotometryFlag(b)])
+            except (KeyError, ValueError):
+                words.append(f"flag bit {b}")
+    return ", ".join(words)
 
 
 # ---------------------------------------------------------------------------
@@ -384,8 +487,98 @@ def _as_wcs(wcs, name):
     raise TypeError(f"{name} must be an astropy WCS or None, got {type(wcs).__name__}")
 
 
-def _unpack_image(image, name):
+# meta keys that may hold the file an image was read from (FITS headers are
+# case-insensitive; dict metas are not)
+_FILE_KEYS = ("FILENAME", "filename", "file", "FILE", "path")
+
+
+def _file_of(image):
+    """The file an NDData was read from, from its ``meta`` (None when unknown)."""
+    meta = getattr(image, "meta", None)
+    if not meta:
+        return None
+    for key in _FILE_KEYS:
+        try:
+            value = meta.get(key)
+        except Exception:  # noqa: BLE001 - an odd meta: no file name
+            return None
+        if isinstance(value, str) and value.strip():
+            return value.strip()
+    return None
+
+
+def _describe_input(name, image, label=None):
+    """``label`` or ``name``, with the file the image was read from when known."""
+    text = name if label is None else str(label)
+    path = _file_of(image)
+    if path is not None and path not in text:
+        text += f" (file {path})"
+    return text
+
+
+def _plane_wcs(wcs):
+    """The 2-D celestial WCS of a cube with one plane (numpy axis 0 dropped)."""
+    from astropy.wcs import WCS
+    from astropy.wcs.wcsapi import SlicedLowLevelWCS
+
+    if wcs is None:
+        return None
+    if isinstance(wcs, WCS):
+        if wcs.naxis == 2:
+            return wcs
+        if wcs.has_celestial and wcs.celestial.naxis == 2:
+            return wcs.celestial
+    low = getattr(wcs, "low_level_wcs", wcs)
+    if isinstance(low, BaseLowLevelWCS) and low.pixel_n_dim == 3:
+        return SlicedLowLevelWCS(low, (0, slice(None), slice(None)))
+    return wcs
+
+
+def _squeeze_plane(image, name):
+    """A 2-D image from a cube with a single plane (shape (1, ny, nx)), with a warning.
+
+    Other inputs are returned as they are (2-D, or wrong in a way that
+    ``split_image`` reports); a cube with several planes is a ValueError.
+    """
+    data = image.data if isinstance(image, NDData) else image
+    shape = np.shape(data) if hasattr(data, "shape") else None
+    if shape is None or len(shape) != 3:
+        return image
+    where = _describe_input(name, image)
+    if shape[0] != 1:
+        raise ValueError(
+            f"{where} is a cube of shape {shape} ({shape[0]} planes along NAXIS3); lensdual "
+            "needs one 2-D image: pass the plane to measure (e.g. data[k]) or the right "
+            "FITS extension"
+        )
+    warnings.warn(
+        f"{where} has shape {shape} (a cube with NAXIS3 = 1): its only plane, of shape "
+        f"{shape[1:]}, is used",
+        LensdualWarning,
+        stacklevel=4,
+    )
+    if not isinstance(image, NDData):
+        return image[0]
+    mask = image.mask
+    if mask is not None and np.ndim(mask) == 3:
+        mask = np.asarray(mask)[0]
+    unc = image.uncertainty
+    if unc is not None and np.ndim(unc.array) == 3:
+        unc = type(unc)(np.asarray(unc.array)[0], unit=unc.unit)
+    return NDData(
+        np.asarray(data)[0],
+        mask=mask,
+        uncertainty=unc,
+        unit=image.unit,
+        wcs=_plane_wcs(image.wcs),
+        meta=image.meta,
+    )
+
+
+def _unpack_image(image, name, label=None):
     """Return (float64 data copy, invalid mask or None, error or None, unit, wcs)."""
+    where = _describe_input(name, image, label)
+    image = _squeeze_plane(image, where)
     data, mask, unit, wcs, unc = split_image(image, name)
     wcs = _as_wcs(wcs, f"{name}.wcs")
     error = None
@@ -418,15 +611,42 @@ def _unpack_image(image, name):
                 ) from None
     data = np.array(data, dtype=np.float64)  # a copy: the input is never modified
     invalid = ~np.isfinite(data)
+    if invalid.all():
+        raise ValueError(
+            f"{where} has no valid pixel: all {data.size} pixels of the image (shape "
+            f"{data.shape}) are NaN or infinite. Check that the right file and extension "
+            "(e.g. SCI) are read and that the cut-out overlaps the exposed data"
+        )
+    if error is not None:
+        error = np.array(np.broadcast_to(error, data.shape), dtype=np.float64)
+        good_error = np.isfinite(error) & (error > 0)
+        if not good_error.any():
+            what = "zero" if np.all(error[np.isfinite(error)] == 0) else "zero, negative or NaN"
+            raise ValueError(
+                f"{where} has no valid pixel: its error map (uncertainty) is {what} at every "
+                "pixel. Check the error file and extension (e.g. ERR, in the image's unit), "
+                "give a weight map instead, or no error map at all"
+            )
+        invalid |= ~good_error
     if mask is not None:
         if mask.shape != data.shape:
             mask = np.broadcast_to(mask, data.shape)
-        invalid |= mask.astype(bool)
-    if error is not None:
-        error = np.array(np.broadcast_to(error, data.shape), dtype=np.float64)
-        invalid |= ~(np.isfinite(error) & (error > 0))
+        mask = mask.astype(bool)
+        if mask.all():
+            raise ValueError(
+                f"{where} has no valid pixel: its mask is True (bad) at every pixel"
+                + (
+                    " (an error map that is zero everywhere masks every pixel)"
+                    if error is None
+                    else ""
+                )
+            )
+        invalid |= mask
     if invalid.all():
-        raise ValueError(f"{name} has no valid pixel (all NaN, masked or with error <= 0)")
+        raise ValueError(
+            f"{where} has no valid pixel (all NaN, masked or with error <= 0, each in a "
+            "different place)"
+        )
     if not invalid.any():
         invalid = None
     else:
@@ -469,13 +689,49 @@ def _pixel_to_tangent_errors(wcs, x, y, x_err, y_err, reference):
     return tx[0], ty[0], np.sqrt(0.5 * (var_x + var_y))
 
 
-def _psf_spec(psf, wcs, shape, name="psf"):
+def _as_oversampling(oversampling, name="oversampling"):
+    """None, or the oversampling factors (oy, ox) as ints >= 1."""
+    if oversampling is None:
+        return None
+    values = np.atleast_1d(np.asarray(oversampling, dtype=object))
+    ok = values.size in (1, 2) and values.ndim == 1
+    if ok:
+        try:
+            ints = [as_int(v, name, minimum=1) for v in values]
+        except (TypeError, ValueError):
+            ok = False
+    if not ok:
+        raise ValueError(
+            f"{name} must be an integer >= 1 or a pair (oy, ox) of them (the PSF image's "
+            f"pixels per detector pixel, e.g. 4 for a WebbPSF/STPSF OVERSAMP image), got "
+            f"{oversampling!r}"
+        )
+    return (ints[0], ints[-1])
+
+
+def _psf_spec(psf, wcs, shape, name="psf", oversampling=None):
     """Return ('gaussian', fwhm_px or None) or ('image', ImagePSF)."""
     from photutils.psf import ImagePSF
 
+    if oversampling is not None and oversampling != (1, 1):
+        if (
+            psf is None
+            or not isinstance(psf, (np.ndarray, list, tuple, ImagePSF))
+            or (not isinstance(psf, ImagePSF) and np.ndim(psf) != 2)
+        ):
+            raise ValueError(
+                f"oversampling={list(oversampling)} applies to a PSF image; {name} is "
+                f"{psf!r:.60}, not a 2-D PSF array"
+            )
     if psf is None:
         return "gaussian", None
     if isinstance(psf, ImagePSF):
+        given = tuple(int(v) for v in np.broadcast_to(psf.oversampling, 2))
+        if oversampling is not None and oversampling != given:
+            raise ValueError(
+                f"{name} is an ImagePSF with oversampling {list(given)}; oversampling="
+                f"{list(oversampling)} contradicts it (leave it out with an ImagePSF)"
+            )
         return "image", psf
     if isinstance(psf, u.Quantity):
         if not psf.isscalar:
@@ -507,7 +763,9 @@ def _psf_spec(psf, wcs, shape, name="psf"):
         total = arr.sum()
         if not total > 0:
             raise ValueError(f"{name} must have a positive sum, got {total}")
-        return "image", ImagePSF(arr / total)
+        os_ = (1, 1) if oversampling is None else oversampling
+        # photutils' convention: an oversampled image sums to oy * ox
+        return "image", ImagePSF(arr * (os_[0] * os_[1] / total), oversampling=os_)
     if isinstance(psf, (int, float, np.integer, np.floating)) and not isinstance(psf, bool):
         return "gaussian", _check_fwhm(float(psf), psf, name)
     raise TypeError(
@@ -577,15 +835,19 @@ def _positions(positions, wcs, shape):
         & (y >= -0.5)
         & (y <= ny - 0.5)
     )
-    if bad.any():
-        k = np.flatnonzero(bad)
-        raise ValueError(
-            f"positions {k.tolist()[:10]} are outside the image (shape {shape}) or not "
-            f"finite: (x, y) = {[(float(x[i]), float(y[i])) for i in k[:3]]}"
-        )
     if ids is None:
         ids = np.arange(1, x.size + 1)
-    return x, y, ids
+    return x, y, ids, bad
+
+
+def _outside_text(x, y, bad, ids, shape):
+    """Words for the positions outside the image."""
+    k = np.flatnonzero(bad)
+    return (
+        f"positions {k.tolist()[:10]} (ids {np.asarray(ids)[k].tolist()[:10]}) are outside "
+        f"the image (shape {shape}) or not finite: (x, y) = "
+        f"{[(float(x[i]), float(y[i])) for i in k[:3]]}; not fitted (NaN, flag OUTSIDE_IMAGE)"
+    )
 
 
 def _fit_shape(fit_shape, fwhm, strategy):
@@ -852,27 +1114,24 @@ def _fit_group(
         out["cfit"][i] = resid[cen][0] / f if cen.any() and f != 0 else np.nan
         out["reduced_chi2"][i] = red_chi2
         out["n_pixels_fit"][i] = bx.size
-        flags = 0
+        flags = PhotometryFlag(0)
         if bx.size < full:
-            flags |= 1
+            flags |= PhotometryFlag.N_PIXELS_FIT_PARTIAL
         if not (-0.5 <= xi <= nx - 0.5 and -0.5 <= yi <= ny - 0.5):
-            flags |= 2
+            flags |= PhotometryFlag.OUTSIDE_BOUNDS
         if not f > 0:
-            flags |= 4
+            flags |= PhotometryFlag.NON_POSITIVE_FLUX
         if not getattr(info, "success", True) or caught:
-            flags |= 8
+            flags |= PhotometryFlag.NO_CONVERGENCE
         if cov is None:
-            flags |= 16
-        if (
-            min(abs(xi - x[k]), abs(yi - y[k])) > bound - 0.01
-            or max(abs(xi - x[k]), abs(yi - y[k])) > bound - 0.01
-        ):
-            flags |= 32
+            flags |= PhotometryFlag.NO_COVARIANCE
+        if max(abs(xi - x[k]), abs(yi - y[k])) > bound - 0.01:
+            flags |= PhotometryFlag.NEAR_BOUND
         if not (np.isfinite(xi) and np.isfinite(yi)):
-            flags |= 512
+            flags |= PhotometryFlag.NON_FINITE_POSITION
         if not np.isfinite(f):
-            flags |= 1024
-        out["flags"][i] = flags
+            flags |= PhotometryFlag.NON_FINITE_FLUX
+        out["flags"][i] = int(flags)
         if coeffs.size:
             c = basis.columns(np.array([xi]), np.array([yi]), centre=centre)
             out["bkg_at"][i] = float(sum(cc * col[0] for cc, col in zip(coeffs, c, strict=True)))
@@ -925,6 +1184,7 @@ def _fit_sources(
     cur = {col: np.full(n, np.nan) for col in columns}
     cur["group_size"][:] = 1
     caught = []
+    failed = []  # fits that raised, in words
 
     def fit_singles(members, image):
         if members.size == 0:
@@ -937,9 +1197,20 @@ def _fit_sources(
         t["local_bkg"] = local_bkg[members]
         for name in extra:
             t[f"{name}_init"] = start[name][members]
-        res, more = _run_photutils(
-            model, fit_shape, image, invalid, error, t, (bound, bound), maxiters
-        )
+        try:
+            res, more = _run_photutils(
+                model, fit_shape, image, invalid, error, t, (bound, bound), maxiters
+            )
+        except (ValueError, np.linalg.LinAlgError, FloatingPointError) as exc:
+            if members.size > 1:  # find the culprit(s): fit them one by one
+                for k in members:
+                    fit_singles(np.array([k]), image)
+                return
+            failed.append(f"source {int(members[0])}: {exc}")
+            for col in _RESULT_COLUMNS + ("bkg_at",):
+                cur[col][members] = np.nan
+            cur["flags"][members] = int(PhotometryFlag.FIT_FAILED)
+            return
         caught.extend(more)
         for col in (
             _RESULT_COLUMNS + tuple(f"{e}_fit" for e in extra) + tuple(f"{e}_err" for e in extra)
@@ -956,23 +1227,30 @@ def _fit_sources(
             start[name][members[ok]] = val[ok]
 
     def fit_group(members, image):
-        res = _fit_group(
-            image,
-            invalid,
-            error,
-            members,
-            x,
-            y,
-            start["flux"],
-            profile,
-            basis,
-            fit_shape,
-            bound,
-            maxiters,
-            local_bkg,
-        )
+        try:
+            res = _fit_group(
+                image,
+                invalid,
+                error,
+                members,
+                x,
+                y,
+                start["flux"],
+                profile,
+                basis,
+                fit_shape,
+                bound,
+                maxiters,
+                local_bkg,
+            )
+        except (ValueError, np.linalg.LinAlgError, FloatingPointError) as exc:
+            failed.append(f"group of sources {members.tolist()}: {exc}")
+            for col in _RESULT_COLUMNS + ("bkg_at",):
+                cur[col][members] = np.nan
+            cur["flags"][members] = int(PhotometryFlag.FIT_FAILED)
+            return
         if res is None:
-            cur["flags"][members] = 256
+            cur["flags"][members] = int(PhotometryFlag.TOO_FEW_PIXELS)
             return
         for col in _RESULT_COLUMNS + ("bkg_at",):
             cur[col][members] = res[col]
@@ -1028,7 +1306,10 @@ def _fit_sources(
                 for k in members:
                     add(others, k, -1.0)
                 image = data - others
-                fit_singles(np.concatenate([units[c] for c in cls if len(units[c]) == 1]), image)
+                # a class may hold only groups: nothing to fit one by one then
+                singles = [units[c] for c in cls if len(units[c]) == 1]
+                if singles:
+                    fit_singles(np.concatenate(singles), image)
                 for c in cls:
                     if len(units[c]) > 1:
                         fit_group(units[c], image)
@@ -1048,7 +1329,7 @@ def _fit_sources(
     cur["flags"] = np.where(np.isfinite(cur["flags"]), cur["flags"], 0).astype(np.int64)
     cur["n_pixels_fit"] = np.nan_to_num(cur["n_pixels_fit"]).astype(np.int64)
     cur["group_size"] = cur["group_size"].astype(np.int64)
-    return cur, caught
+    return cur, caught, failed
 
 
 def _unit_classes(unit_near, units):
@@ -1083,7 +1364,7 @@ def _estimate_fwhm(
     """Common Gaussian FWHM (pixels) from a fit with the FWHM free for every source."""
     start = 2.5
     profile = _GaussianProfile(start, highpass)
-    res, _ = _fit_sources(
+    res, _, _ = _fit_sources(
         data,
         invalid,
         error,
@@ -1160,6 +1441,9 @@ def psf_photometry(
     neighbour_passes=10,
     maxiters=100,
     warn=True,
+    oversampling=None,
+    check_psf=True,
+    label=None,
 ):
     r"""PSF photometry of point sources on a bright arc, from given positions.
 
@@ -1304,9 +1588,13 @@ def psf_photometry(
     """
     from photutils.background import LocalBackground
 
-    data, invalid, error, unit, wcs = _unpack_image(image, "image")
-    kind, spec = _psf_spec(psf, wcs, data.shape)
-    x, y, ids = _positions(positions, wcs, data.shape)
+    where = _describe_input("image", image, label)
+    data, invalid, error, unit, wcs = _unpack_image(image, "image", label)
+    oversampling = _as_oversampling(oversampling)
+    kind, spec = _psf_spec(psf, wcs, data.shape, oversampling=oversampling)
+    x_all, y_all, ids, off = _positions(positions, wcs, data.shape)
+    inside = ~off
+    x, y = x_all[inside], y_all[inside]
 
     local_est = None
     if isinstance(background, LocalBackground):
@@ -1356,51 +1644,101 @@ def psf_photometry(
             if not (0 <= r_in < r_out):
                 raise ValueError(f"local_radii must satisfy 0 <= inner < outer, got {local_radii}")
             local_est = LocalBackground(r_in, r_out)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            local_bkg = np.atleast_1d(
-                np.asarray(local_est(fitdata, x, y, mask=invalid), dtype=np.float64)
-            )
-        local_bkg = np.where(np.isfinite(local_bkg), local_bkg, 0.0)
+        if x.size:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                local_bkg = np.atleast_1d(
+                    np.asarray(local_est(fitdata, x, y, mask=invalid), dtype=np.float64)
+                )
+            local_bkg = np.where(np.isfinite(local_bkg), local_bkg, 0.0)
+        else:
+            local_bkg = np.zeros(0)
     else:
         local_bkg = np.zeros(x.size)
 
     fwhm = fwhm0
-    if kind == "gaussian" and spec is None:
-        basis = _make_basis(basis_kind, fitdata, invalid, shape, fwhm0, x, y)
-        fwhm = _estimate_fwhm(
-            fitdata, invalid, error, x, y, highpass, basis, shape, local_bkg, bounds, maxiters
+    caught, failed = [], []
+    profile = None
+    if x.size == 0:  # nothing on the image: every row NaN, flagged OUTSIDE_IMAGE
+        res = {col: np.full(0, np.nan) for col in _RESULT_COLUMNS + ("bkg_at",)}
+        res["group_size"] = np.zeros(0, np.int64)
+        if kind == "gaussian" and spec is None:
+            fwhm = np.nan
+    else:
+        if kind == "gaussian" and spec is None:
+            basis = _make_basis(basis_kind, fitdata, invalid, shape, fwhm0, x, y)
+            fwhm = _estimate_fwhm(
+                fitdata, invalid, error, x, y, highpass, basis, shape, local_bkg, bounds, maxiters
+            )
+            if fit_shape is None:
+                shape = _fit_shape(None, fwhm, strategy)
+        basis = _make_basis(basis_kind, fitdata, invalid, shape, fwhm, x, y)
+        profile = (
+            _GaussianProfile(fwhm, highpass)
+            if kind == "gaussian"
+            else _ImageProfile(spec, highpass)
         )
-        if fit_shape is None:
-            shape = _fit_shape(None, fwhm, strategy)
-    basis = _make_basis(basis_kind, fitdata, invalid, shape, fwhm, x, y)
-    profile = (
-        _GaussianProfile(fwhm, highpass) if kind == "gaussian" else _ImageProfile(spec, highpass)
-    )
+        radius = 2.0 * fwhm if group_radius is None else group_radius
+        res, caught, failed = _fit_sources(
+            fitdata,
+            invalid,
+            error,
+            x,
+            y,
+            profile,
+            basis,
+            shape,
+            local_bkg,
+            bounds,
+            maxiters,
+            neighbour_passes,
+            group_radius=radius,
+        )
+        if kind == "image" and check_psf:
+            _check_image_psf(
+                res,
+                fitdata,
+                invalid,
+                error,
+                x,
+                y,
+                highpass,
+                basis,
+                shape,
+                local_bkg,
+                bounds,
+                maxiters,
+                fwhm,
+                oversampling,
+                where,
+            )
+    if group_radius is None:
+        group_radius = 2.0 * fwhm
 
-    group_radius = 2.0 * fwhm if group_radius is None else group_radius
-    res, caught = _fit_sources(
-        fitdata,
-        invalid,
-        error,
-        x,
-        y,
-        profile,
-        basis,
-        shape,
-        local_bkg,
-        bounds,
-        maxiters,
-        neighbour_passes,
-        group_radius=group_radius,
-    )
-
+    # back to one row per input position
+    n_all = x_all.size
+    full = {}
+    for col in _RESULT_COLUMNS + ("bkg_at",):
+        full[col] = np.full(n_all, np.nan)
+        full[col][inside] = res[col]
+    full["flags"] = np.full(n_all, int(PhotometryFlag.OUTSIDE_IMAGE), np.int64)
+    full["flags"][inside] = np.asarray(res["flags"], dtype=np.int64)
+    full["n_pixels_fit"] = np.zeros(n_all, np.int64)
+    full["n_pixels_fit"][inside] = np.nan_to_num(res["n_pixels_fit"]).astype(np.int64)
+    full["group_size"] = np.zeros(n_all, np.int64)
+    full["group_size"][inside] = res["group_size"]
+    fitted = np.zeros(n_all, bool)
+    fitted[inside] = True
+    flux_ok = np.isfinite(full["flux_fit"])
+    bad_err = fitted & flux_ok & ~(np.isfinite(full["flux_err"]) & (full["flux_err"] > 0))
+    full["flags"][bad_err] |= int(PhotometryFlag.BAD_ERROR)
+    res = full
     bkg = res["bkg_at"]
 
     out = QTable()
     out["id"] = ids
-    out["x_init"] = x
-    out["y_init"] = y
+    out["x_init"] = x_all
+    out["y_init"] = y_all
     for name in ("x_fit", "y_fit", "x_err", "y_err"):
         out[name] = res[name]
     flux, flux_err = res["flux_fit"], res["flux_err"]
@@ -1418,7 +1756,14 @@ def psf_photometry(
             out["sky"] = sky
     for name in ("group_size", "qfit", "cfit", "reduced_chi2", "n_pixels_fit", "flags"):
         out[name] = res[name]
-    out.meta["psf"] = profile.describe()
+    out["flag_note"] = [describe_flags(f) for f in res["flags"]]
+    out.meta["psf"] = (
+        profile.describe()
+        if profile is not None
+        else (
+            f"Gaussian FWHM {fwhm:.4g} px" if kind == "gaussian" else f"image PSF {spec.data.shape}"
+        )
+    )
     out.meta["fwhm"] = fwhm
     out.meta["fwhm_estimated"] = kind == "gaussian" and spec is None
     out.meta["fit_shape"] = shape
@@ -1427,17 +1772,120 @@ def psf_photometry(
     out.meta["neighbour_passes"] = neighbour_passes
     out.meta["group_radius"] = group_radius
     out.meta["weighted"] = error is not None
+    out.meta["oversampling"] = (
+        None if kind != "image" else [int(v) for v in np.broadcast_to(spec.oversampling, 2)]
+    )
+    out.meta["input"] = where
 
     bad = (out["flags"] & _BAD_FLAGS) != 0
-    if warn and (bad.any() or caught):
+    if warn and (bad.any() or caught or failed or off.any()):
         msgs = sorted({str(w.message) for w in caught})
-        text = f"psf_photometry: {int(bad.sum())} of {len(out)} fits flagged"
+        text = f"psf_photometry ({where}): {int(bad.sum())} of {len(out)} fits flagged"
         if bad.any():
-            text += f" (ids {out['id'][bad].tolist()[:20]}; see the flags column)"
+            text += f" (ids {out['id'][bad].tolist()[:20]}; see the flags columns)"
+        if off.any():
+            text += "; " + _outside_text(x_all, y_all, off, ids, data.shape)
+        if failed:
+            text += "; fits that raised: " + " | ".join(failed[:5])
         if msgs:
             text += "; photutils: " + " | ".join(msgs)
         warnings.warn(text, LensdualWarning, stacklevel=2)
     return out
+
+
+#: A PSF image whose FWHM differs from that of the sources by more than this
+#: factor is refused (too wide) or warned about (too narrow); see _check_image_psf.
+_PSF_WIDTH_TOLERANCE = 1.8
+_PSF_CHECK_SOURCES = 10
+_PSF_CHECK_MIN_SNR = 20.0
+
+
+def _check_image_psf(
+    res,
+    fitdata,
+    invalid,
+    error,
+    x,
+    y,
+    highpass,
+    basis,
+    shape,
+    local_bkg,
+    bounds,
+    maxiters,
+    fwhm_psf,
+    oversampling,
+    where,
+):
+    """Compare the width of an image PSF with the sources' own (a Gaussian FWHM fit).
+
+    The Gaussian FWHM is fitted to the (at most 10) sources of highest SNR
+    (>= 20) of the PSF fit. A PSF more than 1.8 times wider than the sources
+    cannot be right (a point source is never narrower than the PSF) and is a
+    ValueError: the usual cause is an oversampled PSF image passed without
+    its ``oversampling``. A PSF 1.8 times narrower is a ValueError too when an
+    ``oversampling`` > 1 was given (it may not apply), else a warning (the
+    sources may be resolved). Without any source of SNR >= 20 nothing is
+    checked.
+    """
+    flux, err = res["flux_fit"], res["flux_err"]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        snr = np.where(
+            np.isfinite(flux) & np.isfinite(err) & (err > 0) & ((res["flags"] & _BAD_FLAGS) == 0),
+            flux / err,
+            0.0,
+        )
+    order = np.argsort(-snr)
+    pick = order[snr[order] >= _PSF_CHECK_MIN_SNR][:_PSF_CHECK_SOURCES]
+    if pick.size == 0:
+        return
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            fwhm_data = _estimate_fwhm(
+                fitdata,
+                invalid,
+                error,
+                x[pick],
+                y[pick],
+                highpass,
+                basis,
+                shape,
+                local_bkg[pick],
+                bounds,
+                maxiters,
+            )
+    except ValueError:  # no usable Gaussian fit: nothing to compare with
+        return
+    ratio = fwhm_psf / fwhm_data
+    given = "no oversampling" if oversampling is None else f"oversampling={list(oversampling)}"
+    facts = (
+        f"{where}: the PSF image (FWHM {fwhm_psf:.2f} px with {given}) is {{}} than the point "
+        f"sources (Gaussian FWHM {fwhm_data:.2f} px fitted to the {pick.size} brightest)"
+    )
+    if ratio > _PSF_WIDTH_TOLERANCE:
+        guess = max(2, int(np.round(ratio)))
+        raise ValueError(
+            facts.format(f"{ratio:.1f} times wider")
+            + f", which would give wrong fluxes. Is the PSF oversampled (a WebbPSF/STPSF file's "
+            f"HDU 0, OVERSAMP)? Pass oversampling= its factor (header keyword OVERSAMP; about "
+            f"{guess} here) or use the detector-sampled PSF (HDU 1, DET_SAMP); "
+            "check_psf=False skips this check"
+        )
+    if ratio < 1.0 / _PSF_WIDTH_TOLERANCE:
+        text = facts.format(f"{1.0 / ratio:.1f} times narrower")
+        if oversampling is not None and oversampling != (1, 1):
+            raise ValueError(
+                text + f": is the PSF image really oversampled by {list(oversampling)}? "
+                "Check its OVERSAMP header keyword, or leave oversampling out for a "
+                "detector-sampled PSF; check_psf=False skips this check"
+            )
+        warnings.warn(
+            text + ": resolved sources, or a PSF image of another pixel scale; the fluxes "
+            "assume point sources",
+            LensdualWarning,
+            stacklevel=3,
+        )
 
 
 # ---------------------------------------------------------------------------
@@ -1446,10 +1894,12 @@ def psf_photometry(
 
 
 def _check_images(images, name):
+    """Validate a dict of bands; return it with single-plane cubes squeezed to 2-D."""
     if not isinstance(images, Mapping):
         raise TypeError(f"{name} must be a dict {{band: CCDData}}, got {type(images).__name__}")
     if not images:
         raise ValueError(f"{name} must hold at least one band, got none")
+    out = {}
     for band, img in images.items():
         if not isinstance(band, str) or not band:
             raise TypeError(
@@ -1459,6 +1909,8 @@ def _check_images(images, name):
             raise TypeError(
                 f"{name}[{band!r}] must be a CCDData or NDData with a WCS, got {type(img).__name__}"
             )
+        img = _squeeze_plane(img, f"{name}[{band!r}]")
+        out[band] = img
         if img.wcs is None:
             raise ValueError(f"{name}[{band!r}] has no WCS; measure_pairs needs celestial WCSs")
         wcs = _as_wcs(img.wcs, f"{name}[{band!r}].wcs")
@@ -1469,6 +1921,7 @@ def _check_images(images, name):
             sky = None
         if not isinstance(sky, SkyCoord):
             raise ValueError(f"{name}[{band!r}] has no celestial WCS")
+    return out
 
 
 def _initial_sky(pairs, reference):
@@ -1517,6 +1970,8 @@ def measure_pairs(
     fit_shape=None,
     xy_bounds=None,
     neighbour_passes=10,
+    oversampling=None,
+    check_psf=True,
 ):
     r"""PSF photometry of the point-source pairs of two arcs, into a pairs table.
 
@@ -1605,8 +2060,8 @@ def measure_pairs(
     coordinates. The reflection relative to the usual east-north frame is
     common to both arcs and changes neither ``mu_size`` nor the parity.
     """
-    _check_images(images_l1, "images_l1")
-    _check_images(images_l2, "images_l2")
+    images_l1 = _check_images(images_l1, "images_l1")
+    images_l2 = _check_images(images_l2, "images_l2")
     if bands is None:
         bands = list(images_l1)
     elif isinstance(bands, str):
@@ -1642,6 +2097,12 @@ def measure_pairs(
         psf_of = {b: psf.get(b) for b in bands}
     else:
         psf_of = dict.fromkeys(bands, psf)
+    if isinstance(oversampling, Mapping):
+        os_of = {b: oversampling.get(b) for b in bands}
+    else:
+        os_of = dict.fromkeys(bands, oversampling)
+    for band in bands:
+        _as_oversampling(os_of[band], f"oversampling of band {band!r}")
 
     sky1_init, sky2_init = _initial_sky(pairs, reference)
     if reference is None:
@@ -1653,25 +2114,22 @@ def measure_pairs(
         out.add_column(np.arange(1, n + 1), name="pair_id", index=0)
     ids = np.asarray(out["pair_id"])
 
-    flagged = []
     per_arc = {}
+    flagged = []  # per arc and band: the pairs with an unusable fit
+    notes = [[] for _ in range(n)]  # per pair: why something was not measured
+    pair_flags = np.zeros(n, np.int64)  # per pair: OR of the unusable flags
     for arc, images, sky_init in (("1", images_l1, sky1_init), ("2", images_l2, sky2_init)):
         sum_w = np.zeros(n)
         sum_x = np.zeros(n)
         sum_y = np.zeros(n)
         fluxes = {}
+        src_ids = np.asarray(out[f"id{arc}"]) if f"id{arc}" in out.colnames else None
         for band in bands:
             img = images[band]
             wcs = _as_wcs(img.wcs, f"images_l{arc}[{band!r}].wcs")
-            ny, nx = np.shape(img.data)
+            label = _describe_input(f"images_l{arc}[{band!r}] (arc L{arc}, band {band})", img)
             px, py = wcs.world_to_pixel(sky_init)
             px, py = np.atleast_1d(px), np.atleast_1d(py)
-            off = ~((px >= -0.5) & (px <= nx - 0.5) & (py >= -0.5) & (py <= ny - 0.5))
-            if off.any():
-                raise ValueError(
-                    f"the L{arc} positions of pairs {ids[off].tolist()[:10]} fall outside "
-                    f"images_l{arc}[{band!r}] (shape {(ny, nx)})"
-                )
             res = psf_photometry(
                 img,
                 np.column_stack([px, py]),
@@ -1681,15 +2139,29 @@ def measure_pairs(
                 xy_bounds=xy_bounds,
                 neighbour_passes=neighbour_passes,
                 warn=False,
+                oversampling=os_of[band],
+                check_psf=check_psf,
+                label=label,
             )
-            bad = (res["flags"] & _BAD_FLAGS) != 0
+            flags = np.asarray(res["flags"], dtype=np.int64)
+            bad = (flags & _BAD_FLAGS) != 0
+            path = _file_of(img)
             if bad.any():
                 flagged.append(f"L{arc} {band}: pairs {ids[bad].tolist()[:10]}")
+            for i in np.flatnonzero(bad):
+                src = "" if src_ids is None else f" (source id {src_ids[i]})"
+                where = f"L{arc} {band}" + ("" if path is None else f" [{path}]")
+                notes[i].append(
+                    f"pair {ids[i]}{src}, {where}: {describe_flags(flags[i], unusable_only=True)}"
+                )
+                pair_flags[i] |= flags[i] & _BAD_FLAGS
             good = np.isfinite(res["x_fit"]) & np.isfinite(res["y_fit"])
+            safe_x = np.where(good, res["x_fit"], np.where(np.isfinite(px), px, 0.0))
+            safe_y = np.where(good, res["y_fit"], np.where(np.isfinite(py), py, 0.0))
             xb, yb, sig = _pixel_to_tangent_errors(
                 wcs,
-                np.where(good, res["x_fit"], px),
-                np.where(good, res["y_fit"], py),
+                safe_x,
+                safe_y,
                 np.asarray(res["x_err"]),
                 np.asarray(res["y_err"]),
                 reference,
@@ -1703,11 +2175,13 @@ def measure_pairs(
             flux, flux_err = res["flux"].copy(), res["flux_err"].copy()
             flux[bad] = np.nan  # not measured (pairs-table convention)
             flux_err[bad] = np.nan
-            fluxes[band] = (flux, flux_err, np.asarray(res["flags"]))
+            fluxes[band] = (flux, flux_err, flags)
         with np.errstate(invalid="ignore", divide="ignore"):
             xm = np.where(sum_w > 0, sum_x / sum_w, np.nan)
             ym = np.where(sum_w > 0, sum_y / sum_w, np.nan)
             err = np.where(sum_w > 0, 1.0 / np.sqrt(sum_w), np.nan)
+        for i in np.flatnonzero(sum_w == 0):
+            notes[i].append(f"pair {ids[i]}: no band measured its L{arc} position (NaN)")
         per_arc[arc] = (xm, ym, err, fluxes)
 
     for arc in ("1", "2"):
@@ -1727,6 +2201,21 @@ def measure_pairs(
         out[f"flux_err2_{band}"] = e2
         out[f"flags1_{band}"] = g1
         out[f"flags2_{band}"] = g2
+    positions_ok = np.ones(n, bool)
+    for arc in ("1", "2"):
+        positions_ok &= np.isfinite(per_arc[arc][0]) & np.isfinite(per_arc[arc][1])
+    some_band = np.zeros(n, bool)
+    for band in bands:
+        f1, f2 = per_arc["1"][3][band][0], per_arc["2"][3][band][0]
+        some_band |= np.isfinite(np.asarray(getattr(f1, "value", f1))) & np.isfinite(
+            np.asarray(getattr(f2, "value", f2))
+        )
+    measured = positions_ok & some_band
+    for i in np.flatnonzero(positions_ok & ~some_band):
+        notes[i].append(f"pair {ids[i]}: no band has both fluxes (no flux ratio)")
+    out["photometry_flags"] = pair_flags
+    out["photometry_note"] = ["; ".join(v) for v in notes]
+    out["measured"] = measured
     out.meta["bands"] = list(bands)
     out.meta["reference"] = reference
     out.meta["photometry"] = {
@@ -1735,13 +2224,20 @@ def measure_pairs(
         "xy_bounds": xy_bounds,
         "neighbour_passes": neighbour_passes,
         "psf": {b: repr(p) for b, p in psf_of.items()},
+        "oversampling": {b: os_of[b] for b in bands},
         "frame": "gnomonic about reference, x west, y north, arcsec",
     }
-    if flagged:
-        warnings.warn(
-            "measure_pairs: some fits are flagged (NaN where unusable; see the flags columns): "
-            + "; ".join(flagged),
-            LensdualWarning,
-            stacklevel=2,
+    troubled = np.flatnonzero([bool(v) for v in notes])
+    if troubled.size:
+        dropped = np.flatnonzero(~measured)
+        text = (
+            f"measure_pairs: {troubled.size} of {n} pair(s) not fully measured (NaN where "
+            f"unusable; see the photometry_flags, photometry_note and flags columns)"
         )
+        if flagged:
+            text += "; flagged fits: " + ", ".join(flagged)
+        if dropped.size:
+            text += f"; pairs {ids[dropped].tolist()} cannot be tested (measured = False)"
+        text += ". Why: " + "; ".join(out["photometry_note"][i] for i in troubled[:30])
+        warnings.warn(text, LensdualWarning, stacklevel=2)
     return out
