@@ -60,6 +60,19 @@ mu_flux, mu_flux_err, duality_ratio, duality_ratio_err, snr, snr_paper,
 anomalous."""
 
 
+#: Fewest consistent pairs the automatic pairing accepts (lensdual.pairing).
+_MIN_AUTO_PAIRS = 4
+#: Why an estimator needs its minimum number of pairs (the error messages).
+_MIN_PAIRS_WHY = {
+    "adaptive": " (its smallest local fit is a quadratic on a pair and six neighbours, "
+                "plus one degree of freedom to test it); with fewer pairs no error bar "
+                "of mu_size can be trusted",
+}
+#: Below this many pairs the paper's estimators fit one nearly global map: their
+#: mu_size is almost the same for every pair and their error omits the map's curvature.
+_FEW_PAIRS = 7
+
+
 class PipelineError(RuntimeError):
     """The analysis cannot go on (no detections, too few pairs, ...)."""
 
@@ -96,12 +109,61 @@ class _Progress:
             self.bar.close()
 
 
+#: The file in an output directory that lists what lensdual wrote there.
+_MANIFEST = ".lensdual-outputs"
+#: lensdual's own output names, recognised without a manifest (older versions).
+_KNOWN_OUTPUTS = ("pairs.ecsv", "catalog_L1.ecsv", "catalog_L2.ecsv", "pairing_map.png",
+                  "duality.png", "report.txt", "parametric.ecsv", "parametric.png",
+                  "truth_comparison.ecsv", "run.toml", "knot_images.ecsv", "pairs.reg",
+                  "sources_L1.reg", "sources_L2.reg")
+
+
+def _earlier_outputs(outdir):
+    """Files of ``outdir`` that an earlier lensdual run wrote (relative paths)."""
+    manifest = outdir / _MANIFEST
+    if manifest.is_file():
+        names = [line.strip() for line in manifest.read_text().splitlines() if line.strip()]
+        return [n for n in names if (outdir / n).is_file() and ".." not in Path(n).parts]
+    found = [n for n in _KNOWN_OUTPUTS if (outdir / n).is_file()]
+    found += sorted(p.name for p in outdir.glob("knots_*.ecsv"))
+    found += sorted(p.name for p in outdir.glob("knots_*.png"))
+    return found
+
+
+def check_output_directory(outdir):
+    """Fail early, before any analysis, when ``outdir`` cannot be written.
+
+    Raises
+    ------
+    OSError
+        ``outdir`` (or a parent) is not a directory, cannot be created, or
+        is not writable; the message names the path.
+    """
+    outdir = Path(outdir)
+    if outdir.exists() and not outdir.is_dir():
+        raise NotADirectoryError(f"output directory {outdir} exists and is not a directory")
+    parent = outdir.resolve().parent
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+        probe = Path(tempfile.mkdtemp(prefix=f".{outdir.name}.probe-", dir=parent))
+        probe.rmdir()
+    except OSError as err:
+        raise OSError(f"cannot write the output directory {outdir}: {err.strerror or err} "
+                      f"(in {parent}); choose another --outdir") from None
+    if outdir.exists() and not os.access(outdir, os.W_OK | os.X_OK):
+        raise PermissionError(f"output directory {outdir} is not writable; choose another "
+                              "--outdir")
+
+
 @contextmanager
-def _atomic_directory(outdir):
+def _atomic_directory(outdir, removed=None):
     """Write into a temporary sibling of ``outdir``; move the files there on success.
 
     Nothing is left in ``outdir`` when the block raises: files already there
-    are only replaced once every output has been written.
+    are only replaced once every output has been written. Then lensdual's own
+    outputs of an earlier run that this run did not write again are removed
+    (their names are appended to ``removed``), so that no stale file sits
+    next to new ones; other files are never touched.
     """
     outdir = Path(outdir)
     parent = outdir.resolve().parent
@@ -110,12 +172,19 @@ def _atomic_directory(outdir):
     try:
         yield tmp
         outdir.mkdir(parents=True, exist_ok=True)
+        written = sorted(str(p.relative_to(tmp)) for p in tmp.rglob("*") if p.is_file())
+        stale = [n for n in _earlier_outputs(outdir) if n not in written]
         for path in sorted(tmp.rglob("*")):
             target = outdir / path.relative_to(tmp)
             if path.is_dir():
                 target.mkdir(parents=True, exist_ok=True)
             else:
                 os.replace(path, target)
+        for name in stale:
+            (outdir / name).unlink(missing_ok=True)
+        if removed is not None:
+            removed.extend(stale)
+        (outdir / _MANIFEST).write_text("\n".join(written) + "\n")
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
 
@@ -225,11 +294,15 @@ def analyse(images, *, psf=None, estimator="adaptive", sigma_pos="auto", n_boots
     import astropy.units as u
 
     from .duality import check_duality
+    from .estimators import METHODS
     from .pairing import pair_constellations
     from .photometry import measure_pairs
 
     psf = dict(psf or {})
     progress = progress or _Progress([], quiet=True, desc="")
+    if estimator not in METHODS:
+        raise ValueError(f"estimator must be one of {list(METHODS)}, got {estimator!r}")
+    n_min = max(METHODS[estimator], _MIN_AUTO_PAIRS if manual_pairs is None else 3)
     bands = list(images["L1"])
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -238,10 +311,11 @@ def analyse(images, *, psf=None, estimator="adaptive", sigma_pos="auto", n_boots
             with progress.step(f"detect + photometry {arc}"):
                 given = None if catalogs is None else catalogs[arc]
                 cats[arc] = _catalogue(images[arc], psf, given)
-            if cats[arc] is None or len(cats[arc]) < 3:
-                n = 0 if cats[arc] is None else len(cats[arc])
-                raise PipelineError(f"only {n} point source(s) found on arc {arc}: at least 3 "
-                                    "are needed to pair the arcs")
+            n_found = 0 if cats[arc] is None else len(cats[arc])
+            if n_found < n_min:
+                raise PipelineError(
+                    f"only {n_found} point source(s) found on arc {arc}: the {estimator} "
+                    f"estimator needs at least {n_min} pairs{_MIN_PAIRS_WHY.get(estimator, '')}")
         with progress.step("pair"):
             try:
                 pairs = pair_constellations(
@@ -249,10 +323,13 @@ def analyse(images, *, psf=None, estimator="adaptive", sigma_pos="auto", n_boots
                     flux_columns=[f"flux_{b}" for b in bands], seed=seed)
             except ValueError as err:
                 raise PipelineError(f"pairing failed: {err}") from err
-            if len(pairs) < 3:
-                raise PipelineError(f"only {len(pairs)} pair(s) found: at least 3 are needed")
+            if len(pairs) < n_min:
+                raise PipelineError(
+                    f"only {len(pairs)} pair(s) found: the {estimator} estimator needs at "
+                    f"least {n_min}{_MIN_PAIRS_WHY.get(estimator, '')}")
         with progress.step("PSF photometry of the pairs"):
             measured = measure_pairs(images["L1"], images["L2"], pairs, psf=psf, bands=bands)
+        measured["doubt"] = pairing_doubts(pairs)
         step = (f"mu_size ({estimator})" if estimator == "adaptive"
                 else f"mu_size ({estimator}, {n_bootstrap} bootstraps)")
         with progress.step(step):
@@ -446,7 +523,7 @@ def format_pairs_table(result):
         cells += [_fmt(row[f"mu_flux_{b}"]) for b in bands]
         cells += [_fmt(row["mu_size"]), _fmt(row["mu_size_err"]),
                   _fmt(row["duality_ratio"]), _fmt(row["snr"], ".1f"),
-                  "ANOMALOUS" if row["anomalous"] else "ok"]
+                  _flag(row)]
         rows.append(cells)
     widths = [max(len(h), *(len(r[k]) for r in rows)) if rows else len(h)
               for k, h in enumerate(head)]
@@ -454,6 +531,75 @@ def format_pairs_table(result):
     lines.append("  ".join("-" * w for w in widths))
     lines += ["  ".join(c.rjust(w) for c, w in zip(r, widths, strict=True)) for r in rows]
     return "\n".join(lines)
+
+
+#: A pair is a doubtful pairing when another partner fits about as well (confidence
+#: below this) ...
+_DOUBT_CONFIDENCE = 1e-3
+#: ... or when its offset from the arc-to-arc map exceeds this many robust rms.
+_DOUBT_RESIDUAL = 6.0
+
+
+def pairing_doubts(pairs):
+    """Why each pair of a pairing is doubtful ("" when it is not).
+
+    A mis-pair must never look like a sub-halo. The pairing
+    (:func:`~lensdual.pairing.pair_constellations`) gives every pair its
+    offset from the fitted arc-to-arc map (``residual``) and the probability
+    that its partner is the right one (``confidence``). A pair is doubtful
+    when its confidence is below 1e-3 (another partner fits as well: e.g.
+    two swapped ids, or a spurious detection next to the true image), or
+    when its residual exceeds 6 times the robust rms of the pairing (it is
+    off the map: e.g. a manual pair on blank sky). Colours are checked by
+    :func:`~lensdual.duality.check_duality` (``chromatic_alpha``).
+    """
+    n = len(pairs)
+    doubt = np.array([""] * n, dtype=object)
+    rms = float(pairs.meta.get("rms_robust", np.nan)) if hasattr(pairs, "meta") else np.nan
+    if "residual" in pairs.colnames and np.isfinite(rms) and rms > 0:
+        res = np.asarray(u_value(pairs["residual"]), dtype=float)
+        with np.errstate(invalid="ignore"):
+            off = res > _DOUBT_RESIDUAL * rms
+        for k in np.flatnonzero(off):
+            doubt[k] = (f"off the arc-to-arc map (residual {1e3 * res[k]:.0f} mas, "
+                        f"{res[k] / rms:.0f} x the pairing's robust rms)")
+    if "confidence" in pairs.colnames:
+        conf = np.asarray(pairs["confidence"], dtype=float)
+        with np.errstate(invalid="ignore"):
+            low = (doubt == "") & (conf < _DOUBT_CONFIDENCE)
+        for k in np.flatnonzero(low):
+            doubt[k] = (f"ambiguous pairing (confidence {conf[k]:.1g}: another partner fits "
+                        "about as well)")
+    return doubt.astype(str)
+
+
+def u_value(column):
+    """A column in arcsec as plain floats (Quantity or not)."""
+    import astropy.units as u
+
+    return column.to_value(u.arcsec) if hasattr(column, "unit") and column.unit else column
+
+
+def _flag(row):
+    """The flag column of the printed table: ANOMALOUS, ok, or why a pair is untested."""
+    if row["anomalous"]:
+        return "ANOMALOUS"
+    if "tested" in row.colnames and not row["tested"]:
+        return f"untested ({_untested_reason(row)})"
+    return "ok"
+
+
+def _untested_reason(row):
+    if "doubt" in row.colnames and str(row["doubt"]):
+        return "doubtful pairing"
+    status = str(row["mu_size_status"]) if "mu_size_status" in row.colnames else ""
+    if not np.isfinite(float(row["mu_size"])):
+        return "no mu_size"
+    if status in ("untestable", "failed"):
+        return f"mu_size {status}"
+    if not np.isfinite(float(row["mu_flux"])):
+        return "no flux ratio"
+    return "no SNR"
 
 
 def verdict(result, sigma_pos):
@@ -477,15 +623,45 @@ def verdict(result, sigma_pos):
             f"Size magnifications from the {method} estimator with "
             f"{sig_text} and {errors}; a pair is "
             f"anomalous when |ln(mu_flux/mu_size)| exceeds {threshold:g} times its error. ")
-    n_tested = meta.get("n_tested", len(result))
-    if n_tested < len(result):
-        text += (f"{len(result) - n_tested} pair(s) could not be tested (column 'tested'; "
-                 "no local fit of the arc-to-arc map holds within the errors there). ")
+    if "tested" in result.colnames:
+        n_tested = int(np.count_nonzero(result["tested"]))
+        untested = result[~np.asarray(result["tested"], dtype=bool)]
+    else:
+        n_tested, untested = meta.get("n_tested", len(result)), result[:0]
+    if len(untested):
+        reasons = {}
+        for row in untested:
+            reasons.setdefault(_untested_reason(row), []).append(str(row["pair_id"]))
+        listed = "; ".join(f"{why}: pair{'s' if len(ids) > 1 else ''} {', '.join(ids)}"
+                           for why, ids in reasons.items())
+        text += (f"{len(untested)} pair(s) could not be tested and are NOT passes "
+                 f"(column 'tested'; {listed}). ")
+        doubtful = untested[[bool(str(d)) for d in untested["doubt"]]] if "doubt" in \
+            untested.colnames else untested[:0]
+        if len(doubtful):
+            text += ("Doubtful pairings are left out of the size magnification of the other "
+                     "pairs and never counted as anomalies: "
+                     + "; ".join(f"pair {r['pair_id']} ({r['id1']}, {r['id2']}): {r['doubt']}"
+                                 for r in doubtful) + ". ")
+    if method != "adaptive" and len(result) < _FEW_PAIRS:
+        text += (f"WARNING: only {len(result)} pairs: the {method} estimator then fits one "
+                 "nearly global map (mu_size almost the same for every pair) and its error "
+                 "holds the position noise only, not the map's curvature, so its flags are "
+                 f"not calibrated. Use at least {_FEW_PAIRS} pairs and the adaptive "
+                 "estimator. ")
     bad = result[np.asarray(result["anomalous"], dtype=bool)]
     text += _calibration_sentence(len(bad), n_tested, meta)
     if len(bad) == 0:
-        text += ("No pair breaks geometrical duality: flux and size magnifications agree "
-                 "everywhere, so no sub-halo is detected near these point sources.")
+        if n_tested == 0:
+            text += ("No pair could be tested, so the data say nothing about geometrical "
+                     "duality here: no conclusion on sub-haloes.")
+        elif len(untested):
+            text += (f"No pair breaks geometrical duality among the {n_tested} tested: no "
+                     "sub-halo is detected near them; the untested pairs are no evidence "
+                     "either way.")
+        else:
+            text += ("No pair breaks geometrical duality: flux and size magnifications agree "
+                     "everywhere, so no sub-halo is detected near these point sources.")
         return text
     parts = []
     for row in bad:
@@ -502,7 +678,7 @@ def verdict(result, sigma_pos):
     text += (f"{n_bad} pair{'s break' if n_bad > 1 else ' breaks'} geometrical duality: "
              + "; ".join(parts) + ". A flux anomaly at fixed geometry is the signature of "
              "unseen sub-structure (a sub-halo) near one of the two images. "
-             f"The other {len(result) - n_bad} pairs agree with duality.")
+             f"The other {n_tested - n_bad} tested pairs agree with duality.")
     return text
 
 
@@ -600,10 +776,23 @@ def _write_figures(analysis, directory, *, title):
     plt.close(fig)
 
 
+def _write_regions(analysis, directory):
+    """DS9 region files: the pairs (numbered, with lines) and each arc's detections."""
+    from .visualization import ds9_regions
+
+    regions = ds9_regions(analysis.result, analysis.catalogs)
+    regions["pairs"].write(str(directory / "pairs.reg"), format="ds9", overwrite=True)
+    for arc in ("L1", "L2"):
+        if arc in regions:
+            regions[arc].write(str(directory / f"sources_{arc}.reg"), format="ds9",
+                               overwrite=True)
+
+
 def _write_analysis(analysis, directory, report_text, *, title):
     for arc, cat in analysis.catalogs.items():
         _write_table(cat, directory / f"catalog_{arc}.ecsv")
     _write_table(analysis.result, directory / "pairs.ecsv")
+    _write_regions(analysis, directory)
     _write_figures(analysis, directory, title=title)
     (directory / "report.txt").write_text(report_text + "\n")
 
@@ -728,6 +917,13 @@ def _write_run_inputs(mocks, directory, *, estimator, n_bootstrap, snr_threshold
 # ---------------------------------------------------------------------------
 
 
+def _show_progress(args):
+    """Progress bars only on a terminal (stderr) or with --progress; never with --quiet."""
+    if args.quiet:
+        return False
+    return bool(getattr(args, "progress", False)) or sys.stderr.isatty()
+
+
 def _print(args, text=""):
     if not args.quiet:
         print(text, flush=True)
@@ -738,7 +934,8 @@ def _print(args, text=""):
 _FAILURES = (PipelineError, ValueError, OSError)
 
 
-def _finish(args, command, progress, start, *, report=None, outdir=None, error=None):
+def _finish(args, command, progress, start, *, report=None, outdir=None, error=None,
+            removed=()):
     """Close the progress bar; print the report (or the error); the exit code."""
     progress.close()
     if error is not None:
@@ -747,6 +944,9 @@ def _finish(args, command, progress, start, *, report=None, outdir=None, error=N
         return EXIT_FAILED
     _print(args, report)
     _print(args, f"\nOutputs in {outdir} ({time.perf_counter() - start:.1f} s).")
+    if removed:
+        _print(args, f"Removed {len(removed)} output(s) of an earlier lensdual run there that "
+                     f"this run did not write: {', '.join(removed)}.")
     return EXIT_OK
 
 
@@ -757,9 +957,15 @@ def _cmd_demo(args):
     from .simulation import render_mock_images, write_mock_images
 
     start = time.perf_counter()
+    try:
+        check_output_directory(args.outdir)
+    except OSError as err:
+        print(f"lensdual demo: {err}", file=sys.stderr)
+        return EXIT_FAILED
+    removed = []
     steps = ["simulate", "render", "detect L1", "detect L2", "pair", "photometry", "mu_size",
              "write"] + (["parametric"] if args.parametric else [])
-    progress = _Progress(steps, quiet=args.quiet, desc="lensdual demo")
+    progress = _Progress(steps, quiet=not _show_progress(args), desc="lensdual demo")
     try:
         with progress.step("simulate the lens"):
             system, truth = simulate_demo(subhalo=args.subhalo, n_sources=args.n_sources,
@@ -778,7 +984,7 @@ def _cmd_demo(args):
         centre = SkyCoord(meta["LENSRA"] * u.deg, meta["LENSDEC"] * u.deg)
         comparison = compare_with_truth(analysis.result, truth, centre)
         report = _report(analysis, ["", _truth_paragraph(comparison)])
-        with _atomic_directory(args.outdir) as tmp:
+        with _atomic_directory(args.outdir, removed) as tmp:
             with progress.step("write outputs"):
                 write_mock_images(mocks, tmp / "images")
                 _write_table(comparison, tmp / "truth_comparison.ecsv")
@@ -802,7 +1008,8 @@ def _cmd_demo(args):
             _write_analysis(analysis, tmp, report, title="lensdual demo")
     except _FAILURES as err:
         return _finish(args, "demo", progress, start, error=err)
-    return _finish(args, "demo", progress, start, report=report, outdir=args.outdir)
+    return _finish(args, "demo", progress, start, report=report, outdir=args.outdir,
+                   removed=removed)
 
 
 def _cmd_run(args):
@@ -816,15 +1023,22 @@ def _cmd_run(args):
     except ConfigError as err:
         print(f"lensdual run: {err}", file=sys.stderr)
         return EXIT_USAGE
+    try:
+        check_output_directory(config.outdir)
+    except OSError as err:
+        print(f"lensdual run: {err}", file=sys.stderr)
+        return EXIT_FAILED
     if config.knots is not None:
         return _run_knots(args, config, start)
+    removed = []
     par = config.parametric
     steps = ["read", "detect L1", "detect L2", "pair", "photometry", "mu_size", "write"]
     if par is not None:
         steps.append("parametric")
-    progress = _Progress(steps, quiet=args.quiet, desc="lensdual run")
+    progress = _Progress(steps, quiet=not _show_progress(args), desc="lensdual run")
     try:
-        with progress.step("read images"):
+        with progress.step("read images"), warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
             images = load_images(config)
             psf = band_psfs(config)
             catalogs = None
@@ -838,8 +1052,12 @@ def _cmd_run(args):
                            snr_threshold=config.snr_threshold, seed=config.seed,
                            catalogs=catalogs, manual_pairs=manual, progress=progress,
                            null_realisations=config.null_realisations)
+        read_warnings = [f"{w.category.__name__}: {w.message}" for w in caught]
+        analysis.warnings[:0] = list(dict.fromkeys(read_warnings))
+        for text in read_warnings:
+            print(f"lensdual run: warning: {text}", file=sys.stderr)
         extra = []
-        with _atomic_directory(config.outdir) as tmp:
+        with _atomic_directory(config.outdir, removed) as tmp:
             if par is not None and (par.lenstool is not None or par.fit):
                 with progress.step("parametric comparison"):
                     table = _parametric_outputs(
@@ -853,7 +1071,8 @@ def _cmd_run(args):
                 _write_analysis(analysis, tmp, report, title=Path(args.config).stem)
     except _FAILURES as err:
         return _finish(args, "run", progress, start, error=err)
-    return _finish(args, "run", progress, start, report=report, outdir=config.outdir)
+    return _finish(args, "run", progress, start, report=report, outdir=config.outdir,
+                   removed=removed)
 
 
 def _run_knots(args, config, start):
@@ -861,7 +1080,8 @@ def _run_knots(args, config, start):
     from .pipeline import analyse_knots, knot_report
 
     spec = config.knots
-    progress = _Progress(["analyse", "write"], quiet=args.quiet, desc="lensdual run")
+    progress = _Progress(["analyse", "write"], quiet=not _show_progress(args),
+                         desc="lensdual run")
     try:
         with progress.step("knot constellation"):
             macro = spec.centres if spec.centres is not None else list(spec.macro_images)
@@ -877,7 +1097,8 @@ def _run_knots(args, config, start):
                                      sigma_pos=sigma, method=config.estimator,
                                      snr_threshold=config.snr_threshold)
         report = knot_report(analysis)
-        with _atomic_directory(config.outdir) as tmp, progress.step("write outputs"):
+        removed = []
+        with _atomic_directory(config.outdir, removed) as tmp, progress.step("write outputs"):
             _write_table(analysis.knot_pairs.images, tmp / "knot_images.ecsv")
             for (m1, m2), table in analysis.tables.items():
                 stem = f"knots_{m1}_{m2}"
@@ -887,7 +1108,8 @@ def _run_knots(args, config, start):
             (tmp / "report.txt").write_text(report + "\n")
     except _FAILURES as err:
         return _finish(args, "run", progress, start, error=err)
-    return _finish(args, "run", progress, start, report=report, outdir=config.outdir)
+    return _finish(args, "run", progress, start, report=report, outdir=config.outdir,
+                   removed=removed)
 
 
 def _write_knot_figure(table, path):
@@ -1014,6 +1236,9 @@ def build_parser():
                       help="also fit a parametric lenstronomy model (NFW_ELLIPSE_CSE + SHEAR) "
                            "to the pairs and compare its magnification ratios "
                            "(parametric.ecsv, parametric.png)")
+    demo.add_argument("--progress", action="store_true",
+                     help="show progress bars even when stderr is not a terminal (by "
+                          "default they appear on a terminal only, so logs stay clean)")
     demo.add_argument("--quiet", "-q", action="store_true",
                       help="print nothing (no progress bars, no table); errors still go to "
                            "stderr")
@@ -1035,6 +1260,9 @@ def build_parser():
     run.add_argument("config", type=Path, help="the TOML configuration file")
     run.add_argument("--outdir", type=Path, default=None,
                      help="output directory (overrides [output] outdir of the file)")
+    run.add_argument("--progress", action="store_true",
+                     help="show progress bars even when stderr is not a terminal (by "
+                          "default they appear on a terminal only, so logs stay clean)")
     run.add_argument("--quiet", "-q", action="store_true",
                      help="print nothing (no progress bars, no table); errors still go to "
                           "stderr")

@@ -144,6 +144,11 @@ _DEFAULT_MODEL = ("NFW_ELLIPSE_CSE", "SHEAR")
 _PAIRING_METHODS = ("auto", "manual")
 _MIN_PAIRS = 3
 _MIN_PSF_SIZE = 5
+#: Bands of an arc share one pixel grid when their WCSs agree to this many pixels.
+_GRID_TOLERANCE = 0.01
+#: An error map disagreeing with the image's own sky noise by more than this
+#: factor (either way) draws a warning.
+_NOISE_FACTOR = 3.0
 
 _KEYS = {
     "output": ("outdir",),
@@ -665,6 +670,8 @@ class _ImageInfo:
     shape: tuple
     wcs: WCS | None
     bunit: str | None
+    unit: u.UnitBase | None = None
+    path: Path | None = None
 
 
 class _Validator:
@@ -677,6 +684,7 @@ class _Validator:
         self.outdir_arg = outdir
         self.problems = []
         self.band_names = []
+        self.infos = {}  # (arc, band) -> _ImageInfo of the images read
 
     def add(self, message):
         self.problems.append(message)
@@ -961,6 +969,7 @@ class _Validator:
                 self.add(f"[arcs] {arc}: expected a table, got {_describe(table[arc])}")
                 continue
             arcs[arc] = self.arc(arc, table[arc])
+        self.same_units()
         return arcs
 
     def arc(self, arc, table):
@@ -1002,8 +1011,53 @@ class _Validator:
                 files = ", ".join(str(images[b].image) for b in outside if images[b] is not None)
                 self.add(f"[arcs.{arc}.cutout] center: the cutout does not overlap the {which} "
                          f"{', '.join(outside)} ({files})")
+        self.same_grid(arc, infos)
+        self.infos.update({(arc, b): i for b, i in infos.items() if i is not None})
         images = {b: images[b] for b in self.band_names if images.get(b) is not None}
         return ArcSpec(name=arc, images=images, cutout_center=center, cutout_size=size)
+
+    def same_grid(self, arc, infos):
+        """All bands of an arc must share one pixel grid (they are stacked pixel by pixel)."""
+        given = [(b, i) for b, i in infos.items() if i is not None and i.wcs is not None]
+        if len(given) < 2:
+            return
+        ref_band, ref = given[0]
+        ny, nx = ref.shape[-2:]
+        corners = np.array([[0, 0], [nx - 1, 0], [0, ny - 1], [nx - 1, ny - 1],
+                            [(nx - 1) / 2, (ny - 1) / 2]], dtype=float)
+        world = ref.wcs.pixel_to_world(corners[:, 0], corners[:, 1])
+        for band, info in given[1:]:
+            if info.shape != ref.shape:
+                why = f"shape {info.shape} against {ref.shape}"
+            else:
+                px, py = info.wcs.world_to_pixel(world)
+                off = float(np.max(np.hypot(px - corners[:, 0], py - corners[:, 1])))
+                if not off > _GRID_TOLERANCE:
+                    continue
+                why = f"its WCS puts the same sky up to {off:.3g} pixels elsewhere"
+            self.add(f"[{_sec('arcs', arc, band)}] image: its pixel grid differs from band "
+                     f"{ref_band}'s ({why}). lensdual stacks the bands of an arc pixel by "
+                     f"pixel, so they must share one grid: resample {info.path} onto the grid "
+                     f"of {ref.path} first (e.g. reproject.reproject_interp)")
+
+    def same_units(self):
+        """Flux ratios and colours need every image in convertible units."""
+        units = {key: info.unit for key, info in self.infos.items() if info.unit is not None}
+        if not units:
+            return
+        ref_key, ref = next(iter(units.items()))
+        for (arc, band), unit in units.items():
+            if not unit.is_equivalent(ref):
+                self.add(f"[{_sec('arcs', arc, band)}] unit: {unit} (from "
+                         f"{'unit' if self.given_unit(arc, band) else 'BUNIT'}) cannot be "
+                         f"converted to {ref} of [arcs.{ref_key[0]}.{ref_key[1]}]: flux ratios "
+                         "and colours need all images in convertible units (a typo?)")
+
+    def given_unit(self, arc, band):
+        try:
+            return "unit" in self.data["arcs"][arc][band]
+        except (KeyError, TypeError):
+            return False
 
     def cutout(self, arc, table):
         sec = f"arcs.{arc}.cutout"
@@ -1071,6 +1125,20 @@ class _Validator:
                 if _parse_unit(info.bunit)[0] is None:
                     self.add(f"[{sec}] image: the BUNIT {info.bunit!r} of {image} is "
                              'not a valid astropy unit; give the unit, e.g. unit = "nJy"')
+            elif info is not None and unit not in (None, _BAD) and info.bunit:
+                header_unit = _parse_unit(info.bunit)[0]
+                if header_unit is not None and header_unit != unit:
+                    self.add(f"[{sec}] unit: {table['unit']!r} is given, but the BUNIT of "
+                             f"{image} says {info.bunit!r}; remove unit (the header is "
+                             "right) or correct the header (a typo here scales the fluxes)")
+        if unit is _BAD or info is None:
+            image_unit = None  # unknown: its problem is already recorded
+        elif unit is not None:
+            image_unit = unit
+        elif info.bunit:
+            image_unit = _parse_unit(info.bunit)[0]
+        else:
+            image_unit = u.dimensionless_unscaled
         for key, (path, map_hdu) in maps.items():
             if path is None or path is _BAD or map_hdu is _BAD:
                 continue
@@ -1078,11 +1146,24 @@ class _Validator:
             if info is not None and map_info is not None and map_info.shape != info.shape:
                 self.add(f"[{sec}] {key}: the {key} map in {path} has shape {map_info.shape}, "
                          f"the image {info.shape}")
+            if key == "error" and map_info is not None and map_info.bunit:
+                map_unit = _parse_unit(map_info.bunit)[0]
+                if map_unit is None:
+                    self.add(f"[{sec}] error: the BUNIT {map_info.bunit!r} of the error map "
+                             f"{path} is not a valid astropy unit")
+                elif image_unit is not None and not map_unit.is_equivalent(image_unit):
+                    self.add(f"[{sec}] error: the error map {path} is in {map_unit} (its "
+                             f"BUNIT), the image in {image_unit}: not convertible; give both "
+                             "in one unit (e.g. convert MJy/sr to flux per pixel with the "
+                             "pixel area, PIXAR_SR)")
         if not _valid(image, hdu, unit, *maps["error"], *maps["weight"]):
             return None, info
         spec = ImageSpec(image=image, hdu=hdu, error=maps["error"][0],
                          error_hdu=maps["error"][1], weight=maps["weight"][0],
                          weight_hdu=maps["weight"][1], unit=unit)
+        if info is not None:
+            info = _ImageInfo(shape=info.shape, wcs=info.wcs, bunit=info.bunit,
+                              unit=image_unit, path=image)
         return spec, info
 
     def read_ecsv(self, path, loc):
@@ -1448,10 +1529,39 @@ def _meta(header):
     return meta
 
 
-def _read_map(path, hdu, slices):
+def _read_map(path, hdu, slices, unit=None):
+    """A map's pixels; with ``unit``, converted from the map's own BUNIT to it."""
     with fits.open(path) as hdul:
         index = _find_hdu(hdul, hdu, path)
-        return np.array(hdul[index].section[slices], dtype=np.float64)
+        data = np.array(hdul[index].section[slices], dtype=np.float64)
+        bunit = hdul[index].header.get("BUNIT")
+    if unit is not None and isinstance(bunit, str) and bunit.strip():
+        data *= u.Unit(bunit.strip(), parse_strict="raise").to(unit)
+    return data
+
+
+def _check_noise(data, err, mask, where):
+    """Warn when the error map disagrees with the image's own sky noise by > _NOISE_FACTOR."""
+    from astropy.stats import sigma_clipped_stats
+
+    from .exceptions import LensdualWarning
+
+    good = ~mask & np.isfinite(err)
+    if good.sum() < 100:
+        return
+    _, median, std = sigma_clipped_stats(data[good], sigma=3.0, maxiters=5)
+    sky = good & (np.abs(data - median) < 3.0 * std)
+    quoted = float(np.median(err[sky])) if sky.any() else np.nan
+    if not (np.isfinite(quoted) and std > 0 and quoted > 0):
+        return
+    ratio = quoted / std
+    if not 1.0 / _NOISE_FACTOR <= ratio <= _NOISE_FACTOR:
+        warnings.warn(
+            f"{where}: the error map quotes a median sky error of {quoted:.3g}, but the sky "
+            f"pixels of the image scatter by {std:.3g} (robust, 3-sigma clipped): "
+            f"{ratio:.3g} times the measured noise. Fluxes, positions and every SNR inherit "
+            "this error: check the error map's units and scaling", LensdualWarning,
+            stacklevel=3)
 
 
 def _read_image(spec, arc, psf):
@@ -1481,9 +1591,11 @@ def _read_image(spec, arc, psf):
         unit = u.Unit(bunit, parse_strict="raise") if bunit else u.dimensionless_unscaled
     mask = ~np.isfinite(data)
     uncertainty = None
+    where = f"arc {arc.name}, {spec.image.name}"
     if spec.error is not None:
-        err = _read_map(spec.error, spec.error_hdu, slices)
+        err = _read_map(spec.error, spec.error_hdu, slices, unit=unit)
         mask |= ~(np.isfinite(err) & (err > 0))
+        _check_noise(data, err, mask, f"{where} (error map {spec.error.name})")
         uncertainty = StdDevUncertainty(err)
     elif spec.weight is not None:
         weight = _read_map(spec.weight, spec.weight_hdu, slices)
@@ -1491,6 +1603,7 @@ def _read_image(spec, arc, psf):
         err = np.full(weight.shape, np.nan)
         err[good] = 1.0 / np.sqrt(weight[good])
         mask |= ~good
+        _check_noise(data, err, mask, f"{where} (weight map {spec.weight.name})")
         uncertainty = StdDevUncertainty(err)
     return CCDData(data, unit=unit, wcs=wcs, uncertainty=uncertainty, mask=mask,
                    meta=_meta(header), psf=None if psf is None else psf.copy())

@@ -248,6 +248,65 @@ def _family_summary(p_values, snr_threshold):
     }
 
 
+#: Default false-alarm probability of the chromatic check of check_duality.
+CHROMATIC_ALPHA = 1e-3
+
+
+def _doubts(tab, flux, chromatic_alpha):
+    """Why each pair is doubtful ("" when it is not): the input's ``doubt`` column,
+    then the chromatic check."""
+    n = len(tab)
+    if "doubt" in tab.colnames:
+        doubt = np.array([str(d) if d is not None and str(d) not in ("", "--") else ""
+                          for d in np.asarray(tab["doubt"], dtype=object)], dtype=object)
+    else:
+        doubt = np.array([""] * n, dtype=object)
+    pval = np.asarray(flux["chromatic_pvalue"], dtype=float)
+    with np.errstate(invalid="ignore"):
+        chroma = (doubt == "") & (pval < chromatic_alpha)
+    for k in np.flatnonzero(chroma):
+        doubt[k] = (f"colours differ between the images (chromatic p = {pval[k]:.2g}): "
+                    "lensing is achromatic")
+    return doubt.astype(str)
+
+
+def _doubt_list(tab, doubt):
+    ids = np.asarray(tab["pair_id"]) if "pair_id" in tab.colnames else np.arange(1, len(tab) + 1)
+    return "; ".join(f"pair {i}: {d}" for i, d in zip(ids, doubt, strict=True) if d)
+
+
+def _subset_sigma(sigma_pos, keep):
+    """``sigma_pos`` restricted to the kept pairs (scalars pass through)."""
+    if keep.all() or not isinstance(sigma_pos, u.Quantity) or sigma_pos.ndim == 0:
+        return sigma_pos
+    if sigma_pos.shape[-1] != keep.size:
+        return sigma_pos  # the estimator reports the shape mismatch
+    return sigma_pos[..., keep]
+
+
+def _expand(size, keep):
+    """The size table of the kept pairs, back on all rows (NaN, status 'excluded')."""
+    if keep.all():
+        return size
+    out = QTable()
+    idx = np.flatnonzero(keep)
+    for name in size.colnames:
+        col = size[name]
+        if name == "mu_size_status":
+            full = np.full(keep.size, "excluded", dtype=object)
+            full[idx] = np.asarray(col, dtype=object)
+            out[name] = full.astype(str)
+            continue
+        values = np.asarray(col.value if isinstance(col, u.Quantity) else col)
+        shape = (keep.size,) + values.shape[1:]
+        full = (np.zeros(shape, dtype=values.dtype) if values.dtype.kind in "iub"
+                else np.full(shape, np.nan, dtype=float))
+        full[idx] = values
+        out[name] = full * col.unit if isinstance(col, u.Quantity) else full
+    out.meta.update(size.meta)
+    return out
+
+
 def check_duality(
     pairs,
     method=DEFAULT_METHOD,
@@ -259,6 +318,7 @@ def check_duality(
     snr_definition="log",
     weight_power=2,
     min_angle=5 * u.deg,
+    chromatic_alpha=CHROMATIC_ALPHA,
 ):
     r"""Test geometrical duality, ``mu_flux = mu_size``, for every pair.
 
@@ -296,6 +356,20 @@ def check_duality(
         size error only. Both are always returned (``snr`` and ``snr_paper``).
     weight_power, min_angle
         Estimator settings, see :func:`~lensdual.estimators.relative_jacobian`.
+    chromatic_alpha : float
+        Lensing is achromatic: the two images of one source have the same
+        flux ratio in every band. A pair whose band ratios disagree beyond
+        this false-alarm probability (``chromatic_pvalue < chromatic_alpha``,
+        default 1e-3) is *doubtful*: most likely two different sources, a
+        blend, or differential extinction, and never evidence of a sub-halo.
+        0 turns the check off.
+
+    Doubtful pairs (a non-empty ``doubt`` column in ``pairs``, e.g. a pairing
+    whose position is off the arc-to-arc map, plus the chromatic check above)
+    are left out of the size-magnification estimate of the other pairs, so a
+    mis-pair cannot distort the Jacobians of its neighbours, and are not
+    tested: their ``mu_size`` is NaN, ``mu_size_status`` is ``"excluded"``
+    and ``doubt`` says why.
 
     Returns
     -------
@@ -342,19 +416,29 @@ def check_duality(
             f"snr_definition must be one of {list(SNR_DEFINITIONS)}, got {snr_definition!r}"
         )
     snr_threshold = as_real(snr_threshold, "snr_threshold", minimum=0.0)
+    chromatic_alpha = as_real(chromatic_alpha, "chromatic_alpha", minimum=0.0, maximum=1.0)
     bands = pair_bands(tab)
     theta1, theta2 = _positions(tab)
     flux = flux_ratios(tab)  # validates the flux columns before the bootstrap runs
-    size = size_magnification(
-        theta1,
-        theta2,
-        method,
-        sigma_pos=sigma_pos,
-        n_bootstrap=n_bootstrap,
-        seed=seed,
-        weight_power=weight_power,
-        min_angle=min_angle,
-    )
+    doubt = _doubts(tab, flux, chromatic_alpha)
+    keep = doubt == ""
+    try:
+        size = size_magnification(
+            theta1[keep],
+            theta2[keep],
+            method,
+            sigma_pos=_subset_sigma(sigma_pos, keep),
+            n_bootstrap=n_bootstrap,
+            seed=seed,
+            weight_power=weight_power,
+            min_angle=min_angle,
+        )
+    except ValueError as err:
+        if keep.all():
+            raise
+        raise ValueError(f"{err} ({int((~keep).sum())} doubtful pair(s) left out of "
+                         f"{len(keep)}: {_doubt_list(tab, doubt)})") from err
+    size = _expand(size, keep)
 
     if "pair_id" not in tab.colnames:
         tab.add_column(np.arange(1, len(tab) + 1), name="pair_id", index=0)
@@ -381,6 +465,7 @@ def check_duality(
     chosen = snr if snr_definition == "log" else snr_paper
     tested = np.isfinite(chosen) & np.isin(np.asarray(size["mu_size_status"]), TESTABLE_STATUS)
     pval = np.where(tested, gaussian_p_value(np.where(tested, chosen, 0.0)), np.nan)
+    tab["doubt"] = doubt
     tab["tested"] = tested
     tab["p_value"] = pval
     tab["p_value_holm"] = holm_adjust(pval)

@@ -241,7 +241,7 @@ def test_failure_mid_run_leaves_no_output(demo_dir, tmp_path, capsys):
     path = _write(tmp_path / "few.toml", cfg)
     out = tmp_path / "out"
     assert main(["run", str(path), "--outdir", str(out), "--quiet"]) == 1
-    assert "at least 3" in capsys.readouterr().err
+    assert "needs at least 7" in capsys.readouterr().err
     assert not out.exists()
     assert not [p for p in tmp_path.iterdir() if ".partial-" in p.name]
 

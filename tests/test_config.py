@@ -62,7 +62,9 @@ def data_dir(tmp_path_factory):
         for band in ("F150W", "F200W"):
             img = rng.normal(10.0, 1.0, SHAPE)
             img[14, 11] = np.nan
-            CCDData(img, unit="nJy", wcs=w).write(d / f"{arc}_{band}.fits")
+            # L2 F200W has no BUNIT: its unit comes from the configuration
+            unit = "" if (arc, band) == ("L2", "F200W") else "nJy"
+            CCDData(img, unit=unit, wcs=w).write(d / f"{arc}_{band}.fits")
     fits.writeto(d / "L1_F150W_err.fits", np.full(SHAPE, 0.5) + rng.uniform(0, 0.1, SHAPE))
     wht = np.full(SHAPE, 4.0)
     wht[10:12, 5:8] = 0.0
@@ -117,7 +119,7 @@ def full_config():
             },
             "L2": {
                 "F150W": {"image": "L2_F150W.fits", "hdu": 0},
-                "F200W": {"image": "L2_F200W.fits", "unit": "MJy/sr"},
+                "F200W": {"image": "L2_F200W.fits", "unit": "uJy"},
                 "cutout": {
                     "center": make_wcs().pixel_to_world(2, 3).to_string(
                         "hmsdms", sep=":", precision=6),
@@ -176,7 +178,7 @@ def test_full_config(data_dir):
     assert u.allclose(l1.cutout_size, [0.6, 0.8] * u.arcsec)
     l2 = cfg.arcs["L2"]
     assert l2.images["F150W"].hdu == 0
-    assert l2.images["F200W"].unit == u.MJy / u.sr
+    assert l2.images["F200W"].unit == u.uJy
     assert l2.cutout_center.separation(make_wcs().pixel_to_world(2, 3)) < 1e-3 * u.arcsec
     assert cfg.catalogs == {"L1": d / "L1.ecsv", "L2": d / "L2.ecsv"}
     assert (cfg.pairing_method, cfg.pairs_file) == ("manual", d / "pairs.ecsv")
@@ -248,7 +250,7 @@ def test_load_images(data_dir):
     assert ccd.shape == ref.shape and ccd.shape[0] < 25 and ccd.shape[1] < 25
     np.testing.assert_allclose(ccd.wcs.wcs.crpix, ref.wcs.wcs.crpix)
     assert ccd.uncertainty is None and ccd.mask.sum() == 1 and ccd.mask[14, 11]
-    assert images["L2"]["F200W"].unit == u.MJy / u.sr
+    assert images["L2"]["F200W"].unit == u.uJy
     assert images["L2"]["F200W"].wcs.has_celestial
 
 
@@ -265,6 +267,8 @@ def test_error_extension_of_image_file(data_dir):
     # first HDU with 2-D data; a sexagesimal cutout centre with unit letters
     cfg = minimal_config()
     cfg["arcs"]["L1"]["F150W"] = {"image": "mef.fits", "error_hdu": "ERR"}
+    # both arcs of a band in convertible units (flux ratios): L2 in MJy/sr too
+    cfg["arcs"]["L2"]["F150W"] = {"image": "mef.fits"}
     c = make_wcs().pixel_to_world(20, 20).to_string("hmsdms", precision=4)
     cfg["arcs"]["L1"]["cutout"] = {"center": c, "size": "0.4 arcsec"}
     config = load_config(write(data_dir, "mef", cfg))

@@ -1,0 +1,236 @@
+"""Hostile inputs to ``lensdual run`` (issue 15): each case reproduced on a broken copy
+of the demo's configuration, asserting the exit code, the message and that nothing
+half-written is left."""
+
+import sys
+import tomllib
+
+import numpy as np
+import pytest
+from astropy.io import fits
+from astropy.table import QTable
+
+from lensdual.cli import format_pairs_table, main, verdict
+
+FAST = ["--n-sources", "10", "--n-bootstrap", "100", "--seed", "5", "--null-realisations", "0"]
+
+
+@pytest.fixture(scope="module")
+def demo_dir(tmp_path_factory):
+    out = tmp_path_factory.mktemp("hostile") / "demo"
+    assert main(["demo", "--outdir", str(out), "--write-config", "--quiet", *FAST]) == 0
+    return out
+
+
+def absolute_config(demo_dir):
+    cfg = tomllib.loads((demo_dir / "run.toml").read_text())
+    for arc in ("L1", "L2"):
+        for spec in cfg["arcs"][arc].values():
+            for key in ("image", "error"):
+                if key in spec:
+                    spec[key] = str(demo_dir / spec[key])
+    for spec in cfg["bands"].values():
+        spec["psf"] = str(demo_dir / spec["psf"])
+    return cfg
+
+
+def write(path, cfg):
+    from lensdual.config import format_config
+
+    path.write_text(format_config(cfg))
+    return path
+
+
+def no_leftovers(tmp_path, out):
+    assert not out.exists()
+    assert not [p for p in tmp_path.rglob("*") if ".partial-" in p.name]
+
+
+def copy_fits(src, dst, fn):
+    with fits.open(src) as hdul:
+        fn(hdul)
+        hdul.writeto(dst, overwrite=True)
+    return dst
+
+
+def test_error_map_in_other_units_is_refused(demo_dir, tmp_path, capsys):
+    cfg = absolute_config(demo_dir)
+    spec = cfg["arcs"]["L1"]["F150W"]
+    src = spec.get("error", spec["image"])
+
+    def to_mjy_sr(hdul):
+        index = 1 if "error_hdu" in spec else 0
+        hdul[index].header["BUNIT"] = "MJy/sr"
+
+    spec["error"] = str(copy_fits(src, tmp_path / "err.fits", to_mjy_sr))
+    out = tmp_path / "out"
+    assert main(["run", str(write(tmp_path / "c.toml", cfg)), "--outdir", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "[arcs.L1.F150W] error" in err and "not convertible" in err and "MJy / sr" in err
+    no_leftovers(tmp_path, out)
+
+
+def test_error_map_far_below_the_noise_warns(demo_dir, tmp_path, capsys):
+    cfg = absolute_config(demo_dir)
+    spec = cfg["arcs"]["L1"]["F150W"]
+    src = spec.get("error", spec["image"])
+    index = 1 if "error_hdu" in spec else 0
+
+    def tiny(hdul):
+        hdul[index].data = np.full(hdul[index].data.shape, 1e-12)
+
+    spec["error"] = str(copy_fits(src, tmp_path / "err.fits", tiny))
+    out = tmp_path / "out"
+    assert main(["run", str(write(tmp_path / "c.toml", cfg)), "--outdir", str(out),
+                 "--quiet"]) == 0
+    err = capsys.readouterr().err
+    assert "times the measured noise" in err and "arc L1" in err
+    assert "times the measured noise" in (out / "report.txt").read_text()
+
+
+def test_unit_typo_on_one_band_is_refused(demo_dir, tmp_path, capsys):
+    cfg = absolute_config(demo_dir)
+    cfg["arcs"]["L2"]["F200W"]["unit"] = "Jy"
+    out = tmp_path / "out"
+    assert main(["run", str(write(tmp_path / "c.toml", cfg)), "--outdir", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "[arcs.L2.F200W] unit: 'Jy' is given, but the BUNIT" in err
+    cfg["arcs"]["L2"]["F200W"]["unit"] = "nJy / arcsec2"
+    assert main(["run", str(write(tmp_path / "c.toml", cfg)), "--outdir", str(out)]) == 2
+    assert "cannot be converted" in capsys.readouterr().err
+    no_leftovers(tmp_path, out)
+
+
+def test_bands_on_different_pixel_grids_are_refused(demo_dir, tmp_path, capsys):
+    from astropy.wcs import WCS
+
+    cfg = absolute_config(demo_dir)
+    spec = cfg["arcs"]["L1"]["F200W"]
+
+    def rotate(hdul):
+        # the same sky, stored rotated by 90 degrees with a correct WCS
+        w = WCS(hdul[0].header)
+        hdul[0].data = np.rot90(hdul[0].data).copy()
+        ny, nx = hdul[0].data.shape
+        new = w.deepcopy()
+        new.wcs.pc = w.wcs.get_pc() @ np.array([[0.0, -1.0], [1.0, 0.0]])
+        new.wcs.crpix = [w.wcs.crpix[1], nx + 1 - w.wcs.crpix[0]]
+        hdul[0].header.update(new.to_header())
+        for k in range(1, len(hdul)):
+            if hdul[k].data is not None and hdul[k].data.shape == (nx, ny):
+                hdul[k].data = np.rot90(hdul[k].data).copy()
+
+    rotated = copy_fits(spec["image"], tmp_path / "rot.fits", rotate)
+    spec["image"] = str(rotated)
+    if "error" in spec:
+        spec["error"] = str(rotated)
+    out = tmp_path / "out"
+    assert main(["run", str(write(tmp_path / "c.toml", cfg)), "--outdir", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "[arcs.L1.F200W] image: its pixel grid differs from band F150W" in err
+    assert "reproject" in err
+    no_leftovers(tmp_path, out)
+
+
+def test_too_few_pairs(demo_dir, tmp_path, capsys):
+    previous = QTable.read(demo_dir / "pairs.ecsv", format="ascii.ecsv")
+    QTable({"id1": previous["id1"][:4], "id2": previous["id2"][:4]}).write(
+        tmp_path / "pairs.ecsv", format="ascii.ecsv")
+    cfg = absolute_config(demo_dir)
+    cfg["pairing"] = {"method": "manual", "file": str(tmp_path / "pairs.ecsv")}
+    out = tmp_path / "out"
+    # the default estimator refuses: its error bars need 7 pairs
+    assert main(["run", str(write(tmp_path / "c.toml", cfg)), "--outdir", str(out),
+                 "--quiet"]) == 1
+    assert "needs at least 7" in capsys.readouterr().err
+    no_leftovers(tmp_path, out)
+    # the paper's estimators run, with a loud warning in the verdict
+    cfg["analysis"]["estimator"] = "quad"
+    assert main(["run", str(write(tmp_path / "q.toml", cfg)), "--outdir", str(out),
+                 "--quiet"]) == 0
+    assert "WARNING: only 4 pairs" in (out / "report.txt").read_text()
+
+
+def test_nan_mu_size_is_never_a_pass():
+    import astropy.units as u
+
+    from lensdual.duality import check_duality
+
+    rng = np.random.default_rng(0)
+    t2 = rng.uniform(-1, 1, (8, 2))
+    t1 = t2 @ np.array([[1.3, 0.2], [0.1, -0.9]]).T
+    pairs = QTable({"id1": np.arange(8), "id2": np.arange(8),
+                    "x1": t1[:, 0] * u.arcsec, "y1": t1[:, 1] * u.arcsec,
+                    "x2": t2[:, 0] * u.arcsec, "y2": t2[:, 1] * u.arcsec,
+                    "flux1_F150W": np.full(8, 1.17), "flux2_F150W": np.ones(8),
+                    "flux_err1_F150W": np.full(8, 0.01), "flux_err2_F150W": np.full(8, 0.01)})
+    res = check_duality(pairs, "quad", sigma_pos=0.001 * u.arcsec, n_bootstrap=50, seed=0)
+    res["mu_size"][2] = np.nan  # e.g. the 2v estimator on collinear neighbours
+    res["tested"][2] = False
+    res["snr"][2] = np.nan
+    text = verdict(res, 0.001 * u.arcsec)
+    assert "could not be tested and are NOT passes" in text and "no mu_size: pair 3" in text
+    table = format_pairs_table(res)
+    assert "untested (no mu_size)" in table.splitlines()[4]
+    res["tested"][:] = False
+    res["anomalous"][:] = False
+    text = verdict(res, 0.001 * u.arcsec)
+    assert "No pair could be tested" in text and "no conclusion" in text
+
+
+def test_stale_outputs_are_removed_and_other_files_kept(demo_dir, tmp_path, capsys):
+    cfg = absolute_config(demo_dir)
+    out = tmp_path / "out"
+    out.mkdir()
+    for name in ("parametric.ecsv", "parametric.png", "notes.txt"):
+        (out / name).write_text("old")
+    assert main(["run", str(write(tmp_path / "c.toml", cfg)), "--outdir", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "Removed 2 output(s) of an earlier lensdual run" in printed
+    assert not (out / "parametric.ecsv").exists() and not (out / "parametric.png").exists()
+    assert (out / "notes.txt").read_text() == "old"
+    # the manifest lists what this run wrote; DS9 regions are among them
+    manifest = (out / ".lensdual-outputs").read_text().split()
+    assert {"pairs.ecsv", "pairs.reg", "sources_L1.reg", "report.txt"} <= set(manifest)
+
+
+def test_unwritable_output_fails_before_the_analysis(demo_dir, tmp_path, capsys, monkeypatch):
+    import lensdual.cli as cli
+
+    def never(*args, **kwargs):
+        raise AssertionError("the analysis ran")
+
+    monkeypatch.setattr(cli, "analyse", never)
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    cfg = absolute_config(demo_dir)
+    path = write(tmp_path / "c.toml", cfg)
+    assert main(["run", str(path), "--outdir", str(blocker / "out"), "--quiet"]) == 1
+    assert "cannot write the output directory" in capsys.readouterr().err
+    # an existing file as the output directory is a configuration problem (exit 2)
+    assert main(["run", str(path), "--outdir", str(blocker), "--quiet"]) == 2
+    assert "exists and is not a directory" in capsys.readouterr().err
+
+
+def test_ds9_regions(demo_dir):
+    from regions import Regions
+
+    pairs = QTable.read(demo_dir / "pairs.ecsv", format="ascii.ecsv")
+    reg = Regions.read(str(demo_dir / "pairs.reg"), format="ds9")
+    assert len(reg) == 3 * len(pairs)
+    texts = [str(r.meta.get("text")) for r in reg if "text" in r.meta]
+    assert texts[:2] == [str(pairs["pair_id"][0])] * 2
+    np.testing.assert_allclose(reg[0].center.ra.deg, pairs["sky1"][0].ra.deg, atol=1e-7)
+    np.testing.assert_allclose(reg[1].center.dec.deg, pairs["sky2"][0].dec.deg, atol=1e-7)
+    cat = QTable.read(demo_dir / "catalog_L1.ecsv", format="ascii.ecsv")
+    assert len(Regions.read(str(demo_dir / "sources_L1.reg"), format="ds9")) == len(cat)
+
+
+def test_progress_bars_only_on_a_terminal(demo_dir, tmp_path, capsys, monkeypatch):
+    cfg = absolute_config(demo_dir)
+    path = write(tmp_path / "c.toml", cfg)
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: False, raising=False)
+    assert main(["run", str(path), "--outdir", str(tmp_path / "a")]) == 0
+    assert "lensdual run:" not in capsys.readouterr().err
+    assert main(["run", str(path), "--outdir", str(tmp_path / "b"), "--progress"]) == 0
+    assert "lensdual run:" in capsys.readouterr().err
