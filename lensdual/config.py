@@ -42,6 +42,11 @@ file. Angles are strings of a number and an angular unit (``"0.066 arcsec"``,
                                      # map (not both); an error_hdu (weight_hdu)
                                      # without error (weight) reads the image's file
     unit = "nJy"                     # optional; else BUNIT; else dimensionless
+                                     # A pipeline product (JWST *_i2d, HST *_drz/_drc)
+                                     # needs image only: its SCI, ERR (else WHT)
+                                     # extensions are found; MJy/sr with PIXAR_SR
+                                     # becomes nJy per pixel; an exposure-time WHT
+                                     # is scaled to the image's sky noise (warning)
     [arcs.L1.F200W]
     image = "L1_F200W.fits"
     [arcs.L1.cutout]                 # optional, per arc ("cutout" is no band name)
@@ -1107,6 +1112,12 @@ class _Validator:
         if maps["error"][0] is not None and maps["weight"][0] is not None:
             self.add(f"[{sec}] weight: give either error (a 1-sigma map) or weight (an "
                      "inverse-variance map), not both")
+        elif maps["error"][0] is None and maps["weight"][0] is None and image not in (None, _BAD):
+            # pipeline products (JWST *_i2d, HST *_drz / *_drc): the error or weight map
+            # is an extension of the image's own file
+            found = _product_map(image)
+            if found is not None:
+                maps[found[0]] = (image, found[1])
         unit = None
         if "unit" in table:
             if not isinstance(table["unit"], str):
@@ -1529,6 +1540,62 @@ def _meta(header):
     return meta
 
 
+def _product_map(path):
+    """("error", "ERR") or ("weight", "WHT") when ``path`` is a pipeline product with
+    such an extension beside a SCI extension; else None."""
+    try:
+        with fits.open(path) as hdul:
+            names = {h.name.upper() for h in hdul}
+    except Exception:  # unreadable files are reported by inspect_fits
+        return None
+    if "SCI" not in names:
+        return None
+    if "ERR" in names:
+        return ("error", "ERR")
+    if "WHT" in names:
+        return ("weight", "WHT")
+    return None
+
+
+def _pixel_area(header, hdul):
+    """PIXAR_SR of a JWST product (the image's header, else the primary's), or None."""
+    for h in (header, hdul[0].header):
+        value = h.get("PIXAR_SR")
+        if isinstance(value, (int, float)) and value > 0:
+            return float(value)
+    return None
+
+
+def _exposure_weighted(spec):
+    """True when the weight map is a drizzled product's WHT made with exposure-time
+    (not inverse-variance) weights: HST's D###WTSC / FINAL_WHT keywords say 'EXP'."""
+    if str(spec.weight_hdu).upper() != "WHT":
+        return False
+    with fits.open(spec.weight) as hdul:
+        for h in hdul:
+            for key, value in h.header.items():
+                if (key.endswith("WTSC") or key in ("FINALWHT", "FINAL_WHT_TYPE")) and \
+                        isinstance(value, str) and value.strip().upper() == "EXP":
+                    return True
+    return False
+
+
+def _sky_scale(data, err, mask, where):
+    """The factor that makes ``err`` match the image's own sky noise (with a warning)."""
+    from astropy.stats import sigma_clipped_stats
+
+    from .exceptions import LensdualWarning
+
+    good = ~mask & np.isfinite(err)
+    _, median, std = sigma_clipped_stats(data[good], sigma=3.0, maxiters=5)
+    sky = good & (np.abs(data - median) < 3.0 * std)
+    factor = float(std / np.median(err[sky])) if sky.any() else 1.0
+    warnings.warn(f"{where}: an exposure-time weight (not inverse variance); errors are "
+                  f"1/sqrt(WHT) scaled by {factor:.3g} to the sky noise of the image",
+                  LensdualWarning, stacklevel=3)
+    return factor
+
+
 def _read_map(path, hdu, slices, unit=None):
     """A map's pixels; with ``unit``, converted from the map's own BUNIT to it."""
     with fits.open(path) as hdul:
@@ -1584,25 +1651,35 @@ def _read_image(spec, arc, psf):
                                  f"{spec.image}") from None
             slices, wcs = cut.slices_original, cut.wcs
         data = np.array(hdu.section[slices], dtype=np.float64)
+        pixar = _pixel_area(header, hdul)
     unit = spec.unit
     if unit is None:
         bunit = header.get("BUNIT")
         bunit = bunit.strip() if isinstance(bunit, str) else ""
         unit = u.Unit(bunit, parse_strict="raise") if bunit else u.dimensionless_unscaled
+    map_unit = unit
+    scale = 1.0
+    if pixar is not None and unit.is_equivalent(u.MJy / u.sr):
+        # surface brightness (JWST MJy/sr) to flux per pixel (nJy) with the pixel area
+        scale = (unit * u.sr).to(u.nJy) * pixar
+        unit = u.nJy
+        data *= scale
     mask = ~np.isfinite(data)
     uncertainty = None
     where = f"arc {arc.name}, {spec.image.name}"
     if spec.error is not None:
-        err = _read_map(spec.error, spec.error_hdu, slices, unit=unit)
+        err = _read_map(spec.error, spec.error_hdu, slices, unit=map_unit) * scale
         mask |= ~(np.isfinite(err) & (err > 0))
         _check_noise(data, err, mask, f"{where} (error map {spec.error.name})")
         uncertainty = StdDevUncertainty(err)
     elif spec.weight is not None:
-        weight = _read_map(spec.weight, spec.weight_hdu, slices)
+        weight = _read_map(spec.weight, spec.weight_hdu, slices) / scale**2
         good = np.isfinite(weight) & (weight > 0)
         err = np.full(weight.shape, np.nan)
         err[good] = 1.0 / np.sqrt(weight[good])
         mask |= ~good
+        if _exposure_weighted(spec):
+            err *= _sky_scale(data, err, mask, f"{where} (weight map {spec.weight.name})")
         _check_noise(data, err, mask, f"{where} (weight map {spec.weight.name})")
         uncertainty = StdDevUncertainty(err)
     return CCDData(data, unit=unit, wcs=wcs, uncertainty=uncertainty, mask=mask,

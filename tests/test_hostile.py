@@ -234,3 +234,61 @@ def test_progress_bars_only_on_a_terminal(demo_dir, tmp_path, capsys, monkeypatc
     assert "lensdual run:" not in capsys.readouterr().err
     assert main(["run", str(path), "--outdir", str(tmp_path / "b"), "--progress"]) == 0
     assert "lensdual run:" in capsys.readouterr().err
+
+
+def _product(path, kind, rng, pixar=2.0e-14):
+    """A JWST *_i2d-like (SCI, ERR, WHT in MJy/sr) or HST *_drz-like (SCI, WHT, CTX)
+    file of pure noise with a WCS."""
+    from astropy.wcs import WCS
+
+    w = WCS(naxis=2)
+    w.wcs.ctype = ["RA---TAN", "DEC--TAN"]
+    w.wcs.crval = [110.8, -73.45]
+    w.wcs.crpix = [20.0, 20.0]
+    w.wcs.cdelt = [-1e-5, 1e-5]
+    shape = (40, 40)
+    sigma = 0.3
+    sci = fits.ImageHDU(rng.normal(1.0, sigma, shape), w.to_header(), name="SCI")
+    hdus = [fits.PrimaryHDU(), sci]
+    if kind == "jwst":
+        sci.header["BUNIT"] = "MJy/sr"
+        sci.header["PIXAR_SR"] = pixar
+        hdus += [fits.ImageHDU(np.full(shape, sigma), name="ERR"),
+                 fits.ImageHDU(np.full(shape, 5.0), name="WHT")]
+    else:
+        sci.header["BUNIT"] = "electron/s"
+        hdus[0].header["D001WTSC"] = "exp"
+        hdus += [fits.ImageHDU(np.full(shape, 1000.0), name="WHT"),
+                 fits.ImageHDU(np.ones(shape, dtype=np.int32), name="CTX")]
+    fits.HDUList(hdus).writeto(path)
+    return path, sigma
+
+
+def test_jwst_and_hst_products_are_read_with_their_extensions(tmp_path):
+    import astropy.units as u
+
+    from lensdual.config import load_config, load_images
+    from lensdual.exceptions import LensdualWarning
+
+    rng = np.random.default_rng(3)
+    for kind in ("jwst", "hst"):
+        paths = {arc: _product(tmp_path / f"{kind}_{arc}.fits", kind, rng)[0]
+                 for arc in ("L1", "L2")}
+        cfg = {"bands": {"F150W": {"psf_fwhm": "0.07 arcsec"}},
+               "arcs": {arc: {"F150W": {"image": str(p)}} for arc, p in paths.items()}}
+        config = load_config(write(tmp_path / f"{kind}.toml", cfg))
+        spec = config.arcs["L1"].images["F150W"]
+        if kind == "jwst":
+            assert (spec.error_hdu, spec.weight) == ("ERR", None)
+            ccd = load_images(config)["L1"]["F150W"]
+            # MJy/sr times the pixel area, in nJy per pixel
+            factor = (1 * u.MJy).to_value(u.nJy) * 2.0e-14
+            assert ccd.unit == u.nJy
+            np.testing.assert_allclose(np.median(ccd.data), factor, rtol=0.05)
+            np.testing.assert_allclose(ccd.uncertainty.array, 0.3 * factor)
+        else:
+            assert (spec.weight_hdu, spec.error) == ("WHT", None)
+            with pytest.warns(LensdualWarning, match="exposure-time weight"):
+                ccd = load_images(config)["L1"]["F150W"]
+            # errors scaled to the sky noise (0.3), not 1/sqrt(1000)
+            np.testing.assert_allclose(np.median(ccd.uncertainty.array), 0.3, rtol=0.1)
