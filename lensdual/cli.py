@@ -115,7 +115,7 @@ _MANIFEST = ".lensdual-outputs"
 _KNOWN_OUTPUTS = ("pairs.ecsv", "catalog_L1.ecsv", "catalog_L2.ecsv", "pairing_map.png",
                   "duality.png", "report.txt", "parametric.ecsv", "parametric.png",
                   "truth_comparison.ecsv", "run.toml", "knot_images.ecsv", "pairs.reg",
-                  "sources_L1.reg", "sources_L2.reg")
+                  "sources_L1.reg", "sources_L2.reg", "constellation.png")
 
 
 def _earlier_outputs(outdir):
@@ -754,7 +754,7 @@ def _write_table(table, path):
     table.write(path, format="ascii.ecsv", overwrite=True)
 
 
-def _write_figures(analysis, directory, *, title):
+def _write_figures(analysis, directory, *, title, images=None):
     import matplotlib
 
     if matplotlib.get_backend().lower() not in ("agg", "pdf", "svg", "cairo"):
@@ -769,6 +769,13 @@ def _write_figures(analysis, directory, *, title):
     fig.tight_layout()
     fig.savefig(directory / "pairing_map.png", dpi=120)
     plt.close(fig)
+    if images is not None:
+        from .visualization import plot_arc_images
+
+        fig = plot_arc_images(images, analysis.result)
+        fig.suptitle(f"{title}: the pairs on both arcs", fontsize="medium")
+        fig.savefig(directory / "constellation.png", dpi=110)
+        plt.close(fig)
     fig, ax = plt.subplots(figsize=(5.5, 5.5))
     plot_duality(analysis.result, ax=ax, title=f"{title}: duality test")
     fig.tight_layout()
@@ -788,12 +795,12 @@ def _write_regions(analysis, directory):
                                overwrite=True)
 
 
-def _write_analysis(analysis, directory, report_text, *, title):
+def _write_analysis(analysis, directory, report_text, *, title, images=None):
     for arc, cat in analysis.catalogs.items():
         _write_table(cat, directory / f"catalog_{arc}.ecsv")
     _write_table(analysis.result, directory / "pairs.ecsv")
     _write_regions(analysis, directory)
-    _write_figures(analysis, directory, title=title)
+    _write_figures(analysis, directory, title=title, images=images)
     (directory / "report.txt").write_text(report_text + "\n")
 
 
@@ -1005,7 +1012,7 @@ def _cmd_demo(args):
                                                 z_source=2.2, sigma_pos=sigma, centre=centre,
                                                 seed=args.seed, fit_kwargs=fit_kwargs)
                 report += "\n\n" + _parametric_paragraph(table)
-            _write_analysis(analysis, tmp, report, title="lensdual demo")
+            _write_analysis(analysis, tmp, report, title="lensdual demo", images=images)
     except _FAILURES as err:
         return _finish(args, "demo", progress, start, error=err)
     return _finish(args, "demo", progress, start, report=report, outdir=args.outdir,
@@ -1068,7 +1075,8 @@ def _cmd_run(args):
                 extra = ["", _parametric_paragraph(table)]
             report = _report(analysis, extra)
             with progress.step("write outputs"):
-                _write_analysis(analysis, tmp, report, title=Path(args.config).stem)
+                _write_analysis(analysis, tmp, report, title=Path(args.config).stem,
+                                images=images)
     except _FAILURES as err:
         return _finish(args, "run", progress, start, error=err)
     return _finish(args, "run", progress, start, report=report, outdir=config.outdir,

@@ -292,3 +292,31 @@ def test_jwst_and_hst_products_are_read_with_their_extensions(tmp_path):
                 ccd = load_images(config)["L1"]["F150W"]
             # errors scaled to the sky noise (0.3), not 1/sqrt(1000)
             np.testing.assert_allclose(np.median(ccd.uncertainty.array), 0.3, rtol=0.1)
+
+
+def test_fig3_on_the_images(demo_dir):
+    import matplotlib
+
+    matplotlib.use("agg")
+    from astropy.nddata import CCDData
+    from astropy.visualization.wcsaxes import WCSAxes
+    from matplotlib.patches import Circle
+
+    from lensdual.visualization import plot_arc_images
+
+    assert (demo_dir / "constellation.png").stat().st_size > 20000
+    result = QTable.read(demo_dir / "pairs.ecsv", format="ascii.ecsv")
+    images = {arc: CCDData.read(demo_dir / "images" / f"{arc}_F150W.fits", hdu=0)
+              for arc in ("L1", "L2")}
+    result["anomalous"][:] = False
+    result["anomalous"][1] = True
+    fig = plot_arc_images(images, result)
+    axes = fig.axes
+    assert len(axes) == 3 and all(isinstance(a, WCSAxes) for a in axes[:2])
+    for ax in axes[:2]:
+        circles = [p for p in ax.patches if isinstance(p, Circle)]
+        assert len(circles) == len(result)
+        colours = [matplotlib.colors.to_hex(c.get_edgecolor()) for c in circles]
+        assert colours[1] == "#ff0000" and colours.count("#ff0000") == 1
+        # north up: the Dec axis is the vertical one
+        assert ax.coords[1].get_axislabel() == "Dec"
