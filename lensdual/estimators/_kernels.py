@@ -18,6 +18,16 @@ Status codes returned per pair:
 * ``STATUS_FALLBACK`` (3): quad2 only, the second-order fit was not possible
   (fewer than 5 baselines, or rank deficient) and the first-order Quad
   Jacobian was used; the Jacobian is finite.
+
+Neighbour rows (``nbr``, int64): the points each pair's estimate may use.
+Either one shared row ``arange(N)`` of shape (1, N), every point for every
+pair (no cap: the original, O(N^2) estimators, bit for bit), or one row per
+pair, shape (N, K), holding the pair itself and its ``K - 1`` nearest
+neighbours in L2 (a k-d tree query, :mod:`lensdual.estimators.core`). Within
+a row the kernels rank the points by their distance in L2 themselves, so a
+row may be in any order and stay fixed while the positions move (bootstrap).
+The kernels named ``*_knn`` take such rows; the others are the uncapped
+entry points.
 """
 
 import numpy as np
@@ -108,10 +118,19 @@ def _lstsq_mgs(A, Y, ncol, sol, cond_max):
     return True
 
 
-# Largest condition number of the 2x2 weighted normal matrix for which the
-# closed-form solution is used (its relative error is about cond * eps, i.e.
-# below 1e-10); worse-conditioned fits go through the QR path instead.
-_NORMAL_COND_MAX = 1e6
+@njit(**JIT_OPTIONS)
+def all_rows(n):
+    """The shared neighbour row of the uncapped estimators: every point, shape (1, n)."""
+    rows = np.empty((1, n), dtype=np.int64)
+    for i in range(n):
+        rows[0, i] = i
+    return rows
+
+
+@njit(**JIT_OPTIONS)
+def _row(nbr, a):
+    """The neighbour row of pair ``a`` (the shared row when ``nbr`` has one row)."""
+    return nbr[0] if nbr.shape[0] == 1 else nbr[a]
 
 
 @njit(**JIT_OPTIONS)
@@ -162,6 +181,52 @@ def _normal_sums(t1, t2, weight_power, acc):
             acc[b, 6] += c6
 
 
+@njit(**JIT_OPTIONS)
+def _normal_sums_knn(t1, t2, nbr, weight_power, acc):
+    """:func:`_normal_sums` over the neighbour row of each pair.
+
+    Each pair sums its own baselines, in the order of its row. On the shared
+    row ``arange(N)`` this adds the same products in the same order as
+    :func:`_normal_sums` (a reversed baseline negates both factors of every
+    product, exactly), so the sums are bit-identical.
+    """
+    for a in range(t1.shape[0]):
+        _pair_sums(t1, t2, _row(nbr, a), a, weight_power, acc[a])
+
+
+@njit(**JIT_OPTIONS)
+def _pair_sums(t1, t2, row, a, weight_power, acc):
+    """The sums of :func:`_normal_sums_knn` for pair ``a`` alone, into ``acc[:7]``."""
+    square = weight_power == 2.0
+    s0 = s1 = s2 = s3 = s4 = s5 = s6 = 0.0
+    for jj in range(row.shape[0]):
+        b = row[jj]
+        if b == a:
+            continue
+        dx = t2[b, 0] - t2[a, 0]
+        dy = t2[b, 1] - t2[a, 1]
+        ex = t1[b, 0] - t1[a, 0]
+        ey = t1[b, 1] - t1[a, 1]
+        r2 = dx * dx + dy * dy
+        w = 1.0 / r2 if square else r2 ** (-0.5 * weight_power)
+        wx = w * dx
+        wy = w * dy
+        s0 += wx * dx
+        s1 += wx * dy
+        s2 += wy * dy
+        s3 += ex * wx
+        s4 += ex * wy
+        s5 += ey * wx
+        s6 += ey * wy
+    acc[0] = s0
+    acc[1] = s1
+    acc[2] = s2
+    acc[3] = s3
+    acc[4] = s4
+    acc[5] = s5
+    acc[6] = s6
+
+
 # Largest condition number of the 2x2 weighted normal matrix for which the
 # closed-form solution is used (its relative error is about cond * eps, i.e.
 # below 1e-10); worse-conditioned fits go through the QR path instead.
@@ -190,19 +255,20 @@ def _solve_normal(s, out):
 
 
 @njit(**JIT_OPTIONS)
-def _jacobian_quad(t1, t2, a, order, weight_power, cond_max, A, Y, sol, out):
+def _jacobian_quad(t1, t2, a, row, order, weight_power, cond_max, A, Y, sol, out):
     """Weighted least-squares (Quad/QW) Jacobian at pair ``a``.
 
+    The baselines are those from ``a`` to the other points of its neighbour
+    ``row`` (which holds ``a``; ``A`` and ``Y`` have one row per baseline).
     ``order`` 1 fits ``D1 = J D2``; ``order`` 2 adds the quadratic terms of
     the Taylor expansion (``D2x^2, D2x D2y, D2y^2`` per output component), of
     which only the linear part is returned. Weights ``|D2|^-weight_power``
     enter the squared residuals, so rows are scaled by their square root.
     """
-    n = t1.shape[0]
-    ncol = 2 if order == 1 else 5
     half_power = 0.5 * weight_power
     m = 0
-    for b in range(n):
+    for jj in range(row.shape[0]):
+        b = row[jj]
         if b == a:
             continue
         dx = t2[b, 0] - t2[a, 0]
@@ -218,6 +284,7 @@ def _jacobian_quad(t1, t2, a, order, weight_power, cond_max, A, Y, sol, out):
         Y[m, 0] = sw * (t1[b, 0] - t1[a, 0])
         Y[m, 1] = sw * (t1[b, 1] - t1[a, 1])
         m += 1
+    ncol = 2 if order == 1 else 5
     if not _lstsq_mgs(A, Y, ncol, sol, cond_max):
         for i in range(2):
             for j in range(2):
@@ -232,19 +299,19 @@ def _jacobian_quad(t1, t2, a, order, weight_power, cond_max, A, Y, sol, out):
 
 
 @njit(**JIT_OPTIONS)
-def _triangle_2v(t1, t2, a, b, c, min_sin, dist, out):
+def _triangle_2v(t1, t2, a, b, c, min_sin, db, dc, out):
     """Exact Jacobian on triangle (a, b, c) if its L2 baselines are well separated.
 
-    ``dist`` holds the squared L2 distances from ``a``. Returns False (``out``
-    untouched) when the sine of the angle between the baselines is below
-    ``min_sin``.
+    ``db``, ``dc`` are the squared L2 distances of ``b`` and ``c`` from ``a``.
+    Returns False (``out`` untouched) when the sine of the angle between the
+    baselines is below ``min_sin``.
     """
     bx = t2[b, 0] - t2[a, 0]
     by = t2[b, 1] - t2[a, 1]
     cx = t2[c, 0] - t2[a, 0]
     cy = t2[c, 1] - t2[a, 1]
     det = bx * cy - by * cx
-    if not abs(det) >= min_sin * np.sqrt(dist[b] * dist[c]) or det == 0.0:
+    if not abs(det) >= min_sin * np.sqrt(db * dc) or det == 0.0:
         return False
     # J [b c] = [b1 c1]  =>  J = [b1 c1] [b c]^-1
     b1x = t1[b, 0] - t1[a, 0]
@@ -259,45 +326,52 @@ def _triangle_2v(t1, t2, a, b, c, min_sin, dist, out):
 
 
 @njit(**JIT_OPTIONS)
-def _jacobian_2v(t1, t2, a, min_sin, dist, out):
+def _jacobian_2v(t1, t2, a, row, min_sin, dist, out):
     """2v Jacobian at pair ``a``: the exact inverse on one triangle.
 
-    The triangle is ``a`` with its two nearest neighbours in L2. When their
-    baselines are closer to collinear than ``min_sin`` (the sine of the minimum
-    angle between them), the neighbourhood grows one neighbour at a time
-    (ranked by distance in L2) and the first pair ``(i, j)``, ``i < j``, that
-    closes a well-conditioned triangle is used.
+    The triangle is ``a`` with its two nearest neighbours in L2 (among its
+    neighbour ``row``). When their baselines are closer to collinear than
+    ``min_sin`` (the sine of the minimum angle between them), the
+    neighbourhood grows one neighbour at a time (ranked by distance in L2)
+    and the first pair ``(i, j)``, ``i < j``, that closes a well-conditioned
+    triangle is used. ``dist`` (at least the length of ``row``) is scratch.
     """
-    n = t1.shape[0]
+    n = row.shape[0]
     # the two nearest neighbours by a linear scan (the common case) ...
     n1 = -1
     n2 = -1
     d1 = np.inf
     d2 = np.inf
-    for b in range(n):
+    self_pos = -1
+    for jj in range(n):
+        b = row[jj]
         dx = t2[b, 0] - t2[a, 0]
         dy = t2[b, 1] - t2[a, 1]
         d = dx * dx + dy * dy
-        dist[b] = d
+        dist[jj] = d
         if b == a:
+            self_pos = jj
             continue
         if d < d1:
             n2 = n1
             d2 = d1
-            n1 = b
+            n1 = jj
             d1 = d
         elif d < d2:
-            n2 = b
+            n2 = jj
             d2 = d
-    dist[a] = np.inf
-    if _triangle_2v(t1, t2, a, n1, n2, min_sin, dist, out):
+    if self_pos >= 0:
+        dist[self_pos] = np.inf
+    if n2 >= 0 and _triangle_2v(t1, t2, a, row[n1], row[n2], min_sin, dist[n1], dist[n2],
+                                out):
         return STATUS_OK
     # ... and a growing neighbourhood only when they are nearly collinear
-    order = np.argsort(dist)  # a itself is last
+    order = np.argsort(dist[:n])  # a itself is last
     for jj in range(1, n - 1):
         c = order[jj]
         for ii in range(jj):
-            if _triangle_2v(t1, t2, a, order[ii], c, min_sin, dist, out):
+            b = order[ii]
+            if _triangle_2v(t1, t2, a, row[b], row[c], min_sin, dist[b], dist[c], out):
                 return STATUS_OK
     for i in range(2):
         for j in range(2):
@@ -306,13 +380,15 @@ def _jacobian_2v(t1, t2, a, min_sin, dist, out):
 
 
 @njit(**JIT_OPTIONS)
-def relative_jacobians(t1, t2, method, weight_power, min_sin, cond_max, jac, status):
-    """Relative Jacobian at every pair.
+def relative_jacobians_knn(t1, t2, nbr, method, weight_power, min_sin, cond_max, jac, status):
+    """Relative Jacobian at every pair, from its neighbour row.
 
     Parameters
     ----------
     t1, t2 : (N, 2) float64
         Positions on arcs L1 and L2.
+    nbr : (1, N) or (N, K) int64
+        Neighbour rows (see the module docstring); each row holds its pair.
     method : int
         ``METHOD_2V``, ``METHOD_QUAD`` or ``METHOD_QUAD2``.
     weight_power : float
@@ -327,45 +403,60 @@ def relative_jacobians(t1, t2, method, weight_power, min_sin, cond_max, jac, sta
         Output status codes.
     """
     n = t1.shape[0]
+    k = nbr.shape[1]
     ncol = 5 if method == METHOD_QUAD2 else 2
-    A = np.empty((n - 1, ncol))
-    Y = np.empty((n - 1, 2))
+    A = np.empty((k - 1, ncol))
+    Y = np.empty((k - 1, 2))
     sol = np.empty((ncol, 2))
     if method == METHOD_2V:
-        dist = np.empty(n)
+        dist = np.empty(k)
         for a in range(n):
-            status[a] = _jacobian_2v(t1, t2, a, min_sin, dist, jac[a])
+            status[a] = _jacobian_2v(t1, t2, a, _row(nbr, a), min_sin, dist, jac[a])
     elif method == METHOD_QUAD:
         # closed-form normal equations, QR where they are badly conditioned
         acc = np.empty((n, 7))
-        _normal_sums(t1, t2, weight_power, acc)
+        if nbr.shape[0] == 1:
+            _normal_sums(t1, t2, weight_power, acc)  # all pairs: each baseline once
+        else:
+            _normal_sums_knn(t1, t2, nbr, weight_power, acc)
         for a in range(n):
             if _solve_normal(acc[a], jac[a]):
                 status[a] = STATUS_OK
             else:
                 status[a] = _jacobian_quad(
-                    t1, t2, a, 1, weight_power, cond_max, A, Y, sol, jac[a]
+                    t1, t2, a, _row(nbr, a), 1, weight_power, cond_max, A, Y, sol, jac[a]
                 )
     else:
         for a in range(n):
+            row = _row(nbr, a)
             st = STATUS_ILL_CONDITIONED
-            if n - 1 >= 5:
-                st = _jacobian_quad(t1, t2, a, 2, weight_power, cond_max, A, Y, sol, jac[a])
+            if k - 1 >= 5:
+                st = _jacobian_quad(t1, t2, a, row, 2, weight_power, cond_max, A, Y, sol,
+                                    jac[a])
             if st != STATUS_OK:
                 # not enough (or degenerate) baselines for the curvature terms
-                st = _jacobian_quad(t1, t2, a, 1, weight_power, cond_max, A, Y, sol, jac[a])
+                st = _jacobian_quad(t1, t2, a, row, 1, weight_power, cond_max, A, Y, sol,
+                                    jac[a])
                 st = STATUS_FALLBACK if st == STATUS_OK else st
             status[a] = st
 
 
 @njit(**JIT_OPTIONS)
-def bootstrap_determinants(t1, t2, noise1, noise2, method, weight_power, min_sin,
-                           cond_max, det_out):
+def relative_jacobians(t1, t2, method, weight_power, min_sin, cond_max, jac, status):
+    """:func:`relative_jacobians_knn` with every point for every pair (no cap)."""
+    relative_jacobians_knn(t1, t2, all_rows(t1.shape[0]), method, weight_power, min_sin,
+                           cond_max, jac, status)
+
+
+@njit(**JIT_OPTIONS)
+def bootstrap_determinants_knn(t1, t2, nbr, noise1, noise2, method, weight_power, min_sin,
+                               cond_max, det_out):
     """Signed ``det J`` at every pair for every bootstrap realisation.
 
     ``noise1``, ``noise2`` are (B, N, 2) offsets added to ``t1``, ``t2``;
     ``det_out`` (B, N) receives the determinants (NaN where a realisation has
-    no finite Jacobian).
+    no finite Jacobian). The neighbour rows ``nbr`` stay those of the
+    measured positions; each realisation re-ranks the points within them.
     """
     nboot = noise1.shape[0]
     n = t1.shape[0]
@@ -378,9 +469,18 @@ def bootstrap_determinants(t1, t2, noise1, noise2, method, weight_power, min_sin
             for d in range(2):
                 p1[i, d] = t1[i, d] + noise1[k, i, d]
                 p2[i, d] = t2[i, d] + noise2[k, i, d]
-        relative_jacobians(p1, p2, method, weight_power, min_sin, cond_max, jac, status)
+        relative_jacobians_knn(p1, p2, nbr, method, weight_power, min_sin, cond_max, jac,
+                               status)
         for i in range(n):
             det_out[k, i] = jac[i, 0, 0] * jac[i, 1, 1] - jac[i, 0, 1] * jac[i, 1, 0]
+
+
+@njit(**JIT_OPTIONS)
+def bootstrap_determinants(t1, t2, noise1, noise2, method, weight_power, min_sin,
+                           cond_max, det_out):
+    """:func:`bootstrap_determinants_knn` with every point for every pair (no cap)."""
+    bootstrap_determinants_knn(t1, t2, all_rows(t1.shape[0]), noise1, noise2, method,
+                               weight_power, min_sin, cond_max, det_out)
 
 
 # ---------------------------------------------------------------------------
@@ -439,12 +539,15 @@ def _copy_jacobian(src, out):
 
 
 @njit(**JIT_OPTIONS)
-def _cholesky_solve(A, p, scale, rhs, L, sol, tol):
-    """Solve ``(S A S) z = S rhs`` (S = diag(scale)) by Cholesky; ``sol = S z``.
+def _cholesky_factor(A, p, scale, L, tol):
+    """Cholesky factor ``L`` of the leading ``p`` x ``p`` block of ``S A S``.
 
-    Only the leading ``p`` x ``p`` block of ``A`` is used. ``L`` receives the
-    factor of the equilibrated matrix. Returns False when a pivot falls below
-    ``tol`` times the largest diagonal element (numerically singular).
+    ``S = diag(scale)``; the matrix is equilibrated, so ``tol`` bounds its
+    pivots relative to 1. Row ``i`` of ``L`` depends on rows ``< i`` only:
+    the leading block of the factor of a larger block is the factor of the
+    smaller one, bit for bit. Returns the number of leading rows factored
+    before a pivot fell below ``tol`` (``p`` on success): a fit with up to
+    that many coefficients can use ``L``.
     """
     for i in range(p):
         for j in range(i + 1):
@@ -453,10 +556,30 @@ def _cholesky_solve(A, p, scale, rhs, L, sol, tol):
                 s -= L[i, k] * L[j, k]
             if i == j:
                 if not s > tol:
-                    return False
+                    return i
                 L[i, i] = np.sqrt(s)
             else:
                 L[i, j] = s / L[j, j]
+    return p
+
+
+@njit(**JIT_OPTIONS)
+def _cholesky_solve(A, p, scale, rhs, L, sol, tol):
+    """Solve ``(S A S) z = S rhs`` (S = diag(scale)) by Cholesky; ``sol = S z``.
+
+    Only the leading ``p`` x ``p`` block of ``A`` is used. ``L`` receives the
+    factor of the equilibrated matrix. Returns False when a pivot falls below
+    ``tol`` times the largest diagonal element (numerically singular).
+    """
+    if _cholesky_factor(A, p, scale, L, tol) < p:
+        return False
+    _factored_solve(L, p, scale, rhs, sol)
+    return True
+
+
+@njit(**JIT_OPTIONS)
+def _factored_solve(L, p, scale, rhs, sol):
+    """The solve of :func:`_cholesky_solve` with the factor ``L`` already made."""
     for i in range(p):
         s = rhs[i] * scale[i]
         for k in range(i):
@@ -469,7 +592,6 @@ def _cholesky_solve(A, p, scale, rhs, L, sol, tol):
         sol[i] = s / L[i, i]
     for i in range(p):
         sol[i] *= scale[i]
-    return True
 
 
 @njit(**JIT_OPTIONS)
@@ -490,11 +612,24 @@ def _inverse_entry(L, p, scale, i, j, work):
 
 
 @njit(**JIT_OPTIONS)
-def _adaptive_pair(t1, t2, s1, s2, a, pilot, chi2_crit, min_extra, report_extra,
-                   min_candidates, lookahead, order, U, Yr, W, A, rhs, L, scale, beta, work,
-                   jac_out):
+def _slope_covariance(L, p, scale, work, out):
+    """Entries (1, 1), (1, 2), (2, 2) of ``S (S A S)^-1 S`` into ``out[:3]``.
+
+    The same arithmetic as three :func:`_inverse_entry` calls, with the solve
+    for ``e_2`` made once for both entries that need it.
+    """
+    out[0] = _inverse_entry(L, p, scale, 1, 1, work)
+    out[2] = _inverse_entry(L, p, scale, 2, 2, work)
+    out[1] = work[1] * scale[1] * scale[2]
+
+
+@njit(**JIT_OPTIONS)
+def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_extra,
+                   min_candidates, lookahead, order, dsort, U, Yr, W, A, rhs, L, scale, beta,
+                   work, jac_out):
     """Adaptive local-polynomial Jacobian at pair ``a``; returns (ln_sd, status).
 
+    The points are those of the neighbour ``row`` of ``a`` (``a`` included).
     The noise of each baseline is the effective variance
     ``s1^2 I + s2^2 P P^T`` (P the pilot Jacobian at ``a``); in the frame of
     the eigenvectors of ``P P^T`` the two output components are independent,
@@ -514,8 +649,12 @@ def _adaptive_pair(t1, t2, s1, s2, a, pilot, chi2_crit, min_extra, report_extra,
     ``lookahead`` larger neighbourhoods of its degree (``ADAPTIVE_MISFIT``,
     when at least ``min_candidates`` fits are self-consistent). Otherwise
     the least-bad fit is returned as ``ADAPTIVE_UNTESTABLE``.
+
+    The reported fit's chi-square and PRESS (a pass over the points with
+    the leverages, the costly part) are computed only while no neighbourhood
+    has passed: once one has, only a smaller error can change the result.
     """
-    n = t1.shape[0]
+    n = row.shape[0]
     # pilot effective-variance frame
     m00 = pilot[0, 0] * pilot[0, 0] + pilot[0, 1] * pilot[0, 1]
     m01 = pilot[0, 0] * pilot[1, 0] + pilot[0, 1] * pilot[1, 1]
@@ -528,15 +667,21 @@ def _adaptive_pair(t1, t2, s1, s2, a, pilot, chi2_crit, min_extra, report_extra,
     c = np.cos(ang)
     s = np.sin(ang)
     # R = [[c, -s], [s, c]]: columns are the eigenvectors; y' = R^T y
-    dist = np.empty(n)
-    for b in range(n):
+    for jj in range(n):
+        b = row[jj]
         dx = t2[b, 0] - t2[a, 0]
         dy = t2[b, 1] - t2[a, 1]
-        dist[b] = dx * dx + dy * dy
-    idx = np.argsort(dist)
+        dsort[jj] = dx * dx + dy * dy
+    idx = np.argsort(dsort[:n])
     for k in range(n):
-        order[k] = idx[k]
-    hmax = np.sqrt(dist[idx[n - 1]])
+        order[k] = row[idx[k]]
+    # distances in rank order (idx is a fresh array: dsort may be overwritten)
+    for k in range(n):
+        b = order[k]
+        dx = t2[b, 0] - t2[a, 0]
+        dy = t2[b, 1] - t2[a, 1]
+        dsort[k] = dx * dx + dy * dy
+    hmax = np.sqrt(dsort[n - 1])
     if not hmax > 0.0:
         jac_out[:, :] = np.nan
         return np.nan, ADAPTIVE_FAILED
@@ -575,6 +720,7 @@ def _adaptive_pair(t1, t2, s1, s2, a, pilot, chi2_crit, min_extra, report_extra,
     best_fb_k = 0
     best_fb_dr = 0
     cov = np.empty((2, 3))
+    spow = np.empty(4)
     jb = np.empty((2, 2))
     jf = np.empty((2, 2))
     for k in range(n):
@@ -587,11 +733,25 @@ def _adaptive_pair(t1, t2, s1, s2, a, pilot, chi2_crit, min_extra, report_extra,
                 for j in range(i + 1):
                     A[comp, i, j] += wi * U[k, j]
         kk = k + 1
-        hk = np.sqrt(dist[order[k]])
+        hk = np.sqrt(dsort[k])
         if not hk > 0.0:
             continue
+        # the largest fit of this neighbourhood; one factorisation per component
+        # serves all fits (the leading blocks of the factor)
+        p_max = 0
+        for dt in range(1, 4 - report_extra):
+            if kk >= _ncoef(dt + report_extra) + min_extra:
+                p_max = _ncoef(dt + report_extra)
+        if p_max == 0:
+            continue
+        hr = hmax / hk
+        for d in range(4):
+            spow[d] = hr ** float(d)
         for i in range(_ADAPTIVE_NCOEF_MAX):
-            scale[i] = (hmax / hk) ** _MONOMIAL_DEGREE[i]
+            scale[i] = spow[int(_MONOMIAL_DEGREE[i])]
+        n_fac0 = _cholesky_factor(A[0], p_max, scale, L[0], 1e-13)
+        n_fac1 = _cholesky_factor(A[1], p_max, scale, L[1], 1e-13)
+        n_fac = min(n_fac0, n_fac1)
         for dt in range(1, 4 - report_extra):
             pt = _ncoef(dt)
             pr = _ncoef(dt + report_extra)
@@ -599,11 +759,10 @@ def _adaptive_pair(t1, t2, s1, s2, a, pilot, chi2_crit, min_extra, report_extra,
                 continue
             # test fit: chi-square of both components at degree dt
             chi2 = 0.0
-            ok = True
+            if n_fac < pt:
+                continue
             for comp in range(2):
-                if not _cholesky_solve(A[comp], pt, scale, rhs[comp], L, beta[comp], 1e-13):
-                    ok = False
-                    break
+                _factored_solve(L[comp], pt, scale, rhs[comp], beta[comp])
                 w_sum = 0.0
                 for q in range(kk):
                     r = Yr[q, comp]
@@ -611,42 +770,17 @@ def _adaptive_pair(t1, t2, s1, s2, a, pilot, chi2_crit, min_extra, report_extra,
                         r -= U[q, i] * beta[comp, i]
                     w_sum += W[q, comp] * r * r
                 chi2 += w_sum
-            if not ok:
-                continue
             dof = 2 * (kk - pt)
+            passed = chi2 <= chi2_crit[dof]
+            if found and not passed:
+                continue  # only a passing fit with a smaller error can change the result
             # reported fit: degree dt + report_extra on the same points, with
-            # its covariance, its chi-square and its leave-one-out (PRESS)
-            # misfit per component
-            chi2_r = 0.0
-            press = 0.0
-            press_null = 0.0
-            for comp in range(2):
-                if not _cholesky_solve(A[comp], pr, scale, rhs[comp], L, beta[comp], 1e-13):
-                    ok = False
-                    break
-                cov[comp, 0] = _inverse_entry(L, pr, scale, 1, 1, work)
-                cov[comp, 1] = _inverse_entry(L, pr, scale, 1, 2, work)
-                cov[comp, 2] = _inverse_entry(L, pr, scale, 2, 2, work)
-                for q in range(kk):
-                    r = Yr[q, comp]
-                    for i in range(pr):
-                        r -= U[q, i] * beta[comp, i]
-                    chi2_r += W[q, comp] * r * r
-                    # leverage: w |L^-1 S u|^2
-                    lev = 0.0
-                    for i in range(pr):
-                        v = U[q, i] * scale[i]
-                        for m in range(i):
-                            v -= L[i, m] * work[m]
-                        work[i] = v / L[i, i]
-                        lev += work[i] * work[i]
-                    lev *= W[q, comp]
-                    if not lev < 1.0 - 1e-9:
-                        lev = 1.0 - 1e-9
-                    press += W[q, comp] * r * r / ((1.0 - lev) * (1.0 - lev))
-                    press_null += 1.0 / (1.0 - lev)
-            if not ok:
+            # its covariance
+            if n_fac < pr:
                 continue
+            for comp in range(2):
+                _factored_solve(L[comp], pr, scale, rhs[comp], beta[comp])
+                _slope_covariance(L[comp], pr, scale, work, cov[comp])
             # J' rows (rotated frame), derivatives with respect to the unscaled offsets
             jr00 = beta[0, 1] / hmax
             jr01 = beta[0, 2] / hmax
@@ -666,13 +800,36 @@ def _adaptive_pair(t1, t2, s1, s2, a, pilot, chi2_crit, min_extra, report_extra,
             if not var_ln > 0.0:
                 continue
             sd = np.sqrt(var_ln)
-            passed = chi2 <= chi2_crit[dof]
             if passed:
                 if sd < best_sd:
                     best_sd = sd
                     found = True
                     _rotate_back(c, s, jr00, jr01, jr10, jr11, jb)
             if not found:
+                # the reported fit's chi-square and leave-one-out (PRESS) misfit
+                chi2_r = 0.0
+                press = 0.0
+                press_null = 0.0
+                for comp in range(2):
+                    Lc = L[comp]
+                    for q in range(kk):
+                        r = Yr[q, comp]
+                        for i in range(pr):
+                            r -= U[q, i] * beta[comp, i]
+                        chi2_r += W[q, comp] * r * r
+                        # leverage: w |L^-1 S u|^2
+                        lev = 0.0
+                        for i in range(pr):
+                            v = U[q, i] * scale[i]
+                            for m in range(i):
+                                v -= Lc[i, m] * work[m]
+                            work[i] = v / Lc[i, i]
+                            lev += work[i] * work[i]
+                        lev *= W[q, comp]
+                        if not lev < 1.0 - 1e-9:
+                            lev = 1.0 - 1e-9
+                        press += W[q, comp] * r * r / ((1.0 - lev) * (1.0 - lev))
+                        press_null += 1.0 / (1.0 - lev)
                 dof_r = 2 * (kk - pr)
                 sdf = sd * np.sqrt(max(1.0, press / press_null))
                 consistent = chi2_r <= chi2_crit[dof_r]
@@ -723,59 +880,93 @@ def _adaptive_pair(t1, t2, s1, s2, a, pilot, chi2_crit, min_extra, report_extra,
 
 
 @njit(**JIT_OPTIONS)
-def adaptive_jacobians(t1, t2, s1, s2, chi2_crit, min_extra, report_extra,
-                       min_candidates, lookahead, n_pass, weight_power, cond_max, jac, ln_sd,
-                       status):
-    """The adaptive Jacobian at every pair (see :func:`_adaptive_pair`).
+def adaptive_jacobians_knn(t1, t2, nbr, s1, s2, chi2_crit, min_extra, report_extra,
+                           min_candidates, lookahead, n_pass, weight_power, cond_max, jac,
+                           ln_sd, status):
+    """The adaptive Jacobian at every pair (see :func:`_adaptive_pair`), from its row.
 
-    The pilot Jacobian of the first pass is the first-order Quad one; each
-    further pass uses the previous pass's result (its own pilot where that
-    failed). ``ln_sd`` receives the standard error of ``ln|det J|``.
+    The pilot Jacobian of the first pass is the first-order Quad one (on the
+    same neighbour rows); each further pass uses the previous pass's result
+    (its own pilot where that failed). ``ln_sd`` receives the standard error
+    of ``ln|det J|``. ``chi2_crit`` must cover ``2 K`` degrees of freedom.
     """
-    n = t1.shape[0]
-    pilot = np.empty((n, 2, 2))
-    st = np.empty(n, dtype=np.int64)
-    relative_jacobians(t1, t2, METHOD_QUAD, weight_power, 0.0, cond_max, pilot, st)
-    for a in range(n):
-        if st[a] != STATUS_OK:
-            pilot[a, 0, 0] = 1.0
-            pilot[a, 0, 1] = 0.0
-            pilot[a, 1, 0] = 0.0
-            pilot[a, 1, 1] = 1.0
-    order = np.empty(n, dtype=np.int64)
-    U = np.empty((n, _ADAPTIVE_NCOEF_MAX))
-    Yr = np.empty((n, 2))
-    W = np.empty((n, 2))
+    adaptive_range_knn(t1, t2, nbr, s1, s2, chi2_crit, min_extra, report_extra,
+                       min_candidates, lookahead, n_pass, weight_power, cond_max, 0,
+                       t1.shape[0], jac, ln_sd, status)
+
+
+@njit(**JIT_OPTIONS)
+def adaptive_range_knn(t1, t2, nbr, s1, s2, chi2_crit, min_extra, report_extra,
+                       min_candidates, lookahead, n_pass, weight_power, cond_max, start, stop,
+                       jac, ln_sd, status):
+    """:func:`adaptive_jacobians_knn` for the pairs ``start <= a < stop`` only.
+
+    Each pair's estimate depends on its own row and pilot only, so disjoint
+    ranges can run in separate threads (the kernels release the GIL).
+    """
+    k = nbr.shape[1]
+    pilot = np.empty((stop - start, 2, 2))
+    acc = np.empty(7)
+    Aq = np.empty((k - 1, 2))
+    Yq = np.empty((k - 1, 2))
+    sol = np.empty((2, 2))
+    for a in range(start, stop):
+        # the first-order Quad pilot, on the pair's row
+        _pair_sums(t1, t2, _row(nbr, a), a, weight_power, acc)
+        pa = pilot[a - start]
+        ok = _solve_normal(acc, pa)
+        if not ok:
+            ok = _jacobian_quad(t1, t2, a, _row(nbr, a), 1, weight_power, cond_max, Aq, Yq,
+                                sol, pa) == STATUS_OK
+        if not ok:
+            pa[0, 0] = 1.0
+            pa[0, 1] = 0.0
+            pa[1, 0] = 0.0
+            pa[1, 1] = 1.0
+    order = np.empty(k, dtype=np.int64)
+    dsort = np.empty(k)
+    U = np.empty((k, _ADAPTIVE_NCOEF_MAX))
+    Yr = np.empty((k, 2))
+    W = np.empty((k, 2))
     A = np.empty((2, _ADAPTIVE_NCOEF_MAX, _ADAPTIVE_NCOEF_MAX))
     rhs = np.empty((2, _ADAPTIVE_NCOEF_MAX))
-    L = np.empty((_ADAPTIVE_NCOEF_MAX, _ADAPTIVE_NCOEF_MAX))
+    L = np.empty((2, _ADAPTIVE_NCOEF_MAX, _ADAPTIVE_NCOEF_MAX))
     scale = np.empty(_ADAPTIVE_NCOEF_MAX)
     beta = np.empty((2, _ADAPTIVE_NCOEF_MAX))
     work = np.empty(_ADAPTIVE_NCOEF_MAX)
     for p in range(n_pass):
-        for a in range(n):
+        for a in range(start, stop):
             ln_sd[a], status[a] = _adaptive_pair(
-                t1, t2, s1, s2, a, pilot[a], chi2_crit, min_extra, report_extra,
-                min_candidates, lookahead, order, U, Yr, W, A, rhs, L, scale, beta, work,
-                jac[a])
+                t1, t2, s1, s2, a, _row(nbr, a), pilot[a - start], chi2_crit, min_extra,
+                report_extra, min_candidates, lookahead, order, dsort, U, Yr, W, A, rhs, L,
+                scale, beta, work, jac[a])
         if p + 1 < n_pass:
-            for a in range(n):
+            for a in range(start, stop):
                 if status[a] != ADAPTIVE_FAILED:
                     for i in range(2):
                         for j in range(2):
-                            pilot[a, i, j] = jac[a, i, j]
+                            pilot[a - start, i, j] = jac[a, i, j]
 
 
 @njit(**JIT_OPTIONS)
-def adaptive_batch(t1, t2, noise1, noise2, s1, s2, chi2_crit, min_extra, report_extra,
-                   min_candidates, lookahead, n_pass, weight_power, cond_max, det_out,
-                   ln_sd_out,
-                   status_out):
+def adaptive_jacobians(t1, t2, s1, s2, chi2_crit, min_extra, report_extra,
+                       min_candidates, lookahead, n_pass, weight_power, cond_max, jac, ln_sd,
+                       status):
+    """:func:`adaptive_jacobians_knn` with every point for every pair (no cap)."""
+    adaptive_jacobians_knn(t1, t2, all_rows(t1.shape[0]), s1, s2, chi2_crit, min_extra,
+                           report_extra, min_candidates, lookahead, n_pass, weight_power,
+                           cond_max, jac, ln_sd, status)
+
+
+@njit(**JIT_OPTIONS)
+def adaptive_batch_knn(t1, t2, nbr, noise1, noise2, s1, s2, chi2_crit, min_extra,
+                       report_extra, min_candidates, lookahead, n_pass, weight_power, cond_max,
+                       det_out, ln_sd_out, status_out):
     """The adaptive estimator on ``B`` noisy copies of a constellation.
 
     ``noise1``, ``noise2`` are (B, N, 2) offsets; ``det_out``, ``ln_sd_out``
     and ``status_out`` (B, N) receive the signed determinant, the error of
-    its logarithm and the status code.
+    its logarithm and the status code. The neighbour rows stay fixed.
     """
     nb = noise1.shape[0]
     n = t1.shape[0]
@@ -789,10 +980,20 @@ def adaptive_batch(t1, t2, noise1, noise2, s1, s2, chi2_crit, min_extra, report_
             for d in range(2):
                 p1[i, d] = t1[i, d] + noise1[k, i, d]
                 p2[i, d] = t2[i, d] + noise2[k, i, d]
-        adaptive_jacobians(p1, p2, s1, s2, chi2_crit, min_extra, report_extra,
-                           min_candidates, lookahead, n_pass, weight_power, cond_max, jac,
-                           sd, st)
+        adaptive_jacobians_knn(p1, p2, nbr, s1, s2, chi2_crit, min_extra, report_extra,
+                               min_candidates, lookahead, n_pass, weight_power, cond_max, jac,
+                               sd, st)
         for i in range(n):
             det_out[k, i] = jac[i, 0, 0] * jac[i, 1, 1] - jac[i, 0, 1] * jac[i, 1, 0]
             ln_sd_out[k, i] = sd[i]
             status_out[k, i] = st[i]
+
+
+@njit(**JIT_OPTIONS)
+def adaptive_batch(t1, t2, noise1, noise2, s1, s2, chi2_crit, min_extra, report_extra,
+                   min_candidates, lookahead, n_pass, weight_power, cond_max, det_out,
+                   ln_sd_out, status_out):
+    """:func:`adaptive_batch_knn` with every point for every pair (no cap)."""
+    adaptive_batch_knn(t1, t2, all_rows(t1.shape[0]), noise1, noise2, s1, s2, chi2_crit,
+                       min_extra, report_extra, min_candidates, lookahead, n_pass,
+                       weight_power, cond_max, det_out, ln_sd_out, status_out)

@@ -1,10 +1,13 @@
 """Model-independent relative Jacobian and size magnification (paper Sect. 4)."""
 
+import os
 import warnings
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 from astropy import units as u
 from astropy.table import QTable
+from scipy.spatial import cKDTree
 from scipy.stats import chi2 as _chi2
 
 from .._validation import (
@@ -17,8 +20,8 @@ from .._validation import (
 from ..exceptions import EstimatorWarning
 from . import _kernels
 
-__all__ = ["METHODS", "DEFAULT_METHOD", "ADAPTIVE_STATUS", "TESTABLE_STATUS", "relative_jacobian",
-           "size_magnification", "estimate_sigma_pos"]
+__all__ = ["METHODS", "DEFAULT_METHOD", "DEFAULT_MAX_NEIGHBOURS", "ADAPTIVE_STATUS",
+           "TESTABLE_STATUS", "relative_jacobian", "size_magnification", "estimate_sigma_pos"]
 
 #: Estimators known to :func:`relative_jacobian`, with the smallest number of
 #: pairs each one needs. ``"adaptive"`` (the default of
@@ -66,6 +69,19 @@ _ADAPTIVE_PASSES = 2
 # least-squares design of the Quad estimators.
 _COND_MAX = 1e10
 
+#: Default cap on the points each pair's estimate uses: the pair and its
+#: ``DEFAULT_MAX_NEIGHBOURS - 1`` nearest neighbours in L2. Constellations of
+#: up to this many pairs are estimated exactly as without a cap (every pair
+#: sees every point); above it the estimators are local, and their cost grows
+#: as N instead of N^2 (``"adaptive"``: N^3). See the "Scale" section of the
+#: performance page for the measurements behind the value.
+DEFAULT_MAX_NEIGHBOURS = 64
+
+# The adaptive estimator runs its pairs in this many threads at most (the
+# kernels release the GIL; the pairs are independent), from this many pairs on.
+_MAX_THREADS = 8
+_THREAD_MIN_PAIRS = 2000
+
 # Bootstrap realisations are generated and processed in chunks of at most
 # this many (realisation x pair) entries, to bound memory.
 _CHUNK_ENTRIES = 2**20
@@ -75,6 +91,33 @@ def _check_method(method):
     if not isinstance(method, str) or method not in METHODS:
         raise ValueError(f"method must be one of {sorted(METHODS)}, got {method!r}")
     return method
+
+
+def _max_neighbours(max_neighbours, method):
+    """Validate ``max_neighbours`` (None: no cap)."""
+    if max_neighbours is None:
+        return None
+    low = max(METHODS[method], 3)
+    return as_int(max_neighbours, "max_neighbours", minimum=low)
+
+
+def _neighbour_rows(t2, max_neighbours):
+    """The neighbour rows of the kernels (see ``_kernels``) for a cap, in L2.
+
+    Up to ``max_neighbours`` pairs (or without a cap): one shared row of
+    every point, the uncapped estimators bit for bit. Above: each pair and
+    its ``max_neighbours - 1`` nearest neighbours in L2 (k-d tree).
+    """
+    n = t2.shape[0]
+    if max_neighbours is None or n <= max_neighbours:
+        return _kernels.all_rows(n)
+    _, rows = cKDTree(t2).query(t2, k=max_neighbours)
+    rows = np.ascontiguousarray(rows, dtype=np.int64)
+    # the pair itself is its own nearest point (positions are unique); make sure
+    own = np.arange(n)
+    missing = ~(rows == own[:, None]).any(axis=1)
+    rows[missing, -1] = own[missing]
+    return rows
 
 
 def _prepare(theta1, theta2, method, weight_power, min_angle):
@@ -106,11 +149,11 @@ def _prepare(theta1, theta2, method, weight_power, min_angle):
     return t1, t2, _METHOD_CODES[method], wp, min_sin
 
 
-def _jacobians(t1, t2, code, wp, min_sin):
+def _jacobians(t1, t2, nbr, code, wp, min_sin):
     n = t1.shape[0]
     jac = np.empty((n, 2, 2))
     status = np.empty(n, dtype=np.int64)
-    _kernels.relative_jacobians(t1, t2, code, wp, min_sin, _COND_MAX, jac, status)
+    _kernels.relative_jacobians_knn(t1, t2, nbr, code, wp, min_sin, _COND_MAX, jac, status)
     return jac, status
 
 
@@ -143,7 +186,7 @@ def _warn_status(status, method):
 
 
 def relative_jacobian(theta1, theta2, method="quad", *, weight_power=2, min_angle=5 * u.deg,
-                      sigma_pos=None):
+                      sigma_pos=None, max_neighbours=DEFAULT_MAX_NEIGHBOURS):
     r"""Relative Jacobian :math:`J_a = \partial\theta^{(L1)}/\partial\theta^{(L2)}` per pair.
 
     The baselines :math:`D_{ab} = \theta_b - \theta_a` of every pair ``a``
@@ -180,6 +223,14 @@ def relative_jacobian(theta1, theta2, method="quad", *, weight_power=2, min_angl
     sigma_pos : `~astropy.units.Quantity`, optional
         Position errors, as in :func:`size_magnification`; required by
         ``"adaptive"`` (its fits are tested against them), ignored otherwise.
+    max_neighbours : int or None, optional
+        Largest number of points each pair's estimate uses: the pair and its
+        ``max_neighbours - 1`` nearest neighbours in L2 (default
+        `DEFAULT_MAX_NEIGHBOURS`, 64). With at most that many pairs every
+        pair uses every point, as without a cap (the results are
+        identical); with more, "all N-1 baselines" above reads "the
+        baselines to the ``max_neighbours - 1`` nearest neighbours", and the
+        cost grows as N instead of N^2. None: no cap.
 
     Returns
     -------
@@ -197,15 +248,16 @@ def relative_jacobian(theta1, theta2, method="quad", *, weight_power=2, min_angl
         duplicate positions, an unknown method.
     """
     t1, t2, code, wp, min_sin = _prepare(theta1, theta2, method, weight_power, min_angle)
+    cap = _max_neighbours(max_neighbours, method)
     if method == "adaptive":
         if sigma_pos is None:
             raise ValueError("method 'adaptive' needs sigma_pos (the position errors its "
                              "local fits are tested against)")
         sigma = _as_sigma(sigma_pos, t1.shape[0], positive=True)
-        jac, _, status = _adaptive(t1, t2, sigma, wp)
+        jac, _, status = _adaptive(t1, t2, sigma, wp, cap)
         _warn_adaptive(status)
         return jac
-    jac, status = _jacobians(t1, t2, code, wp, min_sin)
+    jac, status = _jacobians(t1, t2, _neighbour_rows(t2, cap), code, wp, min_sin)
     _warn_status(status, method)
     return jac
 
@@ -219,36 +271,54 @@ def _chi2_critical(n, alpha=None):
 
 
 def _adaptive_settings(n, wp):
-    """The adaptive kernels' settings after the errors, for ``n`` pairs."""
+    """The adaptive kernels' settings after the errors, for ``n`` points per fit."""
     return (_chi2_critical(n), _ADAPTIVE_MIN_EXTRA, _ADAPTIVE_REPORT_EXTRA,
             _ADAPTIVE_MIN_CANDIDATES, _ADAPTIVE_LOOKAHEAD, _ADAPTIVE_PASSES, float(wp),
             _COND_MAX)
 
 
-def _adaptive(t1, t2, sigma, wp):
+def _adaptive(t1, t2, sigma, wp, max_neighbours=DEFAULT_MAX_NEIGHBOURS):
     """Run the adaptive kernel: Jacobians, errors of ln|det J|, status codes."""
     n = t1.shape[0]
+    nbr = _neighbour_rows(t2, max_neighbours)
     jac = np.empty((n, 2, 2))
     ln_sd = np.empty(n)
     status = np.empty(n, dtype=np.int64)
-    _kernels.adaptive_jacobians(t1, t2, sigma[0], sigma[1], *_adaptive_settings(n, wp),
-                                jac, ln_sd, status)
+    settings = _adaptive_settings(nbr.shape[1], wp)
+    threads = min(_MAX_THREADS, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
+                  else (os.cpu_count() or 1))
+    if n < _THREAD_MIN_PAIRS or threads < 2:
+        _kernels.adaptive_jacobians_knn(t1, t2, nbr, sigma[0], sigma[1], *settings, jac, ln_sd,
+                                        status)
+        return jac, ln_sd, status
+    # independent pairs: ranges in threads (same result as one call, bit for bit)
+    edges = np.linspace(0, n, 4 * threads + 1).astype(int)
+
+    def run(i):
+        _kernels.adaptive_range_knn(t1, t2, nbr, sigma[0], sigma[1], *settings,
+                                    int(edges[i]), int(edges[i + 1]), jac, ln_sd, status)
+
+    with ThreadPoolExecutor(threads) as pool:
+        list(pool.map(run, range(len(edges) - 1)))
     return jac, ln_sd, status
 
 
-def _adaptive_batch(t1, t2, noise1, noise2, sigma, wp=2.0):
+def _adaptive_batch(t1, t2, noise1, noise2, sigma, wp=2.0,
+                    max_neighbours=DEFAULT_MAX_NEIGHBOURS):
     """The adaptive estimator on noisy copies ``t + noise`` (shape (B, N, 2)).
 
     Returns ``|det J|``, the error of its logarithm and whether the status
     is not "failed" (the pair is tested), each of shape (B, N). No validation: for
-    :func:`lensdual.duality.null_calibration`.
+    :func:`lensdual.duality.null_calibration`. The neighbour rows are those
+    of ``t2`` (the copies re-rank the points within them).
     """
     b, n = noise1.shape[:2]
+    nbr = _neighbour_rows(t2, max_neighbours)
     det = np.empty((b, n))
     ln_sd = np.empty((b, n))
     status = np.empty((b, n), dtype=np.int64)
-    _kernels.adaptive_batch(t1, t2, noise1, noise2, sigma[0], sigma[1],
-                            *_adaptive_settings(n, wp), det, ln_sd, status)
+    _kernels.adaptive_batch_knn(t1, t2, nbr, noise1, noise2, sigma[0], sigma[1],
+                                *_adaptive_settings(nbr.shape[1], wp), det, ln_sd, status)
     testable = (status == _kernels.ADAPTIVE_OK) | (status == _kernels.ADAPTIVE_MISFIT)
     return np.abs(det), ln_sd, testable
 
@@ -304,8 +374,12 @@ def _as_sigma(sigma_pos, n, positive=False):
     return np.ascontiguousarray(sig)
 
 
-def _bootstrap_determinants(t1, t2, code, wp, min_sin, sigma, n_bootstrap, rng):
-    """Signed det J for each bootstrap realisation, shape (n_bootstrap, N)."""
+def _bootstrap_determinants(t1, t2, nbr, code, wp, min_sin, sigma, n_bootstrap, rng):
+    """Signed det J for each bootstrap realisation, shape (n_bootstrap, N).
+
+    The neighbour rows ``nbr`` are those of the measured positions and stay
+    fixed; each realisation re-ranks the points within them.
+    """
     n = t1.shape[0]
     dets = np.empty((n_bootstrap, n))
     chunk = max(1, _CHUNK_ENTRIES // n)
@@ -319,8 +393,8 @@ def _bootstrap_determinants(t1, t2, code, wp, min_sin, sigma, n_bootstrap, rng):
         noise1 *= sigma[0][None, :, None]
         rng.standard_normal(out=noise2)
         noise2 *= sigma[1][None, :, None]
-        _kernels.bootstrap_determinants(
-            t1, t2, noise1, noise2, code, wp, min_sin, _COND_MAX, dets[start:stop]
+        _kernels.bootstrap_determinants_knn(
+            t1, t2, nbr, noise1, noise2, code, wp, min_sin, _COND_MAX, dets[start:stop]
         )
     return dets
 
@@ -354,6 +428,7 @@ def size_magnification(
     seed=None,
     weight_power=2,
     min_angle=5 * u.deg,
+    max_neighbours=DEFAULT_MAX_NEIGHBOURS,
 ):
     """Size magnification ``mu_size = |det J|`` per pair, with errors that hold.
 
@@ -408,6 +483,18 @@ def size_magnification(
         Seed of the bootstrap noise; equal seeds give equal results.
     weight_power, min_angle
         See :func:`relative_jacobian`.
+    max_neighbours : int or None, optional
+        Largest number of points each pair's estimate uses: the pair and its
+        ``max_neighbours - 1`` nearest neighbours in L2, found with a k-d
+        tree (default `DEFAULT_MAX_NEIGHBOURS`, 64; None: every pair uses
+        every point). Up to that many pairs nothing changes (every pair
+        already uses every point); with more, ``"adaptive"`` tries the
+        neighbourhoods ``k <= max_neighbours`` only, and the Quad estimators
+        fit the baselines to these neighbours only, so that the cost grows
+        as N (``"adaptive"`` without a cap: N^3, Quad: N^2). The bootstrap
+        keeps each pair's neighbours of the measured positions and re-ranks
+        them in every realisation. See the "Scale" section of the
+        performance page for what the cap changes and by how much.
 
     Returns
     -------
@@ -435,15 +522,20 @@ def size_magnification(
     n = t1.shape[0]
     sigma = _as_sigma(sigma_pos, n, positive=method == "adaptive")
     n_bootstrap = as_int(n_bootstrap, "n_bootstrap", minimum=1)
+    cap = _max_neighbours(max_neighbours, method)
     if method == "adaptive":
-        return _adaptive_table(t1, t2, sigma, wp, sigma_pos)
+        table = _adaptive_table(t1, t2, sigma, wp, sigma_pos, cap)
+        table.meta["max_neighbours"] = cap
+        return table
     rng = np.random.default_rng(seed)
 
-    jac, status = _jacobians(t1, t2, code, wp, min_sin)
+    nbr = _neighbour_rows(t2, cap)
+    jac, status = _jacobians(t1, t2, nbr, code, wp, min_sin)
     _warn_status(status, method)
     det = jac[:, 0, 0] * jac[:, 1, 1] - jac[:, 0, 1] * jac[:, 1, 0]
 
-    boot = np.abs(_bootstrap_determinants(t1, t2, code, wp, min_sin, sigma, n_bootstrap, rng))
+    boot = np.abs(_bootstrap_determinants(t1, t2, nbr, code, wp, min_sin, sigma, n_bootstrap,
+                                          rng))
     n_valid = np.isfinite(boot).sum(axis=0)
     pct = _nan_percentiles(boot, n_valid, (16.0, 50.0, 84.0))
     # pairs already NaN on the measured positions were warned about above
@@ -464,6 +556,7 @@ def size_magnification(
     table = _size_table(det, jac, pct, ln_err, n_valid,
                         np.where(np.isfinite(det), "ok", "failed"))
     table.meta["method"] = method
+    table.meta["max_neighbours"] = cap
     table.meta["n_bootstrap"] = n_bootstrap
     table.meta["sigma_pos"] = _sigma_meta(sigma_pos)
     if method != "2v":
@@ -492,9 +585,9 @@ def _size_table(det, jac, pct, ln_err, n_valid, status):
     return table
 
 
-def _adaptive_table(t1, t2, sigma, wp, sigma_pos):
+def _adaptive_table(t1, t2, sigma, wp, sigma_pos, max_neighbours=DEFAULT_MAX_NEIGHBOURS):
     """size_magnification for method 'adaptive' (analytic errors, no bootstrap)."""
-    jac, ln_sd, status = _adaptive(t1, t2, sigma, wp)
+    jac, ln_sd, status = _adaptive(t1, t2, sigma, wp, max_neighbours)
     _warn_adaptive(status)
     det = jac[:, 0, 0] * jac[:, 1, 1] - jac[:, 0, 1] * jac[:, 1, 0]
     mu = np.abs(det)
