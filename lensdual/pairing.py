@@ -86,8 +86,17 @@ _TRIM_RMS = 4.0
 _TRIM_FLOOR = 0.25
 #: Fewest consistent pairs the automatic search accepts.
 _MIN_AUTO_PAIRS = 4
-#: Hypotheses scored per chunk (bounds the memory of the distance cubes).
+#: Hypotheses scored per chunk (bounds the memory of the distance cubes) ...
 _CHUNK = 1024
+#: ... and at most this many (hypothesis x point x point) distances per chunk
+#: (2**21 doubles: 16 MB per array of the chunk), whatever the catalogue sizes.
+_CHUNK_ENTRIES = 2**21
+#: Scoring costs (hypotheses x N1 x N2) distances; above this many, the
+#: hypotheses are drawn (with the seed) down to the number that fits. Small
+#: catalogues (30 x 30 points: 9e2 x 3e4 = 2.7e7) are far below it.
+_MAX_SCORE_WORK = 4e8
+#: Triangles whose descriptors are computed at once (bounds the (T, N, 3) arrays).
+_TRIANGLE_CHUNK = 512
 
 
 # ---------------------------------------------------------------------------
@@ -475,17 +484,20 @@ def _barycentric_triangles(x, rng):
     if len(tri) == 0 or n < 3 + _N_DESC_POINTS:
         # too few points for descriptors: every triangle matches every other
         return tri, np.zeros((len(tri), _N_DESC_POINTS, 3))
-    v = x[tri]
-    e1, e2 = v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]
-    det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
-    r = x[None, :, :] - v[:, None, 0, :]  # (T, N, 2)
-    lam1 = (r[..., 0] * e2[:, None, 1] - r[..., 1] * e2[:, None, 0]) / det[:, None]
-    lam2 = (e1[:, None, 0] * r[..., 1] - e1[:, None, 1] * r[..., 0]) / det[:, None]
-    bary = np.stack([1.0 - lam1 - lam2, lam1, lam2], axis=2)  # (T, N, 3)
-    dist = ((bary - 1.0 / 3.0) ** 2).sum(axis=2)
-    dist[np.arange(len(tri))[:, None], tri] = np.inf
-    near = np.argsort(dist, axis=1, kind="stable")[:, :_N_DESC_POINTS]
-    desc = np.take_along_axis(bary, near[:, :, None], axis=1)  # (T, n_desc, 3)
+    desc = np.empty((len(tri), _N_DESC_POINTS, 3))
+    for start in range(0, len(tri), _TRIANGLE_CHUNK):  # bounded (T, N, 3) arrays
+        sub = tri[start:start + _TRIANGLE_CHUNK]
+        v = x[sub]
+        e1, e2 = v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]
+        det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
+        r = x[None, :, :] - v[:, None, 0, :]  # (T, N, 2)
+        lam1 = (r[..., 0] * e2[:, None, 1] - r[..., 1] * e2[:, None, 0]) / det[:, None]
+        lam2 = (e1[:, None, 0] * r[..., 1] - e1[:, None, 1] * r[..., 0]) / det[:, None]
+        bary = np.stack([1.0 - lam1 - lam2, lam1, lam2], axis=2)  # (T, N, 3)
+        dist = ((bary - 1.0 / 3.0) ** 2).sum(axis=2)
+        dist[np.arange(len(sub))[:, None], sub] = np.inf
+        near = np.argsort(dist, axis=1, kind="stable")[:, :_N_DESC_POINTS]
+        desc[start:start + len(sub)] = np.take_along_axis(bary, near[:, :, None], axis=1)
     return tri, desc
 
 
@@ -512,8 +524,9 @@ def _hypotheses(p, q, parity, rng):
     t1, o = np.divmod(idx.ravel(), len(perm))
     src = tri2[t2]
     dst = np.take_along_axis(tri1[t1], perm[o], axis=1)
-    if len(dst) > _MAX_HYPOTHESES:
-        keep = np.sort(rng.choice(len(dst), _MAX_HYPOTHESES, replace=False))
+    max_hyp = min(_MAX_HYPOTHESES, max(_N_REFINE, int(_MAX_SCORE_WORK / (len(p) * len(q)))))
+    if len(dst) > max_hyp:
+        keep = np.sort(rng.choice(len(dst), max_hyp, replace=False))
         dst, src = dst[keep], src[keep]
     m = np.concatenate([q[src], np.ones(src.shape + (1,))], axis=2)  # (H, 3, 3)
     det_m = np.linalg.det(m)
@@ -540,8 +553,9 @@ def _score(a, b, p, q, tau2, colour_ok):
     counts = np.zeros(n_hyp, dtype=np.int64)
     score = np.zeros(n_hyp)
     n2 = len(q)
-    for start in range(0, n_hyp, _CHUNK):
-        sl = slice(start, start + _CHUNK)
+    chunk = max(1, min(_CHUNK, _CHUNK_ENTRIES // (len(p) * n2)))
+    for start in range(0, n_hyp, chunk):
+        sl = slice(start, start + chunk)
         ah, bh = a[sl], b[sl]
         minv = _metric(ah, normalise=True)  # (h, 2, 2)
         # factor minv = L L^T so that r^T minv r = |L^T r|^2
