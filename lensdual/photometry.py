@@ -621,7 +621,13 @@ def _unpack_image(image, name, label=None):
         error = np.array(np.broadcast_to(error, data.shape), dtype=np.float64)
         good_error = np.isfinite(error) & (error > 0)
         if not good_error.any():
-            what = "zero" if np.all(error[np.isfinite(error)] == 0) else "zero, negative or NaN"
+            finite = error[np.isfinite(error)]
+            if finite.size == error.size and np.all(finite == 0):
+                what = "zero"
+            elif finite.size == 0:
+                what = "NaN or infinite"
+            else:
+                what = "zero, negative or NaN"
             raise ValueError(
                 f"{where} has no valid pixel: its error map (uncertainty) is {what} at every "
                 "pixel. Check the error file and extension (e.g. ERR, in the image's unit), "
@@ -1359,7 +1365,18 @@ def _bkg_at(basis, res, i, x0, y0, shape, fit_shape, invalid, local):
 
 
 def _estimate_fwhm(
-    data, invalid, error, x, y, highpass, basis, fit_shape, local_bkg, xy_bounds, maxiters
+    data,
+    invalid,
+    error,
+    x,
+    y,
+    highpass,
+    basis,
+    fit_shape,
+    local_bkg,
+    xy_bounds,
+    maxiters,
+    max_rel_err=None,
 ):
     """Common Gaussian FWHM (pixels) from a fit with the FWHM free for every source."""
     start = 2.5
@@ -1390,6 +1407,8 @@ def _estimate_fwhm(
         & (fw > 0.31)
         & (fw < 49.0)
     )
+    if max_rel_err is not None:
+        ok &= fe < max_rel_err * fw
     if not ok.any():
         raise ValueError(
             "psf=None: the PSF FWHM could not be estimated from the sources (no good fit); "
@@ -1678,6 +1697,26 @@ def psf_photometry(
             if kind == "gaussian"
             else _ImageProfile(spec, highpass)
         )
+        if kind == "image" and check_psf:
+            # before the fit: a wrong PSF (e.g. oversampled without its factor) makes
+            # wide groups whose joint fits are slow, and its fluxes are wrong anyway
+            _check_image_psf(
+                profile,
+                fitdata,
+                invalid,
+                error,
+                x,
+                y,
+                highpass,
+                basis,
+                shape,
+                local_bkg,
+                bounds,
+                maxiters,
+                fwhm,
+                oversampling,
+                where,
+            )
         radius = 2.0 * fwhm if group_radius is None else group_radius
         res, caught, failed = _fit_sources(
             fitdata,
@@ -1694,24 +1733,6 @@ def psf_photometry(
             neighbour_passes,
             group_radius=radius,
         )
-        if kind == "image" and check_psf:
-            _check_image_psf(
-                res,
-                fitdata,
-                invalid,
-                error,
-                x,
-                y,
-                highpass,
-                basis,
-                shape,
-                local_bkg,
-                bounds,
-                maxiters,
-                fwhm,
-                oversampling,
-                where,
-            )
     if group_radius is None:
         group_radius = 2.0 * fwhm
 
@@ -1796,12 +1817,11 @@ def psf_photometry(
 #: A PSF image whose FWHM differs from that of the sources by more than this
 #: factor is refused (too wide) or warned about (too narrow); see _check_image_psf.
 _PSF_WIDTH_TOLERANCE = 1.8
-_PSF_CHECK_SOURCES = 10
-_PSF_CHECK_MIN_SNR = 20.0
+_PSF_CHECK_SOURCES = 6
 
 
 def _check_image_psf(
-    res,
+    profile,
     fitdata,
     invalid,
     error,
@@ -1819,24 +1839,20 @@ def _check_image_psf(
 ):
     """Compare the width of an image PSF with the sources' own (a Gaussian FWHM fit).
 
-    The Gaussian FWHM is fitted to the (at most 10) sources of highest SNR
-    (>= 20) of the PSF fit. A PSF more than 1.8 times wider than the sources
-    cannot be right (a point source is never narrower than the PSF) and is a
-    ValueError: the usual cause is an oversampled PSF image passed without
-    its ``oversampling``. A PSF 1.8 times narrower is a ValueError too when an
-    ``oversampling`` > 1 was given (it may not apply), else a warning (the
-    sources may be resolved). Without any source of SNR >= 20 nothing is
-    checked.
+    The Gaussian FWHM is fitted to the (at most 6) brightest sources (by
+    their linear PSF amplitude), each alone in the PSF's fitting box; only
+    fits whose FWHM is known to 20 % count. A PSF more than 1.8 times wider
+    than the sources cannot be right (a point source is never narrower than
+    the PSF) and is a ValueError: the usual cause is an oversampled PSF image
+    passed without its ``oversampling``. A PSF 1.8 times narrower is a
+    ValueError too when an ``oversampling`` > 1 was given (it may not apply),
+    else a warning (the sources may be resolved). Without any usable fit
+    nothing is checked.
     """
-    flux, err = res["flux_fit"], res["flux_err"]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        snr = np.where(
-            np.isfinite(flux) & np.isfinite(err) & (err > 0) & ((res["flags"] & _BAD_FLAGS) == 0),
-            flux / err,
-            0.0,
-        )
-    order = np.argsort(-snr)
-    pick = order[snr[order] >= _PSF_CHECK_MIN_SNR][:_PSF_CHECK_SOURCES]
+    lin = _linear_init(fitdata, invalid, error, x, y, profile, basis, shape, local_bkg)[:, 0]
+    amp = np.where(np.isfinite(lin) & (lin > 0), lin, 0.0)
+    order = np.argsort(-amp)
+    pick = order[amp[order] > 0][:_PSF_CHECK_SOURCES]
     if pick.size == 0:
         return
     try:
@@ -1854,6 +1870,7 @@ def _check_image_psf(
                 local_bkg[pick],
                 bounds,
                 maxiters,
+                max_rel_err=0.2,
             )
     except ValueError:  # no usable Gaussian fit: nothing to compare with
         return

@@ -431,7 +431,9 @@ def small_image():
 @pytest.mark.parametrize("position", [(-3.0, 10.0), (10.0, 29.6), (40.2, 3.0), (np.nan, 5.0)])
 def test_positions_outside_image(small_image, position):
     """A position off the image is not fitted: NaN and OUTSIDE_IMAGE, the others go on."""
-    with pytest.warns(LensdualWarning, match=r"positions \[1\] \(ids \[2\]\) are outside the image"):
+    with pytest.warns(
+        LensdualWarning, match=r"positions \[1\] \(ids \[2\]\) are outside the image"
+    ):
         res = psf_photometry(small_image, [(20.0, 15.0), position], psf=FWHM)
     assert res["flags"][1] == PhotometryFlag.OUTSIDE_IMAGE
     assert np.isnan(res["flux"][1]) and np.isnan(res["x_fit"][1]) and np.isnan(res["flux_err"][1])
@@ -678,3 +680,315 @@ def test_measure_pairs_flagged_fit_is_nan(two_arcs):
     assert np.isnan(out["flux2_F150W"][8]) and np.isnan(out["x2"][8])
     assert np.isnan(out["pos_err2"][8]) and np.isnan(out["sky2"][8].ra)
     assert np.all(np.isfinite(out["x2"][:8]))
+
+
+# ---------------------------------------------------------------------------
+# oversampled PSF images (issue 15, item 9)
+# ---------------------------------------------------------------------------
+
+
+def psf_images(fwhm=FWHM, half=12, oversampling=4):
+    """The Gaussian PRF on the detector grid and on a grid ``oversampling`` times finer
+    (an effective PSF: the detector-pixel response at sub-pixel offsets), odd-sized."""
+    t = np.arange(-half, half + 1)
+    native = prf(t[None, :], t[:, None], fwhm)
+    tf = np.arange(-oversampling * half, oversampling * half + 1) / oversampling
+    over = prf(tf[None, :], tf[:, None], fwhm)
+    return native, over / over.sum()  # normalised as a WebbPSF HDU 0 (sum 1)
+
+
+def close_groups(fwhm=FWHM, seed=1):
+    """Two close pairs of sources near each other: neighbouring groups, no single source."""
+    rng = np.random.default_rng(seed)
+    xy = np.array([[20.0, 30.0], [23.5, 30.0], [31.0, 30.0], [34.5, 30.0]])
+    flux = np.array([2000.0, 1500.0, 1800.0, 1200.0])
+    image, _ = render(np.zeros((60, 60)), xy, flux, rng, fwhm=fwhm, wcs=make_wcs((60, 60)))
+    return image, xy, flux
+
+
+@pytest.mark.parametrize("kind", ["gaussian", "native", "oversampled"])
+def test_neighbouring_groups_without_single_source(kind):
+    """Regression: a neighbour class made only of groups crashed with 'need at least one
+    array to concatenate' (with or without an oversampled PSF)."""
+    image, xy, flux = close_groups()
+    native, over = psf_images()
+    kw = {
+        "gaussian": {"psf": FWHM},
+        "native": {"psf": native},
+        "oversampled": {"psf": over, "oversampling": 4},
+    }[kind]
+    res = psf_photometry(image, xy + 0.2, **kw)
+    assert res["group_size"].tolist() == [2, 2, 2, 2]
+    assert np.all(res["flags"] == 0)
+    pull = (res["flux"].to_value(u.nJy) - flux) / res["flux_err"].to_value(u.nJy)
+    assert np.all(np.abs(pull) < 3)
+
+
+def test_oversampled_psf_matches_native(runs):
+    """A 4x oversampled PSF image gives the fluxes and positions of the detector-sampled
+    one (and of the analytic PRF) on the same data, within a fraction of their errors."""
+    xy, flux, _, _, _, image = runs[0]
+    start = xy + np.random.default_rng(3).normal(scale=0.3, size=xy.shape)
+    native, over = psf_images()
+    fits = {
+        "gaussian": psf_photometry(image, start, psf=FWHM, fit_shape=13),
+        "native": psf_photometry(image, start, psf=native),
+        "oversampled": psf_photometry(image, start, psf=over, oversampling=4),
+        "pair": psf_photometry(image, start, psf=over, oversampling=(4, 4)),
+    }
+    ref = fits["oversampled"]
+    assert ref.meta["oversampling"] == [4, 4] and ref.meta["fit_shape"] == (13, 13)
+    assert ref.meta["fwhm"] == pytest.approx(FWHM, rel=0.1)
+    assert np.all(ref["flags"] == 0)
+    err = ref["flux_err"].to_value(u.nJy)
+    pull = (ref["flux"].to_value(u.nJy) - flux) / err
+    assert np.all(np.abs(pull) < 3.5)
+    np.testing.assert_array_equal(fits["pair"]["flux"], ref["flux"])
+    for name in ("gaussian", "native"):
+        other = fits[name]
+        dflux = (other["flux"].to_value(u.nJy) - ref["flux"].to_value(u.nJy)) / err
+        assert np.max(np.abs(dflux)) < 0.5, name
+        dpos = np.hypot(other["x_fit"] - ref["x_fit"], other["y_fit"] - ref["y_fit"])
+        assert np.max(dpos / np.hypot(ref["x_err"], ref["y_err"])) < 1.0, name
+        assert np.max(dpos) < 0.05, name
+
+
+def test_oversampled_psf_without_oversampling_is_refused(runs):
+    """An oversampled PSF passed as detector-sampled (or the reverse) never gives fluxes."""
+    xy, _, _, _, _, image = runs[0]
+    xy = xy[:8]  # a few sources suffice (the check fits at most the 6 brightest)
+    native, over = psf_images()
+    with pytest.raises(ValueError, match=r"4\.\d times wider than the point sources.*oversampl"):
+        psf_photometry(image, xy, psf=over)
+    with pytest.raises(ValueError, match=r"narrower than the point sources.*really oversampled"):
+        psf_photometry(image, xy, psf=native, oversampling=4)
+    # the check can be switched off (the fluxes are then wrong: 4x too wide a PSF)
+    one, _ = render(np.zeros((80, 80)), [(40.0, 40.0)], [3000.0], np.random.default_rng(2))
+    res = psf_photometry(one, [(40.0, 40.0)], psf=over, check_psf=False, warn=False)
+    assert res.meta["fwhm"] > 3 * FWHM
+    with pytest.raises(ValueError, match="times wider"):
+        psf_photometry(one, [(40.0, 40.0)], psf=over)
+
+
+def test_oversampling_arguments(small_image):
+    from photutils.psf import ImagePSF
+
+    native, over = psf_images()
+    pos = [(20.0, 15.0)]
+    for bad in (0, 2.5, (1, 2, 3), "4", True):
+        with pytest.raises((ValueError, TypeError), match="oversampling must be an integer"):
+            psf_photometry(small_image, pos, psf=over, oversampling=bad)
+    with pytest.raises(ValueError, match="oversampling=.* applies to a PSF image"):
+        psf_photometry(small_image, pos, psf=FWHM, oversampling=4)
+    with pytest.raises(ValueError, match="oversampling=.* applies to a PSF image"):
+        psf_photometry(small_image, pos, psf=None, oversampling=4)
+    with pytest.raises(ValueError, match=r"ImagePSF with oversampling \[4, 4\]; oversampling="):
+        psf_photometry(small_image, pos, psf=ImagePSF(over * 16, oversampling=4), oversampling=2)
+    res = psf_photometry(
+        small_image, pos, psf=ImagePSF(over * 16, oversampling=4), oversampling=4, warn=False
+    )
+    assert res.meta["oversampling"] == [4, 4]
+    assert psf_photometry(small_image, pos, psf=native, oversampling=1, warn=False).meta[
+        "oversampling"
+    ] == [1, 1]
+
+
+def test_measure_pairs_oversampled_psf(two_arcs, measured):
+    """Per-band oversampled PSF images (different pixel scales) reproduce the Gaussian run."""
+    images, pairs, *_ = two_arcs
+    _, ref = measured
+    psfs = {}
+    for band, (scale, _, _) in BANDS.items():
+        fwhm = PSF_FWHM.to_value(u.arcsec) / scale
+        psfs[band] = psf_images(fwhm, half=10)[1]
+    out = measure_pairs(
+        images["1"],
+        images["2"],
+        pairs,
+        psf=psfs,
+        oversampling={"F150W": 4, "F200W": (4, 4)},
+        reference=REFERENCE,
+    )
+    assert out.meta["photometry"]["oversampling"] == {"F150W": 4, "F200W": (4, 4)}
+    assert np.all(out["photometry_flags"] == 0) and np.all(out["measured"])
+    for band in BANDS:
+        for arc in ("1", "2"):
+            f, f0 = out[f"flux{arc}_{band}"], ref[f"flux{arc}_{band}"]
+            e0 = ref[f"flux_err{arc}_{band}"]
+            assert np.max(np.abs(((f - f0) / e0).to_value(u.one))) < 0.5
+    for arc in ("1", "2"):
+        d = np.hypot(out[f"x{arc}"] - ref[f"x{arc}"], out[f"y{arc}"] - ref[f"y{arc}"])
+        assert np.max(d.to_value(u.arcsec)) < 0.002
+    with pytest.raises(ValueError, match="oversampling of band 'F200W' must be an integer"):
+        measure_pairs(images["1"], images["2"], pairs, psf=psfs, oversampling={"F200W": 0})
+
+
+# ---------------------------------------------------------------------------
+# one bad candidate does not stop the run (issue 15, item 8)
+# ---------------------------------------------------------------------------
+
+
+def test_flags_are_named():
+    assert PhotometryFlag.NON_POSITIVE_FLUX == 4 and PhotometryFlag.TOO_FEW_PIXELS == 256
+    own = [PhotometryFlag.OUTSIDE_IMAGE, PhotometryFlag.BAD_ERROR, PhotometryFlag.FIT_FAILED]
+    assert all(int(f) >= 1 << 16 for f in own)  # never a photutils bit
+    assert describe_flags(0) == ""
+    assert describe_flags(4 | 16) == "non-positive flux, no covariance (no errors) from the fit"
+    assert describe_flags(1 | int(PhotometryFlag.OUTSIDE_IMAGE), unusable_only=True).startswith(
+        "initial position outside the image"
+    )
+    assert not UNUSABLE_FLAGS & (PhotometryFlag.N_PIXELS_FIT_PARTIAL | PhotometryFlag.NEAR_BOUND)
+
+
+def test_measure_pairs_bad_candidates_do_not_stop_the_run(two_arcs):
+    """A candidate on blank (unexposed) sky, one off the image: NaN, flags and notes that
+    name the pair, source id, arc, band and file; the other pairs are measured as usual."""
+    images, pairs, theta1, *_ = two_arcs
+    l2 = dict(images["2"])
+    img = l2["F150W"]
+    px, py = img.wcs.world_to_pixel(pairs["sky2"][2])
+    data, err = img.data.copy(), img.uncertainty.array.copy()
+    yy, xx = np.mgrid[: data.shape[0], : data.shape[1]]
+    blank = np.hypot(xx - px, yy - py) < 7  # no data, error 0, as outside a mosaic
+    data[blank], err[blank] = np.nan, 0.0
+    l2["F150W"] = CCDData(
+        data,
+        unit=img.unit,
+        wcs=img.wcs,
+        uncertainty=StdDevUncertainty(err),
+        mask=blank,
+        meta={"FILENAME": "l2_f150w_i2d.fits"},
+    )
+    more = pairs.copy()
+    more["id1"], more["id2"] = np.arange(101, 109), np.arange(201, 209)
+    more["sky1"][4] = offset_sky(theta1[4, 0] + 5.0, theta1[4, 1])  # off every L1 image
+    with pytest.warns(LensdualWarning, match=r"pairs \[5\] cannot be tested") as rec:
+        out = measure_pairs(images["1"], l2, more, psf=PSF_FWHM, reference=REFERENCE)
+    text = str(rec[0].message)
+    assert "L2 F150W: pairs [3]" in text and "L1 F150W: pairs [5]" in text
+    # pair 3: its L2 F150W fit had no pixel; F200W still measures it
+    assert out["flags2_F150W"][2] & (PhotometryFlag.FULLY_MASKED | PhotometryFlag.TOO_FEW_PIXELS)
+    assert np.isnan(out["flux2_F150W"][2]) and np.isnan(out["flux_err2_F150W"][2])
+    assert np.isfinite(out["flux2_F200W"][2]) and np.isfinite(out["x2"][2])
+    assert out["measured"][2]
+    note = out["photometry_note"][2]
+    assert note.startswith("pair 3 (source id 203), L2 F150W [l2_f150w_i2d.fits]: ")
+    assert "masked" in note or "too few valid pixels" in note
+    # pair 5: off the L1 images, not fitted there: no L1 position, not testable
+    for band in BANDS:
+        assert out[f"flags1_{band}"][4] == PhotometryFlag.OUTSIDE_IMAGE
+        assert np.isnan(out[f"flux1_{band}"][4])
+    assert np.isnan(out["x1"][4]) and not out["measured"][4]
+    assert out["photometry_flags"][4] == PhotometryFlag.OUTSIDE_IMAGE
+    assert (
+        "pair 5 (source id 105), L1 F150W: initial position outside" in (out["photometry_note"][4])
+    )
+    assert "no band measured its L1 position" in out["photometry_note"][4]
+    # the others are untouched
+    clean = [0, 5, 6, 7]
+    assert np.all(out["photometry_flags"][clean] == 0) and np.all(out["measured"][clean])
+    assert all(out["photometry_note"][k] == "" for k in clean)
+    for band in BANDS:
+        assert np.all(np.isfinite(out[f"flux1_{band}"][clean]))
+
+
+def test_measure_pairs_negative_flux_is_named(two_arcs):
+    """A 'source' that is a hole: NON_POSITIVE_FLUX, NaN, named in photometry_note."""
+    images, pairs, theta1, theta2, _ = two_arcs
+    l2 = images["2"]["F150W"]
+    extra2 = np.array([theta2[0, 0] - 0.2, theta2[0, 1] - 0.35])
+    px, py = l2.wcs.world_to_pixel(offset_sky(*extra2))
+    ny, nx = l2.shape
+    yy, xx = np.mgrid[:ny, :nx]
+    holed = CCDData(
+        l2.data - 800 * prf(xx - px, yy - py), unit=l2.unit, uncertainty=l2.uncertainty, wcs=l2.wcs
+    )
+    more = pairs.copy()
+    more.add_row(
+        {
+            "pair_id": 9,
+            "sky1": offset_sky(theta1[0, 0] + 0.3, theta1[0, 1] - 0.3),
+            "sky2": offset_sky(*extra2),
+            "note": "hole",
+        }
+    )
+    with pytest.warns(LensdualWarning, match="pair 9, L2 F150W: non-positive flux"):
+        out = measure_pairs(
+            images["1"], {"F150W": holed}, more, psf=PSF_FWHM, bands=["F150W"], reference=REFERENCE
+        )
+    assert out["photometry_flags"][8] & PhotometryFlag.NON_POSITIVE_FLUX
+    assert not out["measured"][8] and np.all(out["measured"][:8])
+
+
+# ---------------------------------------------------------------------------
+# messages that name the input and the fix (issue 15, item 10)
+# ---------------------------------------------------------------------------
+
+
+def test_all_nan_image_and_zero_error_map(small_image):
+    pos = [(20.0, 15.0)]
+    meta = {"FILENAME": "arcL1_f150w.fits"}
+    nan = CCDData(np.full((30, 40), np.nan), unit="nJy", wcs=small_image.wcs, meta=meta)
+    with pytest.raises(
+        ValueError,
+        match=r"arc L1, band F150W \(file arcL1_f150w\.fits\) has no valid pixel: all 1200 "
+        r"pixels .* NaN or infinite\. Check that the right file and extension",
+    ):
+        psf_photometry(nan, pos, psf=FWHM, label="arc L1, band F150W")
+    zero = CCDData(
+        small_image.data,
+        unit="nJy",
+        wcs=small_image.wcs,
+        uncertainty=StdDevUncertainty(np.zeros((30, 40))),
+        mask=np.ones((30, 40), bool),  # as config.load_images masks error <= 0
+        meta=meta,
+    )
+    with pytest.raises(
+        ValueError, match=r"arcL1_f150w\.fits\) has no valid pixel: its error map .* is zero at"
+    ):
+        psf_photometry(zero, pos, psf=FWHM)
+    nan_err = CCDData(
+        small_image.data,
+        unit="nJy",
+        wcs=small_image.wcs,
+        uncertainty=StdDevUncertainty(np.full((30, 40), np.nan)),
+    )
+    with pytest.raises(ValueError, match="error map .* is NaN or infinite at every pixel"):
+        psf_photometry(nan_err, pos, psf=FWHM)
+    masked = CCDData(small_image.data, unit="nJy", mask=np.ones((30, 40), bool))
+    with pytest.raises(ValueError, match="image has no valid pixel: its mask is True"):
+        psf_photometry(masked, pos, psf=FWHM)
+    # measure_pairs names the arc and the band (and the file)
+    pairs = QTable({"sky1": small_image.wcs.pixel_to_world([20.0], [15.0])})
+    pairs["sky2"] = pairs["sky1"]
+    with pytest.raises(
+        ValueError, match=r"images_l2\['F150W'\] \(arc L2, band F150W\) \(file arcL1_f150w"
+    ):
+        measure_pairs({"F150W": small_image}, {"F150W": nan}, pairs, psf=FWHM)
+
+
+def test_single_plane_cube_is_squeezed(small_image):
+    from astropy.wcs import WCS
+
+    pos = [(20.0, 15.0)]
+    flat = psf_photometry(small_image, pos, psf=FWHM, warn=False)
+    with pytest.warns(LensdualWarning, match=r"shape \(1, 30, 40\) \(a cube with NAXIS3 = 1\)"):
+        res = psf_photometry(small_image.data[None], pos, psf=FWHM, warn=False)
+    np.testing.assert_allclose(res["flux"], flat["flux"].value)
+    w3 = WCS(naxis=3)
+    w3.wcs.ctype = ["RA---TAN", "DEC--TAN", "WAVE"]
+    w3.wcs.crval = [*small_image.wcs.wcs.crval, 1.5e-6]
+    w3.wcs.crpix = [*small_image.wcs.wcs.crpix, 1.0]
+    w3.wcs.cdelt = [*small_image.wcs.wcs.cdelt, 1e-7]
+    cube = CCDData(
+        small_image.data[None],
+        unit="nJy",
+        wcs=w3,
+        uncertainty=StdDevUncertainty(small_image.uncertainty.array[None]),
+    )
+    with pytest.warns(LensdualWarning, match="NAXIS3 = 1"):
+        res = psf_photometry(cube, pos, psf=FWHM * SCALE * u.arcsec, warn=False)
+    assert "sky" in res.colnames
+    np.testing.assert_allclose(res["flux"], flat["flux"], rtol=1e-6)
+    with pytest.raises(ValueError, match=r"cube of shape \(3, 30, 40\) \(3 planes along NAXIS3\)"):
+        psf_photometry(np.zeros((3, 30, 40)), pos, psf=FWHM)
