@@ -547,9 +547,9 @@ def _squeeze_plane(image, name):
     where = _describe_input(name, image)
     if shape[0] != 1:
         raise ValueError(
-            f"{where} is a cube of shape {shape} ({shape[0]} planes along NAXIS3); lensdual "
-            "needs one 2-D image: pass the plane to measure (e.g. data[k]) or the right "
-            "FITS extension"
+            f"{where} must be a 2-D image, got shape {shape}: a cube of {shape[0]} planes "
+            "along NAXIS3. Pass the plane to measure (e.g. data[k]) or the right FITS "
+            "extension"
         )
     warnings.warn(
         f"{where} has shape {shape} (a cube with NAXIS3 = 1): its only plane, of shape "

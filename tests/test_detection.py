@@ -685,3 +685,67 @@ def test_custom_filter_is_used(scene):
     f = PointSourceFilter(smooth_sigma=4, threshold=0.35)
     table = find_point_sources(scene, filter=f)
     assert table.meta["smooth_sigma"] == 4 and table.meta["threshold"] == 0.35
+
+
+# ---------------------------------------------------------------------------
+# messages that name the input and the fix (issue 15, item 10)
+# ---------------------------------------------------------------------------
+
+
+def test_sky_not_subtracted_is_named(scene):
+    """A sky pedestal hides every source (the filter divides by the smoothed image): the
+    warning says so and suggests background subtraction."""
+    result = PointSourceFilter()(scene)
+    assert all(result.low_levels[b] < 0 for b in BANDS)  # background-subtracted scene
+    pedestal = {b: scene[b] + 1000.0 for b in BANDS}
+    with pytest.warns(
+        NoDetectionsWarning,
+        match=r"no point-source candidate found .*sky \(background\) seems not to be "
+        r"subtracted \(band 'F150W': 95 % of its pixels are above 99\d\.\d, \d+ times its "
+        r"noise.*Subtract the background first",
+    ):
+        assert find_point_sources(pedestal) is None
+    # the hint is only given when it applies
+    arc_only = make_scene(sources=np.empty((0, 3)), seed=5)
+    with pytest.warns(NoDetectionsWarning) as rec:
+        find_point_sources(arc_only)
+    assert "sky" not in str(rec[0].message)
+    found = find_point_sources(scene)
+    assert set(found.meta["low_levels"]) == set(BANDS)
+
+
+def test_empty_bands_name_the_file_and_the_fix(scene):
+    a = scene["F150W"]
+    f = PointSourceFilter()
+    nan = NDData(np.full(SHAPE, np.nan), meta={"FILENAME": "l1_f200w.fits"})
+    with pytest.raises(
+        ValueError,
+        match=r"images\['F200W'\] has no valid pixel \(all NaN, infinite or masked\) \(file "
+        r"l1_f200w\.fits\): all 32000 pixels are NaN or infinite\. Check that the right file",
+    ):
+        f({"F150W": a, "F200W": nan})
+    from astropy.nddata import StdDevUncertainty
+
+    zero_err = NDData(
+        a,
+        mask=np.ones(SHAPE, bool),
+        uncertainty=StdDevUncertainty(np.zeros(SHAPE)),
+        meta={"filename": "err0.fits"},
+    )
+    with pytest.raises(
+        ValueError,
+        match=r"images\['F200W'\] has no valid pixel .*\(file err0\.fits\): its mask is True "
+        r"\(bad\) at every pixel, and its error map \(uncertainty\) is zero or NaN",
+    ):
+        f({"F150W": a, "F200W": zero_err})
+
+
+def test_single_plane_cube_is_squeezed(scene):
+    flat = PointSourceFilter()(scene)
+    cube = {b: scene[b][None] for b in BANDS}
+    with pytest.warns(LensdualWarning, match=r"has shape \(1, 160, 200\)") as rec:
+        squeezed = PointSourceFilter()(cube)
+    assert [str(w.message)[:17] for w in rec] == ["images['F150W'] h", "images['F200W'] h"]
+    np.testing.assert_array_equal(squeezed.candidates, flat.candidates)
+    with pytest.raises(ValueError, match=r"got shape \(2, 160, 200\): a cube of 2 planes"):
+        PointSourceFilter()([np.stack([scene["F150W"], scene["F200W"]])])

@@ -72,6 +72,12 @@ class PointSourceMap:
         Per band, the Gaussian-equivalent standard deviation of the residual
         ``image - smoothed`` (1.4826 times its median absolute deviation on
         a regular sub-grid of about 2**18 valid pixels).
+    low_levels : dict of str to float
+        Per band, the 5th percentile of the valid pixels on the same
+        sub-grid, in the band's unit: about the sky level minus 1.6 sigma on
+        a background-subtracted image (so about 0 or below). Far above
+        ``noise`` it says that the sky was not subtracted (see
+        :func:`find_point_sources`).
     floor : float
         Lower bound applied to the normalising image (co-add unit).
     snr_level : float
@@ -100,8 +106,10 @@ class PointSourceMap:
         units,
         unit,
         wcs,
+        low_levels=None,
     ):
         self.bands = bands
+        self.low_levels = {} if low_levels is None else low_levels
         self.candidates = candidates
         self.normalized = normalized
         self.coadded = coadded
@@ -143,7 +151,13 @@ class PointSourceMap:
 
 def _unpack(image, band):
     """Return (float64 data, valid map or None, unit or None, wcs or None)."""
-    data, mask, unit, wcs, _ = split_image(image, f"images[{band!r}]")
+    from ..photometry import _file_of, _squeeze_plane
+
+    name = f"images[{band!r}]"
+    path = _file_of(image)
+    in_file = "" if path is None else f" (file {path})"
+    image = _squeeze_plane(image, name)
+    data, mask, unit, wcs, unc = split_image(image, name)
     if data.size == 0:
         raise ValueError(f"images[{band!r}] is empty (shape {data.shape})")
     if mask is not None:
@@ -166,7 +180,22 @@ def _unpack(image, band):
         valid = ~mask if valid is None else valid & ~mask
     if valid is not None:
         if not valid.any():
-            raise ValueError(f"images[{band!r}] has no valid pixel (all NaN, infinite or masked)")
+            text = f"{name} has no valid pixel (all NaN, infinite or masked){in_file}: "
+            if not np.isfinite(data).any():
+                text += (
+                    f"all {data.size} pixels are NaN or infinite. Check that the right file and "
+                    "extension (e.g. SCI) are read and that the cut-out overlaps the exposed data"
+                )
+            else:
+                text += "its mask is True (bad) at every pixel"
+                err = None if unc is None else np.asarray(unc.array, dtype=np.float64)
+                if err is not None and not (np.isfinite(err) & (err > 0)).any():
+                    text += (
+                        ", and its error map (uncertainty) is zero or NaN at every pixel: "
+                        "check the error file and extension (e.g. ERR), give a weight map "
+                        "instead, or no error map at all"
+                    )
+            raise ValueError(text)
         valid = _readonly(np.ascontiguousarray(valid))
     if wcs is not None and not isinstance(wcs, BaseHighLevelWCS):
         wcs = HighLevelWCSWrapper(wcs) if isinstance(wcs, BaseLowLevelWCS) else None
@@ -236,6 +265,45 @@ def _residual_noise(data, num, wblur, valid, stride):
     if r.size == 0:  # the valid pixels all fall between the sub-grid nodes
         return _residual_noise(data, num, wblur, valid, 1)
     return _MAD_TO_SIGMA * float(np.median(np.abs(r - np.median(r))))
+
+
+def _low_level(data, valid, stride):
+    """5th percentile of the valid pixels on the noise sub-grid."""
+    sub = (slice(None, None, stride), slice(None, None, stride))
+    v = data[sub] if valid is None else data[sub][valid[sub]]
+    if v.size == 0:
+        v = data if valid is None else data[valid]
+    return float(np.percentile(v, 5.0))
+
+
+#: A band whose 5th-percentile pixel is this many noise sigmas above 0 looks
+#: like an image whose sky was not subtracted.
+_SKY_SIGMAS = 10.0
+
+
+def _sky_hint(result):
+    """Words on the bands whose sky seems not subtracted ("" when none)."""
+    out = []
+    for band in result.bands:
+        low, noise = result.low_levels.get(band), result.noise.get(band)
+        if low is None or noise is None or not noise > 0:
+            continue
+        if low > _SKY_SIGMAS * noise:
+            unit = result.units.get(band)
+            u_txt = "" if unit is None else f" {unit}"
+            out.append(
+                f"band {band!r}: 95 % of its pixels are above {low:.4g}{u_txt}, "
+                f"{low / noise:.0f} times its noise ({noise:.3g}{u_txt})"
+            )
+    if not out:
+        return ""
+    return (
+        "; the sky (background) seems not to be subtracted ("
+        + "; ".join(out)
+        + "): the filter divides by the smoothed image, so a sky pedestal hides every point "
+        "source. Subtract the background first (e.g. photutils.background.Background2D, or "
+        "the pipeline's sky-subtracted product)"
+    )
 
 
 def _blur(image, sigma):
@@ -437,6 +505,9 @@ class PointSourceFilter:
                 for k in range(nb)
             ]
         )
+        lows = np.array(
+            [_low_level(datas[k], valids[k] if masked[k] else None, stride) for k in range(nb)]
+        )
         sigma_coadd = float(np.sqrt(np.sum(sigmas**2)))
         snr_level = self.min_snr * sigma_coadd
         floor = snr_level / self.threshold if self.threshold > 0 else 0.0
@@ -484,6 +555,7 @@ class PointSourceFilter:
             means={n: float(means[k] * back[k]) for k, n in enumerate(names)},
             flag_levels={n: float(flag_levels[k] * back[k]) for k, n in enumerate(names)},
             noise={n: float(sigmas[k] * back[k]) for k, n in enumerate(names)},
+            low_levels={n: float(lows[k] * back[k]) for k, n in enumerate(names)},
             floor=float(floor),
             snr_level=float(snr_level),
             units={n: b[2] for n, b in zip(names, bands, strict=True)},
@@ -624,7 +696,7 @@ def find_point_sources(images, *, filter=None, wcs=None, sky=None, min_pixels=1,
         warnings.warn(
             f"no point-source candidate found (bands {list(result.bands)}, "
             f"{int(np.count_nonzero(result.candidates))} candidate pixels, "
-            f"min_pixels={min_pixels})",
+            f"min_pixels={min_pixels})" + _sky_hint(result),
             NoDetectionsWarning,
             stacklevel=2,
         )
@@ -654,6 +726,7 @@ def find_point_sources(images, *, filter=None, wcs=None, sky=None, min_pixels=1,
     table.meta["means"] = dict(result.means)
     table.meta["flag_levels"] = dict(result.flag_levels)
     table.meta["noise"] = dict(result.noise)
+    table.meta["low_levels"] = dict(result.low_levels)
     table.meta["floor"] = result.floor
     table.meta["snr_level"] = result.snr_level
     table.meta["min_pixels"] = min_pixels
