@@ -1,5 +1,7 @@
 """Tests of lensdual.parametric.fitting (parametric lens fits to a constellation)."""
 
+import importlib.util
+import sys
 import warnings
 
 import matplotlib
@@ -12,6 +14,7 @@ from astropy.table import QTable
 from astropy.wcs import WCS
 
 from lensdual.duality import check_duality
+from lensdual.exceptions import LensdualWarning
 from lensdual.parametric import parametric_comparison
 from lensdual.parametric.fitting import (
     ParametricFit,
@@ -27,6 +30,11 @@ TRUTH = [
 ]
 ZL, ZS = 0.5, 2.0
 FIXED_CENTRE = {"SIE": {"center_x": 0.0, "center_y": 0.0}}
+
+needs_emcee = pytest.mark.skipif(importlib.util.find_spec("emcee") is None,
+                                 reason="emcee (lensdual[mcmc]) is not installed")
+needs_corner = pytest.mark.skipif(importlib.util.find_spec("corner") is None,
+                                  reason="corner (lensdual[mcmc]) is not installed")
 
 
 @pytest.fixture(scope="module")
@@ -124,6 +132,12 @@ def test_fixed_profiles_and_reproducible(pairs):
         ({"fixed": [("NOPE", {})]}, ValueError, "fixed\\[0\\]: unknown"),
         ({"n_starts": 0}, ValueError, "n_starts"),
         ({"mcmc": "yes"}, TypeError, "mcmc"),
+        ({"n_walkers": 1.5}, TypeError, "n_walkers"),
+        pytest.param({"mcmc": True, "n_walkers": 8}, ValueError,
+                     "n_walkers must be >= 2 \\* n_free = 10", marks=needs_emcee),
+        pytest.param({"mcmc": True, "n_mcmc": 100, "n_walkers": 40}, ValueError,
+                     "2 step\\(s\\) per walker for 40 walkers; need n_mcmc >= 160",
+                     marks=needs_emcee),
     ],
 )
 def test_bad_arguments(pairs, monkeypatch, kwargs, exc, match):
@@ -155,13 +169,148 @@ def test_too_few_pairs(pairs, monkeypatch):
         fit_parametric_lens(plain, model="SIS", z_lens=ZL, z_source=ZS)
 
 
+@needs_emcee
 def test_mcmc_posterior(pairs):
-    fit = fit_parametric_lens(pairs, model=("SIE", "SHEAR"), z_lens=ZL, z_source=ZS,
-                              fixed_params=FIXED_CENTRE, n_starts=1, mcmc=True, n_mcmc=200,
-                              n_samples=20, seed=4)
+    # 200 evaluations: 10 walkers x 20 steps, the first 5 discarded; far too short a chain
+    with pytest.warns(LensdualWarning, match="emcee chain too short.*increase n_mcmc"):
+        fit = fit_parametric_lens(pairs, model=("SIE", "SHEAR"), z_lens=ZL, z_source=ZS,
+                                  fixed_params=FIXED_CENTRE, n_starts=1, mcmc=True, n_mcmc=200,
+                                  n_samples=20, seed=4)
     assert fit.samples.shape == (150, 5)
     assert 0 <= fit.acceptance <= 1
     assert np.all(np.isfinite(fit.predictions["mu_model_err"]))
+    info = fit.mcmc_info
+    assert info["sampler"] == "emcee.EnsembleSampler"
+    assert (info["n_walkers"], info["n_steps"], info["burn_in"]) == (10, 20, 5)
+    assert info["acceptance_fraction"] == fit.acceptance and not info["converged"]
+    assert list(info["autocorr_time"]) == fit.param_names
+    assert fit.autocorr_time.shape == (5,)
+    assert fit.predictions.meta["mcmc"] == info
+
+
+MCMC_KW = dict(model=("SIE", "SHEAR"), z_lens=ZL, z_source=ZS, fixed_params=FIXED_CENTRE,
+               n_starts=1, mcmc=True, n_samples=10)
+
+
+@needs_emcee
+def test_mcmc_seeded(pairs):
+    def run(seed):
+        with pytest.warns(LensdualWarning, match="chain too short"):
+            return fit_parametric_lens(pairs, n_mcmc=200, seed=seed, **MCMC_KW)
+
+    a, b, c = run(7), run(7), run(8)
+    np.testing.assert_array_equal(a.samples, b.samples)
+    assert a.acceptance == b.acceptance
+    np.testing.assert_array_equal(a.autocorr_time, b.autocorr_time)
+    np.testing.assert_array_equal(a.predictions["mu_model_err"], b.predictions["mu_model_err"])
+    assert not np.array_equal(a.samples, c.samples)
+
+
+@pytest.fixture(scope="module")
+def mcmc_fit(pairs):
+    """An emcee posterior of the SIE + shear fit, tight (sigma_pos = 5 mas) and Gaussian."""
+    if importlib.util.find_spec("emcee") is None:
+        pytest.skip("emcee (lensdual[mcmc]) is not installed")
+    with pytest.warns(LensdualWarning, match="chain too short"):  # 400 steps: ~20 tau
+        return fit_parametric_lens(pairs, model=("SIE", "SHEAR"), z_lens=ZL, z_source=ZS,
+                                   sigma_pos=0.005 * u.arcsec, fixed_params=FIXED_CENTRE,
+                                   n_starts=1, mcmc=True, n_mcmc=4000, n_samples=200, seed=1)
+
+
+def test_mcmc_recovers_truth(mcmc_fit, pairs):
+    fit = mcmc_fit
+    assert fit.samples.shape == (10 * 300, 5)
+    assert 0.1 < fit.acceptance < 0.9
+    truth = [TRUTH[0]["theta_E"], TRUTH[0]["e1"], TRUTH[0]["e2"], TRUTH[1]["gamma1"],
+             TRUTH[1]["gamma2"]]
+    for level in (0.6827, 0.95):
+        tab = fit.parameter_intervals(level)
+        assert list(tab["name"]) == fit.param_names and tab.meta["source"] == "posterior sample"
+        assert np.all((tab["lower"] < truth) & (truth < tab["upper"])), tab
+    # the posterior is near the Laplace approximation here: compare the 68 % widths
+    laplace = fit.parameter_intervals()
+    laplace_fit = ParametricFit(**{**fit.__dict__, "samples": None})
+    lap = laplace_fit.parameter_intervals()
+    assert lap.meta["source"] == "Laplace"
+    ratio = ((laplace["upper"] - laplace["lower"]) / (lap["upper"] - lap["lower"]))
+    assert np.all((ratio > 0.7) & (ratio < 1.4)), ratio
+    # and the quoted mu_model intervals hold the true ratios
+    pred = fit.predictions
+    true_ratio = truth_ratio(pairs)
+    assert np.all((pred["mu_model_p16"] <= true_ratio) & (true_ratio <= pred["mu_model_p84"]))
+
+
+@needs_emcee
+def test_mcmc_long_chain_no_warning(pairs):
+    # one free parameter (an SIS of fixed centre): 8 walkers x 500 steps are > 50 tau, and
+    # the session's filterwarnings = error would fail on the short-chain warning
+    fit = fit_parametric_lens(pairs, model="SIS", z_lens=ZL, z_source=ZS,
+                              fixed_params={"SIS": {"center_x": 0.0, "center_y": 0.0}},
+                              n_starts=1, mcmc=True, n_mcmc=4000, n_samples=10, seed=1)
+    assert fit.mcmc_info["converged"]
+    assert fit.mcmc_info["n_autocorr"] >= 50
+    assert fit.autocorr_time[0] == fit.mcmc_info["autocorr_time"]["SIS[0].theta_E"]
+    assert 375 / fit.autocorr_time[0] == pytest.approx(fit.mcmc_info["n_autocorr"])
+
+
+@needs_corner
+def test_plot_corner(mcmc_fit, fit):
+    from matplotlib.figure import Figure
+
+    matplotlib.use("Agg")
+    names = mcmc_fit.param_names
+    d = len(names)
+    truths = {"SIE[0].theta_E": 1.5, "SHEAR[1].gamma1": 0.04}
+    fig = mcmc_fit.plot_corner(truths=truths)
+    assert isinstance(fig, Figure)
+    axes = np.array(fig.axes).reshape(d, d)
+    # a histogram per parameter on the diagonal, a panel per parameter pair below it
+    for i in range(d):
+        for j in range(d):
+            assert axes[i, j].get_frame_on() == (j <= i)
+    assert sum(axes[i, j].get_frame_on() for i in range(d) for j in range(i)) == d * (d - 1) // 2
+    assert [axes[-1, j].get_xlabel() for j in range(d)] == names
+    assert [axes[i, 0].get_ylabel() for i in range(1, d)] == names[1:]
+    # the truth of theta_E is marked on its marginal (a vertical line at 1.5)
+    xs = [line.get_xdata()[0] for line in axes[0, 0].get_lines() if len(line.get_xdata())]
+    assert any(np.isclose(x, 1.5) for x in xs)
+    plt.close(fig)
+    fig = mcmc_fit.plot_corner(truths="best", labels=[f"p{k}" for k in range(d)])
+    assert fig.axes[-1].get_xlabel() == f"p{d - 1}"
+    plt.close(fig)
+    with pytest.raises(ValueError, match="one value per free parameter"):
+        mcmc_fit.plot_corner(truths=[1.5])
+    with pytest.raises(ValueError, match="unknown parameter"):
+        mcmc_fit.plot_corner(truths={"theta_E": 1.5})
+    with pytest.raises(ValueError, match="no posterior sample.*mcmc=True"):
+        fit.plot_corner()
+
+
+def test_mcmc_without_emcee(pairs, monkeypatch):
+    import scipy.optimize
+
+    monkeypatch.setitem(sys.modules, "emcee", None)  # import emcee raises ImportError
+    real = scipy.optimize.least_squares
+
+    def boom(*args, **kw):
+        raise AssertionError("fitting started")
+
+    monkeypatch.setattr(scipy.optimize, "least_squares", boom)
+    with pytest.raises(ImportError, match=r'emcee.*pip install "lensdual\[mcmc\]"'):
+        fit_parametric_lens(pairs, n_mcmc=200, seed=1, **MCMC_KW)
+    # the Laplace approximation needs no emcee
+    monkeypatch.setattr(scipy.optimize, "least_squares", real)
+    fit = fit_parametric_lens(pairs, model=("SIE", "SHEAR"), z_lens=ZL, z_source=ZS,
+                              fixed_params=FIXED_CENTRE, n_starts=1, n_samples=10, seed=1)
+    assert fit.samples is None and fit.mcmc_info is None and fit.autocorr_time is None
+    assert fit.chi2 < 1e-6
+    assert np.all(np.asarray(fit.predictions["mu_model_err"]) > 0)
+
+
+def test_plot_corner_without_corner(fit, monkeypatch):
+    monkeypatch.setitem(sys.modules, "corner", None)
+    with pytest.raises(ImportError, match=r'corner.*pip install "lensdual\[mcmc\]"'):
+        fit.plot_corner()
 
 
 def test_compare_with_parametric(fit, pairs):
