@@ -1486,13 +1486,15 @@ def psf_photometry(
         and photutils); a table with pixel columns (``x_centroid`` /
         ``y_centroid`` as made by `~lensdual.detection.find_point_sources`,
         or ``x`` / ``y``, ``x_init`` / ``y_init``, ``x_fit`` / ``y_fit``;
-        its ``id`` column is kept); or sky positions (needs a WCS). All must
-        lie on the image.
+        its ``id`` column is kept); or sky positions (needs a WCS). A
+        position off the image (or not finite) is not fitted: its row is NaN
+        and flagged ``OUTSIDE_IMAGE``.
     psf : `~astropy.units.Quantity`, float, 2-D array, `~photutils.psf.ImagePSF` or None, optional
         The PSF: a circular Gaussian of this FWHM (an angle, which needs a
         celestial WCS, a Quantity in ``u.pix``, or a number of pixels),
-        integrated over the pixels; a 2-D PSF image (normalised to unit sum,
-        centred on its central pixel, not oversampled); or a photutils
+        integrated over the pixels; a 2-D PSF image (any normalisation: it is
+        rescaled; centred on its central pixel; detector-sampled, or
+        oversampled with ``oversampling``); or a photutils
         `~photutils.psf.ImagePSF` (used as it is, with its oversampling and
         normalisation). None (default): a Gaussian whose FWHM is fitted
         first to all sources (the inverse-variance weighted median of the
@@ -1559,6 +1561,24 @@ def psf_photometry(
         Emit a `~lensdual.exceptions.LensdualWarning` when some fits are
         flagged (default True). photutils' own warnings are never passed
         on: they are summarised in that one warning.
+    oversampling : int or (int, int), optional
+        Oversampling factor(s) (oy, ox) of a 2-D PSF image ``psf``: its
+        pixels per detector pixel, e.g. 4 for the ``OVERSAMP`` image (HDU 0)
+        of a WebbPSF/STPSF file (header keyword ``OVERSAMP``). The image is
+        used as an effective PSF, as photutils' ``ImagePSF(data,
+        oversampling=...)``. Default None: not oversampled. Only for a PSF
+        image (a ValueError otherwise, or when it contradicts an ImagePSF's
+        own).
+    check_psf : bool, optional
+        With a PSF image (default True): fit a Gaussian FWHM to the (at most
+        6) brightest sources before the photometry, and refuse (ValueError) a
+        PSF more than 1.8 times wider than them (an oversampled PSF passed
+        without ``oversampling``), or 1.8 times narrower when an
+        ``oversampling`` was given; warn when it is narrower without one.
+    label : str, optional
+        How messages name the image, e.g. ``"arc L1, band F150W"``; the file
+        in the image's ``meta['FILENAME']`` (or ``filename``, ``file``) is
+        added when present. Default ``"image"``.
 
     Returns
     -------
@@ -1581,13 +1601,17 @@ def psf_photometry(
           photutils' fit-quality columns and flags (see
           `~photutils.psf.PSFPhotometry`; ``flags == 0`` is a clean fit; the
           same definitions for jointly fitted groups, whose ``reduced_chi2``
-          is that of the whole group).
+          is that of the whole group), plus lensdual's own bits: see
+          :class:`PhotometryFlag`;
+        * ``flag_note``: the flags in words (:func:`describe_flags`), "" for
+          a clean fit.
 
         The errors come from the fit covariance, marginalised over the
         background parameters: with pixel errors (an uncertainty) it is the
         inverse Fisher matrix of the weighted fit; without, it is scaled by
         the reduced chi-square. ``meta`` records the PSF, FWHM (pixels),
-        fit shape, background strategy and smoothing.
+        fit shape, background strategy and smoothing, the PSF image's
+        ``oversampling`` and ``input`` (how messages name the image).
 
     Raises
     ------
@@ -1595,15 +1619,19 @@ def psf_photometry(
         ``image``, ``positions``, ``psf`` or ``background`` of the wrong
         type.
     ValueError
-        Positions outside the image, non-positive FWHM, a bad
-        ``fit_shape``, an unknown background strategy, an angular FWHM or
-        sky positions without a WCS.
+        Non-positive FWHM, a bad ``fit_shape``, an unknown background
+        strategy, an angular FWHM or sky positions without a WCS, a bad
+        ``oversampling``, a PSF image whose width does not match the sources
+        (see ``check_psf``), an image without any valid pixel (all NaN, an
+        error map zero or NaN everywhere, all masked: the message names the
+        image, its file and what to check), a cube of several planes.
 
     Warns
     -----
     LensdualWarning
-        Some fits are flagged by photutils (did not converge, no covariance,
-        non-positive flux, ...).
+        Some fits are flagged (did not converge, no covariance, non-positive
+        flux, positions off the image, ...); an image of shape (1, ny, nx)
+        (a cube with NAXIS3 = 1) used as its 2-D plane.
     """
     from photutils.background import LocalBackground
 
@@ -2021,8 +2049,11 @@ def measure_pairs(
         point sources on both arcs (the mean of their unit vectors). Needed
         when ``pairs`` gives ``x1, y1, x2, y2`` (their frame's origin, also
         used for the output).
-    background, fit_shape, xy_bounds, neighbour_passes
+    background, fit_shape, xy_bounds, neighbour_passes, check_psf
         Passed to :func:`psf_photometry`.
+    oversampling : int, (int, int) or dict of str to those, optional
+        The oversampling of PSF images (see :func:`psf_photometry`), for all
+        bands or per band (a dict; a band it lacks gets None).
 
     Returns
     -------
@@ -2040,15 +2071,25 @@ def measure_pairs(
           ``reference``);
         * per band ``flux1_<band>``, ``flux2_<band>``, ``flux_err1_<band>``,
           ``flux_err2_<band>`` (image unit; L2 converted to the unit of L1),
-          and ``flags1_<band>``, ``flags2_<band>`` (photutils flags; 0 is a
-          clean fit).
+          and ``flags1_<band>``, ``flags2_<band>`` (:class:`PhotometryFlag`
+          bits; 0 is a clean fit);
+        * ``photometry_flags``: per pair, the sum of the unusable flags
+          (:data:`UNUSABLE_FLAGS`) of all its fits; 0 when all were usable;
+        * ``photometry_note``: per pair, what was not measured and why, in
+          words, each entry naming the pair id, the source id (columns
+          ``id1``/``id2`` when present), the arc, the band and the file
+          (``meta['FILENAME']`` of the image); "" when clean;
+        * ``measured``: True when both positions are known and at least one
+          band has both fluxes (the pair can be tested).
 
         ``meta['bands']`` lists the bands, ``meta['reference']`` is the
         frame origin (SkyCoord), ``meta['photometry']`` the settings.
-        Fluxes of fits with a serious flag (non-positive flux, no
+        Fluxes of fits with an unusable flag (non-positive flux, no
         convergence, no covariance, no or too few pixels, non-finite
-        results) are NaN ("not measured"), and such fits do not enter the
-        positions; a position that no band measured is NaN.
+        results, a position off the image, a flux error that is not finite
+        and positive, a fit that raised) are NaN ("not measured"), with NaN
+        errors, and such fits do not enter the positions; a position that no
+        band measured is NaN. One bad candidate never stops the call.
 
     Raises
     ------
@@ -2058,12 +2099,15 @@ def measure_pairs(
     ValueError
         An image without a celestial WCS, a band missing from one arc,
         ``pairs`` without positions, x/y positions without ``reference``,
-        positions that fall outside an image, incompatible flux units.
+        incompatible flux units, a bad ``oversampling``, the errors of
+        :func:`psf_photometry` on a whole image (no valid pixel, a PSF image
+        that does not match the sources), named with the arc, band and file.
 
     Warns
     -----
     LensdualWarning
-        Some fits are flagged (one warning for the whole call).
+        Some fits are flagged (one warning for the whole call, with the
+        notes and the pairs that cannot be tested).
 
     Notes
     -----
