@@ -226,7 +226,7 @@ class Analysis:
     warnings: list = field(default_factory=list)
 
 
-def _catalogue(images, psf, catalog=None):
+def _catalogue(images, psf, catalog=None, oversampling=None):
     """Detections (or the given catalogue) of one arc, with PSF fluxes per band."""
     from astropy.table import QTable
 
@@ -243,7 +243,8 @@ def _catalogue(images, psf, catalog=None):
         xy = np.column_stack(image.wcs.world_to_pixel(out["sky"]))
         if k == 0:  # pixel position on the first band, for reference
             out["x_pix"], out["y_pix"] = xy[:, 0], xy[:, 1]
-        phot = psf_photometry(image, xy, psf=psf.get(band), warn=False)
+        phot = psf_photometry(image, xy, psf=psf.get(band), warn=False,
+                              oversampling=(oversampling or {}).get(band))
         out[f"flux_{band}"] = phot["flux"]
         out[f"flux_err_{band}"] = phot["flux_err"]
     return out
@@ -251,7 +252,7 @@ def _catalogue(images, psf, catalog=None):
 
 def analyse(images, *, psf=None, estimator="adaptive", sigma_pos="auto", n_bootstrap=1000,
             snr_threshold=3.0, seed=0, catalogs=None, manual_pairs=None, progress=None,
-            null_realisations=0):
+            null_realisations=0, oversampling=None):
     """Run the pipeline from images of two arcs to the duality table.
 
     Parameters
@@ -276,6 +277,9 @@ def analyse(images, *, psf=None, estimator="adaptive", sigma_pos="auto", n_boots
     manual_pairs : `~astropy.table.Table`, optional
         ``id1``, ``id2`` of the pairs (catalogue ids): manual pairing.
     progress : `_Progress`, optional
+    oversampling : dict of str to int, optional
+        Per band, the oversampling of its PSF image (see
+        :func:`~lensdual.photometry.psf_photometry`).
     null_realisations : int
         With ``estimator="adaptive"`` and a value >= 100, also run
         :func:`~lensdual.duality.null_calibration` with that many
@@ -310,7 +314,7 @@ def analyse(images, *, psf=None, estimator="adaptive", sigma_pos="auto", n_boots
         for arc in ("L1", "L2"):
             with progress.step(f"detect + photometry {arc}"):
                 given = None if catalogs is None else catalogs[arc]
-                cats[arc] = _catalogue(images[arc], psf, given)
+                cats[arc] = _catalogue(images[arc], psf, given, oversampling)
             n_found = 0 if cats[arc] is None else len(cats[arc])
             if n_found < n_min:
                 raise PipelineError(
@@ -328,8 +332,15 @@ def analyse(images, *, psf=None, estimator="adaptive", sigma_pos="auto", n_boots
                     f"only {len(pairs)} pair(s) found: the {estimator} estimator needs at "
                     f"least {n_min}{_MIN_PAIRS_WHY.get(estimator, '')}")
         with progress.step("PSF photometry of the pairs"):
-            measured = measure_pairs(images["L1"], images["L2"], pairs, psf=psf, bands=bands)
-        measured["doubt"] = pairing_doubts(pairs)
+            measured = measure_pairs(images["L1"], images["L2"], pairs, psf=psf, bands=bands,
+                                     oversampling=oversampling or None)
+        doubt = pairing_doubts(pairs)
+        _drop_non_positive(measured, bands, doubt)
+        if "measured" in measured.colnames:
+            for k in np.flatnonzero(~np.asarray(measured["measured"], dtype=bool)):
+                if not doubt[k]:
+                    doubt[k] = f"not measured ({measured['photometry_note'][k]})"
+        measured["doubt"] = np.array([str(d) for d in doubt], dtype=str)
         step = (f"mu_size ({estimator})" if estimator == "adaptive"
                 else f"mu_size ({estimator}, {n_bootstrap} bootstraps)")
         with progress.step(step):
@@ -541,7 +552,7 @@ _DOUBT_RESIDUAL = 6.0
 
 
 def pairing_doubts(pairs):
-    """Why each pair of a pairing is doubtful ("" when it is not).
+    """Why each pair of a pairing is doubtful ("" when it is not; an object array).
 
     A mis-pair must never look like a sub-halo. The pairing
     (:func:`~lensdual.pairing.pair_constellations`) gives every pair its
@@ -570,7 +581,25 @@ def pairing_doubts(pairs):
         for k in np.flatnonzero(low):
             doubt[k] = (f"ambiguous pairing (confidence {conf[k]:.1g}: another partner fits "
                         "about as well)")
-    return doubt.astype(str)
+    return doubt
+
+
+def _drop_non_positive(measured, bands, doubt):
+    """A non-positive PSF flux (blank sky, a spurious candidate) is no flux: NaN in that
+    band, and the pair is doubtful (in place)."""
+    for band in bands:
+        for arc in ("1", "2"):
+            flux = measured[f"flux{arc}_{band}"]
+            values = np.asarray(getattr(flux, "value", flux), dtype=float)
+            with np.errstate(invalid="ignore"):
+                bad = np.isfinite(values) & (values <= 0)
+            for k in np.flatnonzero(bad):
+                if not doubt[k]:
+                    doubt[k] = (f"non-positive flux on L{arc} in {band} ({values[k]:.3g}): "
+                                "blank sky or a spurious detection")
+            if bad.any():
+                for col in (f"flux{arc}_{band}", f"flux_err{arc}_{band}"):
+                    measured[col][bad] = np.nan * getattr(measured[col], "unit", 1)
 
 
 def u_value(column):
@@ -1022,7 +1051,7 @@ def _cmd_demo(args):
 def _cmd_run(args):
     from astropy.table import QTable
 
-    from .config import ConfigError, band_psfs, load_config, load_images
+    from .config import ConfigError, band_oversampling, band_psfs, load_config, load_images
 
     start = time.perf_counter()
     try:
@@ -1048,6 +1077,7 @@ def _cmd_run(args):
             warnings.simplefilter("always")
             images = load_images(config)
             psf = band_psfs(config)
+            oversampling = band_oversampling(config)
             catalogs = None
             if config.catalogs is not None:
                 catalogs = {arc: _read_catalog(path) for arc, path in config.catalogs.items()}
@@ -1058,7 +1088,8 @@ def _cmd_run(args):
                            sigma_pos=config.sigma_pos, n_bootstrap=config.n_bootstrap,
                            snr_threshold=config.snr_threshold, seed=config.seed,
                            catalogs=catalogs, manual_pairs=manual, progress=progress,
-                           null_realisations=config.null_realisations)
+                           null_realisations=config.null_realisations,
+                           oversampling=oversampling)
         read_warnings = [f"{w.category.__name__}: {w.message}" for w in caught]
         analysis.warnings[:0] = list(dict.fromkeys(read_warnings))
         for text in read_warnings:

@@ -31,6 +31,8 @@ file. Angles are strings of a number and an angular unit (``"0.066 arcsec"``,
     psf = "psf_F150W.fits"           # a PSF image (FITS, odd shape, same pixel scale
     psf_hdu = 0                      #   as the images); psf_hdu: index or EXTNAME
     [bands.F200W]
+    psf_oversampling = 4             # optional, with psf: its oversampling (default:
+                                     #   the file's OVERSAMP keyword, as WebbPSF writes)
     psf_fwhm = "0.066 arcsec"        # or the FWHM of a Gaussian PSF (not both);
                                      # neither: the FWHM is fitted to the sources
 
@@ -138,6 +140,7 @@ __all__ = [
     "load_config",
     "load_images",
     "band_psfs",
+    "band_oversampling",
     "format_config",
     "write_config",
 ]
@@ -171,7 +174,7 @@ _KEYS = {
 #: Tables a catalogue-only ([knots]) run does without.
 _IMAGE_TABLES = ("bands", "arcs", "catalogs", "pairing", "parametric")
 _ASSIGN = ("centre", "mapping", "model")
-_BAND_KEYS = ("psf", "psf_hdu", "psf_fwhm")
+_BAND_KEYS = ("psf", "psf_hdu", "psf_fwhm", "psf_oversampling")
 _IMAGE_KEYS = ("image", "hdu", "error", "error_hdu", "weight", "weight_hdu", "unit")
 _CUTOUT_KEYS = ("center", "size")
 
@@ -286,12 +289,17 @@ class BandSpec:
     psf_fwhm : `~astropy.units.Quantity` or None
         The FWHM (an angle) of a Gaussian PSF, or None. With neither
         ``psf`` nor ``psf_fwhm`` the FWHM is fitted to the sources.
+    psf_oversampling : int, tuple of int or None
+        Oversampling of the PSF image (``psf_oversampling``, else the
+        ``OVERSAMP`` keyword of a WebbPSF / STPSF file), or None (detector
+        sampled).
     """
 
     name: str
     psf: Path | None = None
     psf_hdu: int | str | None = None
     psf_fwhm: u.Quantity | None = None
+    psf_oversampling: int | tuple | None = None
 
 
 @dataclass(frozen=True)
@@ -645,6 +653,24 @@ def _cutout(shape, wcs, center, size):
     return Cutout2D(dummy, center, size, wcs=wcs, mode="trim", copy=False)
 
 
+def _psf_oversampling(path, hdu):
+    """The oversampling a PSF file declares (WebbPSF / STPSF ``OVERSAMP``; 1 for their
+    detector-sampled ``DET_SAMP`` extension), or None."""
+    try:
+        with fits.open(path) as hdul:
+            index = _find_hdu(hdul, hdu, path)
+            header = hdul[index].header
+            if str(header.get("EXTNAME", "")).upper().startswith("DET_"):
+                return None
+            value = header.get("OVERSAMP", hdul[0].header.get("OVERSAMP"))
+    except Exception:  # unreadable: reported elsewhere
+        return None
+    if isinstance(value, (int, float)) and not isinstance(value, bool) and value > 1 and \
+            float(value).is_integer():
+        return int(value)
+    return None
+
+
 def _read_psf(path, hdu):
     """The PSF image, normalised to unit sum; ValueError if unusable."""
     with fits.open(path, memmap=False) as hdul:
@@ -951,8 +977,28 @@ class _Validator:
                         _read_psf(psf, psf_hdu)
                     except Exception as exc:
                         self.add(f"[{sec}] psf: {exc}")
-            bands[name] = BandSpec(name=name, psf=psf, psf_hdu=psf_hdu, psf_fwhm=fwhm)
+            over = self.oversampling(spec, sec, psf, psf_hdu)
+            bands[name] = BandSpec(name=name, psf=psf, psf_hdu=psf_hdu, psf_fwhm=fwhm,
+                                   psf_oversampling=over)
         return bands
+
+    def oversampling(self, spec, sec, psf, psf_hdu):
+        value = spec.get("psf_oversampling", _ABSENT)
+        if value is _ABSENT:
+            if psf is None or psf is _BAD or psf_hdu is _BAD:
+                return None
+            return _psf_oversampling(psf, psf_hdu)
+        if "psf" not in spec:
+            self.add(f"[{sec}] psf_oversampling: given without psf (a PSF image)")
+            return _BAD
+        ok = (isinstance(value, int) and not isinstance(value, bool) and value >= 1) or (
+            isinstance(value, list) and len(value) == 2
+            and all(isinstance(v, int) and not isinstance(v, bool) and v >= 1 for v in value))
+        if not ok:
+            self.add(f"[{sec}] psf_oversampling: expected an integer >= 1 or [oy, ox], got "
+                     f"{_describe(value)}")
+            return _BAD
+        return value if isinstance(value, int) else tuple(value)
 
     def arcs(self):
         table = self.section("arcs")
@@ -1682,8 +1728,10 @@ def _read_image(spec, arc, psf):
             err *= _sky_scale(data, err, mask, f"{where} (weight map {spec.weight.name})")
         _check_noise(data, err, mask, f"{where} (weight map {spec.weight.name})")
         uncertainty = StdDevUncertainty(err)
+    meta = _meta(header)
+    meta["FILENAME"] = str(spec.image)
     return CCDData(data, unit=unit, wcs=wcs, uncertainty=uncertainty, mask=mask,
-                   meta=_meta(header), psf=None if psf is None else psf.copy())
+                   meta=meta, psf=None if psf is None else psf.copy())
 
 
 def load_images(config):
@@ -1772,6 +1820,12 @@ def band_psfs(config):
     if problems:
         raise ConfigError(problems, config.path)
     return out
+
+
+def band_oversampling(config):
+    """``{band: oversampling}`` of the bands whose PSF image is oversampled."""
+    return {name: band.psf_oversampling for name, band in config.bands.items()
+            if band.psf_oversampling is not None}
 
 
 # ---------------------------------------------------------------------------

@@ -116,11 +116,13 @@ def _band_fluxes(tab, band):
                 f"{name} must be positive for a flux ratio; non-positive at row(s) "
                 f"{np.flatnonzero(bad).tolist()}"
             )
-    for name, e in zip(names[2:], (e1, e2), strict=True):
-        bad = ~(np.isfinite(e) & (e > 0))
+    for name, f, e in zip(names[2:], (f1, f2), (e1, e2), strict=True):
+        # a NaN flux means "not measured": its error may be NaN too
+        bad = np.isfinite(f) & ~(np.isfinite(e) & (e > 0))
         if bad.any():
             raise ValueError(
-                f"{name} must be finite and positive; bad at row(s) {np.flatnonzero(bad).tolist()}"
+                f"{name} must be finite and positive where the flux is measured; bad at "
+                f"row(s) {np.flatnonzero(bad).tolist()}"
             )
     return f1, f2, e1, e2
 
@@ -261,6 +263,10 @@ def _doubts(tab, flux, chromatic_alpha):
                           for d in np.asarray(tab["doubt"], dtype=object)], dtype=object)
     else:
         doubt = np.array([""] * n, dtype=object)
+    theta1, theta2 = _positions(tab)
+    lost = ~(np.isfinite(theta1.value).all(axis=1) & np.isfinite(theta2.value).all(axis=1))
+    for k in np.flatnonzero(lost & (doubt == "")):
+        doubt[k] = "position not measured (NaN)"
     pval = np.asarray(flux["chromatic_pvalue"], dtype=float)
     with np.errstate(invalid="ignore"):
         chroma = (doubt == "") & (pval < chromatic_alpha)

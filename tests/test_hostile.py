@@ -320,3 +320,76 @@ def test_fig3_on_the_images(demo_dir):
         assert colours[1] == "#ff0000" and colours.count("#ff0000") == 1
         # north up: the Dec axis is the vertical one
         assert ax.coords[1].get_axislabel() == "Dec"
+
+
+def test_swapped_manual_ids_are_doubtful_never_anomalous(demo_dir, tmp_path):
+    previous = QTable.read(demo_dir / "pairs.ecsv", format="ascii.ecsv")
+    id1, id2 = list(previous["id1"]), list(previous["id2"])
+    id2[1], id2[4] = id2[4], id2[1]
+    QTable({"id1": id1, "id2": id2}).write(tmp_path / "pairs.ecsv", format="ascii.ecsv")
+    cfg = absolute_config(demo_dir)
+    cfg["pairing"] = {"method": "manual", "file": str(tmp_path / "pairs.ecsv")}
+    out = tmp_path / "out"
+    assert main(["run", str(write(tmp_path / "c.toml", cfg)), "--outdir", str(out),
+                 "--quiet"]) == 0
+    result = QTable.read(out / "pairs.ecsv", format="ascii.ecsv")
+    swapped = np.isin(np.arange(len(result)), [1, 4])
+    assert not result["anomalous"][swapped].any()
+    assert not result["tested"][swapped].any()
+    assert all("pairing" in str(d) for d in result["doubt"][swapped])
+    assert np.all(result["mu_size_status"][swapped] == "excluded")
+    report = (out / "report.txt").read_text()
+    assert "Doubtful pairings are left out" in report
+
+
+def test_spurious_candidates_never_look_like_subhaloes(demo_dir, tmp_path, capsys):
+    from astropy.coordinates import SkyCoord
+
+    rng = np.random.default_rng(2)
+    cfg = absolute_config(demo_dir)
+    paths = {}
+    for arc in ("L1", "L2"):
+        cat = QTable.read(demo_dir / f"catalog_{arc}.ecsv", format="ascii.ecsv")
+        ra, dec = cat["sky"].ra.deg, cat["sky"].dec.deg
+        n = 25
+        sky = SkyCoord(np.concatenate([ra, rng.uniform(ra.min(), ra.max(), n)]),
+                       np.concatenate([dec, rng.uniform(dec.min(), dec.max(), n)]), unit="deg")
+        ids = np.concatenate([np.asarray(cat["id"]), np.arange(1000, 1000 + n)])
+        QTable({"id": ids, "sky": sky}).write(tmp_path / f"{arc}.ecsv", format="ascii.ecsv")
+        paths[arc] = str(tmp_path / f"{arc}.ecsv")
+    cfg["catalogs"] = paths
+    out = tmp_path / "out"
+    code = main(["run", str(write(tmp_path / "c.toml", cfg)), "--outdir", str(out), "--quiet"])
+    if code == 0:
+        result = QTable.read(out / "pairs.ecsv", format="ascii.ecsv")
+        spurious = (np.asarray(result["id1"]) >= 1000) | (np.asarray(result["id2"]) >= 1000)
+        assert not np.any(result["anomalous"] & spurious)
+    else:
+        # too few trustworthy pairs left: a clear refusal naming the doubtful ones
+        assert code == 1
+        err = capsys.readouterr().err
+        assert "doubtful pair(s) left out" in err
+        no_leftovers(tmp_path, out)
+
+
+def test_psf_oversampling_key_and_webbpsf_header(tmp_path):
+    from lensdual.config import ConfigError, band_oversampling, load_config
+
+    rng = np.random.default_rng(4)
+    paths = {arc: _product(tmp_path / f"{arc}.fits", "jwst", rng)[0] for arc in ("L1", "L2")}
+    yy, xx = np.mgrid[-22:23, -22:23]
+    psf = fits.PrimaryHDU(np.exp(-(xx**2 + yy**2) / 50.0))
+    psf.header["OVERSAMP"] = 4  # as WebbPSF / STPSF write HDU 0
+    psf.writeto(tmp_path / "psf.fits")
+    cfg = {"bands": {"F150W": {"psf": str(tmp_path / "psf.fits")}},
+           "arcs": {arc: {"F150W": {"image": str(p)}} for arc, p in paths.items()}}
+    config = load_config(write(tmp_path / "a.toml", cfg))
+    assert band_oversampling(config) == {"F150W": 4}
+    cfg["bands"]["F150W"]["psf_oversampling"] = [2, 2]
+    assert band_oversampling(load_config(write(tmp_path / "b.toml", cfg))) == {"F150W": (2, 2)}
+    cfg["bands"]["F150W"]["psf_oversampling"] = 0
+    with pytest.raises(ConfigError, match=r"psf_oversampling: expected an integer >= 1"):
+        load_config(write(tmp_path / "c.toml", cfg))
+    cfg["bands"]["F150W"] = {"psf_fwhm": "0.07 arcsec", "psf_oversampling": 4}
+    with pytest.raises(ConfigError, match=r"psf_oversampling: given without psf"):
+        load_config(write(tmp_path / "d.toml", cfg))
