@@ -317,9 +317,12 @@ def analyse(images, *, psf=None, estimator="adaptive", sigma_pos="auto", n_boots
                 cats[arc] = _catalogue(images[arc], psf, given, oversampling)
             n_found = 0 if cats[arc] is None else len(cats[arc])
             if n_found < n_min:
+                hints = [str(w.message) for w in caught
+                         if w.category.__name__ == "NoDetectionsWarning"]
                 raise PipelineError(
                     f"only {n_found} point source(s) found on arc {arc}: the {estimator} "
-                    f"estimator needs at least {n_min} pairs{_MIN_PAIRS_WHY.get(estimator, '')}")
+                    f"estimator needs at least {n_min} pairs{_MIN_PAIRS_WHY.get(estimator, '')}"
+                    + (f". The detection said: {hints[-1]}" if hints else ""))
         with progress.step("pair"):
             try:
                 pairs = pair_constellations(

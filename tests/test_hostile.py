@@ -393,3 +393,25 @@ def test_psf_oversampling_key_and_webbpsf_header(tmp_path):
     cfg["bands"]["F150W"] = {"psf_fwhm": "0.07 arcsec", "psf_oversampling": 4}
     with pytest.raises(ConfigError, match=r"psf_oversampling: given without psf"):
         load_config(write(tmp_path / "d.toml", cfg))
+
+
+def test_unsubtracted_sky_is_named(demo_dir, tmp_path, capsys):
+    cfg = absolute_config(demo_dir)
+    for band, spec in cfg["arcs"]["L1"].items():
+        if band == "cutout":
+            continue
+        src = spec["image"]
+
+        def pedestal(hdul):
+            hdul[0].data = hdul[0].data + 1000.0 * np.nanmax(np.abs(hdul[0].data))
+
+        new = copy_fits(src, tmp_path / f"sky_{band}.fits", pedestal)
+        if "error" not in spec and "error_hdu" in spec:
+            spec["error"] = src  # keep the error map of the original file
+        spec["image"] = str(new)
+    out = tmp_path / "out"
+    code = main(["run", str(write(tmp_path / "c.toml", cfg)), "--outdir", str(out), "--quiet"])
+    assert code == 1
+    err = capsys.readouterr().err
+    assert "point source(s) found on arc L1" in err and "not to be subtracted" in err
+    no_leftovers(tmp_path, out)
