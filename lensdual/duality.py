@@ -121,8 +121,9 @@ def _band_fluxes(tab, band):
         bad = np.isfinite(f) & ~(np.isfinite(e) & (e > 0))
         if bad.any():
             raise ValueError(
-                f"{name} must be finite and positive where the flux is measured; bad at "
-                f"row(s) {np.flatnonzero(bad).tolist()}"
+                f"{name} must be finite and positive; bad at row(s) "
+                f"{np.flatnonzero(bad).tolist()} (a NaN flux, not measured, may have a NaN "
+                "error)"
             )
     return f1, f2, e1, e2
 
