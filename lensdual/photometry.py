@@ -575,15 +575,41 @@ def _squeeze_plane(image, name):
     )
 
 
-def _unpack_image(image, name, label=None):
-    """Return (float64 data copy, invalid mask or None, error or None, unit, wcs)."""
+def _split_parts(image, name, label=None):
+    """The parts of an image, nothing copied: (where, data, mask, unit, wcs, uncertainty)."""
     where = _describe_input(name, image, label)
     image = _squeeze_plane(image, where)
     data, mask, unit, wcs, unc = split_image(image, name)
     wcs = _as_wcs(wcs, f"{name}.wcs")
+    return where, data, mask, unit, wcs, unc
+
+
+def _in_box(array, shape, box):
+    """``array`` (broadcast to ``shape``) restricted to ``box`` (a pair of slices, or None)."""
+    if box is None:
+        return array
+    array = np.asarray(array)
+    if array.shape != shape:
+        array = np.broadcast_to(array, shape)
+    return array[box]
+
+
+def _unpack_image(image, name, label=None, box=None, parts=None):
+    """Return (float64 data copy, invalid mask or None, error or None, unit, wcs).
+
+    With ``box`` (a pair of slices) only that part of the image is copied and
+    checked: data, mask and error map are cut before any conversion, so that
+    nothing of the size of the whole image is allocated. ``parts`` are those
+    of :func:`_split_parts` when already at hand.
+    """
+    where, data, mask, unit, wcs, unc = _split_parts(image, name, label) if parts is None else parts
+    full_shape = data.shape
+    data = _in_box(data, full_shape, box)
+    if mask is not None:
+        mask = _in_box(mask, full_shape, box)
     error = None
     if unc is not None:
-        arr = np.asarray(unc.array, dtype=np.float64)
+        arr = np.asarray(_in_box(unc.array, full_shape, box), dtype=np.float64)
         if isinstance(unc, StdDevUncertainty):
             error = arr
         elif isinstance(unc, VarianceUncertainty):
@@ -877,6 +903,61 @@ def _fit_shape(fit_shape, fwhm, strategy):
 
 def _blur(image, sigma):
     return gaussian_filter(image, sigma, mode=_BLUR_MODE, truncate=_BLUR_TRUNCATE)
+
+
+#: psf_photometry works on a cut-out about the positions when its area is at most
+#: this fraction of the image's (else on the whole image: the saving is small).
+_CUTOUT_MAX_FRACTION = 0.5
+
+
+def _reach(sigma):
+    """Radius of the kernel of ``gaussian_filter(..., sigma, truncate=4)``, in pixels."""
+    return int(_BLUR_TRUNCATE * float(sigma) + 0.5)
+
+
+def _cutout_margin(basis_kind, fit_shape, fwhm, highpass, local_est):
+    """Pixels about the positions that the photometry reads, or None (unknown reach).
+
+    A fit reads the pixels of its ``fit_shape`` box (and the models of the other
+    sources, added as stamps, only there). The high-pass image (``"residual"``
+    strategies) reads ``_reach(smooth_sigma)`` pixels further; the local
+    background annulus ``outer_radius``; the arc direction of the ``"ridge"``
+    background, taken at a box centre, the chain of blurs of `_make_basis`
+    (source discs filled with sigma ``r``, gradient, structure tensor). Beyond
+    that margin the data do not enter any result, and blurs with the image edge
+    inside it are the same whether the edge is the image's or the cut-out's.
+    """
+    half = max(fit_shape) // 2
+    reach = half
+    if basis_kind == "ridge":
+        r = max(2.0, 1.5 * fwhm)
+        reach = half + 1 + _reach(r) + _reach(max(1.0, 0.6 * fwhm)) + _reach(max(2.0, 1.6 * fwhm))
+    elif local_est is not None:
+        outer = getattr(local_est, "outer_radius", None)
+        if outer is None or not np.isfinite(outer):
+            return None
+        reach = max(half, int(np.ceil(float(outer))) + 1)
+    if highpass:
+        reach += _reach(highpass)
+    return reach + 2
+
+
+def _cutout_box(x, y, shape, margin):
+    """Slices (rows, columns) of the bounding box of (x, y) plus ``margin``, or None.
+
+    None when there is no position, the margin is unknown or the box would
+    cover more than ``_CUTOUT_MAX_FRACTION`` of the image.
+    """
+    if margin is None or x.size == 0:
+        return None
+    ny, nx = shape
+    x0 = max(int(np.floor(np.min(x))) - margin, 0)
+    x1 = min(int(np.ceil(np.max(x))) + margin + 1, nx)
+    y0 = max(int(np.floor(np.min(y))) - margin, 0)
+    y1 = min(int(np.ceil(np.max(y))) + margin + 1, ny)
+    if (x1 - x0) * (y1 - y0) > _CUTOUT_MAX_FRACTION * nx * ny:
+        return None
+    return (slice(y0, y1), slice(x0, x1))
 
 
 def _highpass(data, invalid, sigma):
@@ -1635,13 +1716,14 @@ def psf_photometry(
     """
     from photutils.background import LocalBackground
 
-    where = _describe_input("image", image, label)
-    data, invalid, error, unit, wcs = _unpack_image(image, "image", label)
+    parts = _split_parts(image, "image", label)
+    where, unit, wcs = parts[0], parts[3], parts[4]
+    full_shape = parts[1].shape
     oversampling = _as_oversampling(oversampling)
-    kind, spec = _psf_spec(psf, wcs, data.shape, oversampling=oversampling)
-    x_all, y_all, ids, off = _positions(positions, wcs, data.shape)
+    kind, spec = _psf_spec(psf, wcs, full_shape, oversampling=oversampling)
+    x_all, y_all, ids, off = _positions(positions, wcs, full_shape)
     inside = ~off
-    x, y = x_all[inside], y_all[inside]
+    x_img, y_img = x_all[inside], y_all[inside]
 
     local_est = None
     if isinstance(background, LocalBackground):
@@ -1669,7 +1751,6 @@ def psf_photometry(
         group_radius = as_real(group_radius, "group_radius", minimum=0)
     bounds = None if xy_bounds is None else (xy_bounds, xy_bounds)
     highpass = smooth_sigma if image_kind == "highpass" else None
-    fitdata = _highpass(data, invalid, smooth_sigma) if highpass else data
 
     if kind == "gaussian":
         fwhm0 = spec if spec is not None else 2.5
@@ -1677,20 +1758,45 @@ def psf_photometry(
         fwhm0 = _image_fwhm(spec)
     shape = _fit_shape(fit_shape, fwhm0, strategy)
 
-    if strategy == "local":
-        if local_est is None:
-            if local_radii is None:
-                inner = max(shape) // 2 + 1.0
-                local_radii = (inner, inner + 2.0 * fwhm0)
+    if strategy == "local" and local_est is None:
+        if local_radii is None:
+            inner = max(shape) // 2 + 1.0
+            local_radii = (inner, inner + 2.0 * fwhm0)
+        try:
+            r_in, r_out = (float(v) for v in local_radii)
+        except (TypeError, ValueError):
+            raise TypeError(
+                f"local_radii must be a pair of numbers (pixels), got {local_radii!r}"
+            ) from None
+        if not (0 <= r_in < r_out):
+            raise ValueError(f"local_radii must satisfy 0 <= inner < outer, got {local_radii}")
+        local_est = LocalBackground(r_in, r_out)
+
+    # Everything below reads the image only in boxes about the positions (and, for
+    # the high-pass image and the arc direction of the ridge background, through
+    # blurs of known reach about them): it runs on the bounding box of the
+    # positions plus that reach, so that nothing of the size of the whole image is
+    # allocated; the results are those on the whole image (see _cutout_margin).
+    def prepare(box):
+        """(data, invalid, error, fitdata, x, y, offset, box) on ``box`` (None: all)."""
+        got = None
+        if box is not None:
             try:
-                r_in, r_out = (float(v) for v in local_radii)
-            except (TypeError, ValueError):
-                raise TypeError(
-                    f"local_radii must be a pair of numbers (pixels), got {local_radii!r}"
-                ) from None
-            if not (0 <= r_in < r_out):
-                raise ValueError(f"local_radii must satisfy 0 <= inner < outer, got {local_radii}")
-            local_est = LocalBackground(r_in, r_out)
+                got = _unpack_image(image, "image", label, box=box, parts=parts)
+            except ValueError:  # e.g. no valid pixel there: the whole image decides
+                box = None
+        if box is None:
+            got = _unpack_image(image, "image", label, parts=parts)
+        d, inv, err = got[:3]
+        off_xy = (0, 0) if box is None else (box[1].start, box[0].start)
+        fd = _highpass(d, inv, smooth_sigma) if highpass else d
+        return d, inv, err, fd, x_img - off_xy[0], y_img - off_xy[1], off_xy, box
+
+    margin = _cutout_margin(basis_kind, shape, fwhm0, highpass, local_est)
+    box = _cutout_box(x_img, y_img, full_shape, margin)
+    data, invalid, error, fitdata, x, y, offset, box = prepare(box)
+
+    if strategy == "local":
         if x.size:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
@@ -1719,6 +1825,13 @@ def psf_photometry(
             )
             if fit_shape is None:
                 shape = _fit_shape(None, fwhm, strategy)
+            if (
+                box is not None
+                and _cutout_margin(basis_kind, shape, fwhm, highpass, local_est) > margin
+            ):  # a wider PSF than assumed: a wider cut-out
+                margin = _cutout_margin(basis_kind, shape, fwhm, highpass, local_est)
+                box = _cutout_box(x_img, y_img, full_shape, margin)
+                data, invalid, error, fitdata, x, y, offset, box = prepare(box)
         basis = _make_basis(basis_kind, fitdata, invalid, shape, fwhm, x, y)
         profile = (
             _GaussianProfile(fwhm, highpass)
@@ -1763,6 +1876,9 @@ def psf_photometry(
         )
     if group_radius is None:
         group_radius = 2.0 * fwhm
+    if offset != (0, 0):  # back to the pixel coordinates of the whole image
+        res["x_fit"] = res["x_fit"] + offset[0]
+        res["y_fit"] = res["y_fit"] + offset[1]
 
     # back to one row per input position
     n_all = x_all.size
@@ -1833,7 +1949,7 @@ def psf_photometry(
         if bad.any():
             text += f" (ids {out['id'][bad].tolist()[:20]}; see the flags columns)"
         if off.any():
-            text += "; " + _outside_text(x_all, y_all, off, ids, data.shape)
+            text += "; " + _outside_text(x_all, y_all, off, ids, full_shape)
         if failed:
             text += "; fits that raised: " + " | ".join(failed[:5])
         if msgs:

@@ -992,3 +992,77 @@ def test_single_plane_cube_is_squeezed(small_image):
     np.testing.assert_allclose(res["flux"], flat["flux"], rtol=1e-6)
     with pytest.raises(ValueError, match=r"got shape \(3, 30, 40\): a cube of 3 planes"):
         psf_photometry(np.zeros((3, 30, 40)), pos, psf=FWHM)
+
+
+# ---------------------------------------------------------------------------
+# cut-outs: the photometry reads only boxes about the positions
+# ---------------------------------------------------------------------------
+
+
+def _photometry_with_and_without_cutout(monkeypatch, image, xy, **kwargs):
+    """psf_photometry forced onto a cut-out, and on the whole image; the boxes used."""
+    import lensdual.photometry as phot
+
+    boxes = []
+    unpack = phot._unpack_image
+
+    def spy(*args, box=None, **kw):
+        boxes.append(box)
+        return unpack(*args, box=box, **kw)
+
+    monkeypatch.setattr(phot, "_unpack_image", spy)
+    monkeypatch.setattr(phot, "_CUTOUT_MAX_FRACTION", 1.0)
+    cut = psf_photometry(image, xy, warn=False, **kwargs)
+    cut_boxes = list(boxes)
+    monkeypatch.setattr(phot, "_CUTOUT_MAX_FRACTION", 0.0)
+    whole = psf_photometry(image, xy, warn=False, **kwargs)
+    return cut, whole, cut_boxes, boxes[len(cut_boxes) :]
+
+
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        {"psf": FWHM},
+        {"psf": None},
+        {"psf": FWHM, "background": "residual"},
+        {"psf": FWHM, "background": "local"},
+        {"psf": FWHM, "background": "plane"},
+    ],
+    ids=["ridge", "ridge-fwhm-estimated", "residual", "local", "plane"],
+)
+def test_cutout_gives_the_whole_image_result(runs, monkeypatch, kwargs):
+    xy, _, _, _, _, image = runs[0]
+    # the sources of the left part of the arc, with a pixel of initial offset
+    pick = xy[:, 0] < 60
+    start = xy[pick] + 0.4
+    cut, whole, cut_boxes, whole_boxes = _photometry_with_and_without_cutout(
+        monkeypatch, image, start, **kwargs
+    )
+    assert all(b is None for b in whole_boxes)
+    assert cut_boxes and all(b is not None for b in cut_boxes)
+    assert cut_boxes[-1][1].stop < image.shape[1]  # a real cut-out
+    for name in ("x_fit", "y_fit", "x_err", "y_err", "bkg", "reduced_chi2"):
+        np.testing.assert_allclose(cut[name], whole[name], rtol=1e-10, atol=1e-10, err_msg=name)
+    for name in ("flux", "flux_err"):
+        np.testing.assert_allclose(
+            cut[name].to_value(u.nJy), whole[name].to_value(u.nJy), rtol=1e-10, err_msg=name
+        )
+    assert np.array_equal(cut["flags"], whole["flags"])
+    assert cut.meta["fwhm"] == pytest.approx(whole.meta["fwhm"], rel=1e-10)
+    assert cut["sky"].separation(whole["sky"]).max() < 1e-8 * u.arcsec
+
+
+def test_cutout_box_and_fallback(small_image, monkeypatch):
+    import lensdual.photometry as phot
+
+    # the box: bounding box of the positions plus the margin, clipped to the image
+    box = phot._cutout_box(np.array([10.2, 30.7]), np.array([5.0, 8.0]), (100, 200), 4)
+    assert box == (slice(1, 13), slice(6, 36))
+    assert phot._cutout_box(np.array([5.0]), np.array([5.0]), (10, 10), 4) is None  # > half
+    assert phot._cutout_box(np.array([]), np.array([]), (100, 200), 4) is None
+    # a cut-out without any valid pixel: the whole image decides (as before)
+    monkeypatch.setattr(phot, "_CUTOUT_MAX_FRACTION", 1.0)
+    data = np.array(small_image.data, dtype=float)
+    data[:, :20] = np.nan
+    res = psf_photometry(data, [[5.0, 10.0]], psf=FWHM, warn=False)
+    assert not np.isfinite(res["flux"][0])
