@@ -523,9 +523,7 @@ def test_nddata_with_wcs_gives_sky_centroid(scene):
     assert "sky_centroid" not in find_point_sources(images, sky=False).colnames
     other = make_wcs()
     other.wcs.crval = [10.0, 20.0]
-    t2 = find_point_sources(
-        {band: NDData(scene[band], wcs=wcs) for band in BANDS}, wcs=other
-    )
+    t2 = find_point_sources({band: NDData(scene[band], wcs=wcs) for band in BANDS}, wcs=other)
     assert abs(t2["sky_centroid"][0].dec.deg - 20.0) < 0.01
 
 
@@ -749,3 +747,29 @@ def test_single_plane_cube_is_squeezed(scene):
     np.testing.assert_array_equal(squeezed.candidates, flat.candidates)
     with pytest.raises(ValueError, match=r"got shape \(2, 160, 200\): a cube of 2 planes"):
         PointSourceFilter()([np.stack([scene["F150W"], scene["F200W"]])])
+
+
+def test_float32_maps_agree_with_float64(scene):
+    """float32 maps (the default of find_point_sources): the same detections."""
+    f64 = PointSourceFilter()(scene)
+    f32 = PointSourceFilter(dtype="float32")(scene)
+    assert f32.normalized.dtype == np.float32 and f32.coadded.dtype == np.float32
+    np.testing.assert_array_equal(f32.candidates, f64.candidates)
+    for band in f64.bands:
+        np.testing.assert_allclose(f32.residuals[band], f64.residuals[band], rtol=0, atol=1e-4)
+        assert f32.means[band] == pytest.approx(f64.means[band], rel=1e-6)
+        assert f32.noise[band] == pytest.approx(f64.noise[band], rel=1e-6)
+    t32 = find_point_sources(scene)
+    t64 = find_point_sources(scene, filter=PointSourceFilter())
+    assert len(t32) == len(t64) > 0
+    np.testing.assert_array_equal(t32["area"], t64["area"])
+    np.testing.assert_allclose(t32["x_centroid"], t64["x_centroid"], atol=1e-5)
+    np.testing.assert_allclose(t32["y_centroid"], t64["y_centroid"], atol=1e-5)
+    # with invalid pixels (the normalised-convolution branch)
+    masked = {b: np.where(np.arange(scene[b].shape[1]) < 7, np.nan, scene[b]) for b in scene}
+    np.testing.assert_array_equal(
+        PointSourceFilter(dtype="float32")(masked).candidates,
+        PointSourceFilter()(masked).candidates,
+    )
+    with pytest.raises(ValueError, match="dtype"):
+        PointSourceFilter(dtype="int32")

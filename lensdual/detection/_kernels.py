@@ -1,7 +1,10 @@
 """Numba kernels of the point-source filter chain (paper Appendix C).
 
-Everything here works on plain arrays: ``float64`` images and ``bool``
-validity maps, all of the same 2-D shape and C-contiguous. Bands come as
+Everything here works on plain arrays: ``float64`` images, ``bool``
+validity maps and blurs and outputs of one float type (``float64``, or
+``float32`` with ``PointSourceFilter(dtype="float32")``: each pixel is still
+computed in float64 and rounded only when stored), all of the same 2-D shape
+and C-contiguous. Bands come as
 homogeneous tuples of arrays (one entry per band). No input validation happens
 here; :mod:`lensdual.detection.core` does it, and also runs the Gaussian blurs
 (`scipy.ndimage.gaussian_filter`) whose outputs are passed in.
