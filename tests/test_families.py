@@ -154,3 +154,10 @@ def test_smacs_lenstool_without_data_raises(monkeypatch, tmp_path):
         calibration_system("smacs_lenstool")
     with pytest.raises(FileNotFoundError):
         clean_constellation("smacs_lenstool", 8, seed=0)
+
+
+def test_macs1149_lenstool_without_data_raises(monkeypatch, tmp_path):
+    monkeypatch.setenv("LENSDUAL_HFF_DIR", str(tmp_path))
+    monkeypatch.setattr(fam_module, "_calibrated", fam_module._calibrated.__wrapped__)
+    with pytest.raises(FileNotFoundError, match="LENSDUAL_HFF_DIR"):
+        calibration_system("macs1149_lenstool")

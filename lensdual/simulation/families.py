@@ -89,13 +89,20 @@ __all__ = [
 ]
 
 #: The lens families of :func:`clean_constellation`.
-FAMILIES = ("cluster_fold", "cluster_cusp", "galaxy_fold", "smacs_analog", "smacs_lenstool")
+FAMILIES = ("cluster_fold", "cluster_cusp", "galaxy_fold", "smacs_analog", "smacs_lenstool",
+            "macs1149_lenstool")
 
 #: Folder of the real SMACS0723 Lenstool model (``best.par``) used by the
 #: ``smacs_lenstool`` family; the environment variable
 #: ``LENSDUAL_SMACS0723_DIR`` overrides it.
 SMACS0723_LENSTOOL_DIR = (Path(__file__).resolve().parents[3] / "shared" / "data"
                           / "smacs0723_mahler2022")
+
+#: Folder of the CATS v4 Lenstool model of MACS J1149 used by the
+#: ``macs1149_lenstool`` family; ``LENSDUAL_HFF_DIR`` (the folder holding
+#: ``macs1149_v4``) overrides it.
+HFF_LENSTOOL_DIR = (Path(__file__).resolve().parents[3] / "shared" / "data"
+                    / "hff_cats_lenstool")
 
 #: Smallest and largest number of sources of :func:`clean_constellation`.
 N_SOURCES_RANGE = (8, 40)
@@ -196,6 +203,20 @@ FAMILY_PARAMETERS = {
                    "grid_spacing": 0.1 * u.arcsec},
         "link_length": 1.0 * u.arcsec,
     },
+    "macs1149_lenstool": {
+        "description": ("real CATS v4 Lenstool model of MACS J1149 (not used to tune the "
+                        "estimator), the SN Refsdal host's macro-images 1.3 (L1) and 1.2 "
+                        "(L2), sources over the knots' patch of the source plane"),
+        "z_source": 1.4888,
+        "fold_point": (-2.24, 5.69) * u.arcsec,
+        "normal": (0.0, 1.0),
+        "distance": (0.1, 0.7) * u.arcsec,
+        "half_length": 0.3 * u.arcsec,
+        "reference": ((-15.58, 14.03), (-2.26, -3.93)) * u.arcsec,
+        "finder": {"center": (-9.0, 5.0) * u.arcsec, "half_width": 14.0 * u.arcsec,
+                   "grid_spacing": 0.1 * u.arcsec},
+        "link_length": 1.5 * u.arcsec,
+    },
 }
 
 
@@ -268,12 +289,26 @@ def _lenstool_system(p):
     return read_lenstool(path).lens_system(z_source=p["z_source"])
 
 
+def _macs1149_system(p):
+    from ..parametric.lenstool import read_lenstool
+
+    env = os.environ.get("LENSDUAL_HFF_DIR")
+    path = (Path(env) if env else HFF_LENSTOOL_DIR) / "macs1149_v4" / "best.par"
+    if not path.is_file():
+        raise FileNotFoundError(
+            f"the macs1149_lenstool family needs the CATS v4 Lenstool model {path} (the "
+            "data folder shared/data/hff_cats_lenstool next to the project, or the folder "
+            "named by the environment variable LENSDUAL_HFF_DIR); it is missing")
+    return read_lenstool(path).lens_system(z_source=p["z_source"])
+
+
 _LENS_BUILDERS = {
     "cluster_fold": _cluster_components,
     "cluster_cusp": _cluster_components,
     "galaxy_fold": _galaxy_components,
     "smacs_analog": _smacs_analog_system,
     "smacs_lenstool": _lenstool_system,
+    "macs1149_lenstool": _macs1149_system,
 }
 
 
