@@ -92,7 +92,9 @@ def make_arc(size, arc, with_error, seed=0):
         stamp = colour * ridge
         for xs, ys, f in zip(x, y, flux, strict=True):
             stamp += (
-                colour * f / (2 * np.pi * sig**2)
+                colour
+                * f
+                / (2 * np.pi * sig**2)
                 * np.exp(-0.5 * ((xx - xs) ** 2 + (yy - ys) ** 2) / sig**2)
             )
         data[y0:y1, x0:x1] += stamp
@@ -185,8 +187,14 @@ def child(case, size, with_error):
                     if band == "F150W":
                         skies[name] = image.wcs.pixel_to_world(x, y)
                     del phot
-            pairs = QTable({"id1": np.arange(1, N_SOURCES + 1), "id2": np.arange(1, N_SOURCES + 1),
-                            "sky1": skies["L1"], "sky2": skies["L2"]})
+            pairs = QTable(
+                {
+                    "id1": np.arange(1, N_SOURCES + 1),
+                    "id2": np.arange(1, N_SOURCES + 1),
+                    "sky1": skies["L1"],
+                    "sky2": skies["L2"],
+                }
+            )
             measured = measure_pairs(arcs["L1"], arcs["L2"], pairs)
             n_found["measured"] = int(np.count_nonzero(measured["measured"]))
     elapsed = time.perf_counter() - t0
@@ -219,8 +227,10 @@ def main():
         print(json.dumps(child(args.child, args.size, not args.no_error)))
         return
     print(f"# size {args.size}, error maps: {not args.no_error}")
-    print(f"{'case':<11}{'data MiB':>9}{'inputs MiB':>11}{'peak MiB':>9}{'peak/data':>10}"
-          f"{'peak/inputs':>12}{'extra MiB':>10}{'time s':>8}  found")
+    print(
+        f"{'case':<11}{'data MiB':>9}{'inputs MiB':>11}{'peak MiB':>9}{'peak/data':>10}"
+        f"{'peak/inputs':>12}{'extra MiB':>10}{'time s':>8}  found"
+    )
     for case in args.cases.split(","):
         cmd = [sys.executable, __file__, "--child", case, "--size", str(args.size)]
         if args.no_error:
@@ -230,10 +240,12 @@ def main():
             print(f"{case}: failed\n{out.stderr[-3000:]}")
             continue
         r = json.loads(out.stdout.strip().splitlines()[-1])
-        print(f"{case:<11}{r['data_MiB']:9.0f}{r['inputs_MiB']:11.0f}{r['peak_MiB']:9.0f}"
-              f"{r['peak_over_data']:10.2f}{r['peak_over_inputs']:12.2f}{r['extra_MiB']:10.0f}"
-              f"{r['time_s']:8.1f}  {r['found']}"
-              + ("" if r["peak_reset"] else "  (ru_maxrss: peak since start)"))
+        print(
+            f"{case:<11}{r['data_MiB']:9.0f}{r['inputs_MiB']:11.0f}{r['peak_MiB']:9.0f}"
+            f"{r['peak_over_data']:10.2f}{r['peak_over_inputs']:12.2f}{r['extra_MiB']:10.0f}"
+            f"{r['time_s']:8.1f}  {r['found']}"
+            + ("" if r["peak_reset"] else "  (ru_maxrss: peak since start)")
+        )
 
 
 if __name__ == "__main__":
