@@ -323,10 +323,12 @@ def analyse(images, *, psf=None, estimator="adaptive", sigma_pos="auto", n_boots
                     f"only {n_found} point source(s) found on arc {arc}: the {estimator} "
                     f"estimator needs at least {n_min} pairs{_MIN_PAIRS_WHY.get(estimator, '')}"
                     + (f". The detection said: {hints[-1]}" if hints else ""))
+        to_pair = cats if manual_pairs is not None else {
+            arc: _significant(cat, bands, arc) for arc, cat in cats.items()}
         with progress.step("pair"):
             try:
                 pairs = pair_constellations(
-                    cats["L1"], cats["L2"], ids=manual_pairs, position_columns="sky",
+                    to_pair["L1"], to_pair["L2"], ids=manual_pairs, position_columns="sky",
                     flux_columns=[f"flux_{b}" for b in bands], seed=seed)
             except ValueError as err:
                 raise PipelineError(f"pairing failed: {err}") from err
@@ -585,6 +587,32 @@ def pairing_doubts(pairs):
             doubt[k] = (f"ambiguous pairing (confidence {conf[k]:.1g}: another partner fits "
                         "about as well)")
     return doubt
+
+
+#: Automatic pairing uses only candidates whose PSF flux is at least this many sigma
+#: in some band: blank-sky detections would otherwise drown the constellation's
+#: triangles (and become spurious pairs).
+_MIN_CANDIDATE_SNR = 3.0
+
+
+def _significant(cat, bands, arc):
+    """The rows of a catalogue significant in at least one band (warning for the rest)."""
+    from .exceptions import LensdualWarning
+
+    snr = np.zeros(len(cat))
+    for band in bands:
+        f = np.asarray(getattr(cat[f"flux_{band}"], "value", cat[f"flux_{band}"]), float)
+        e = np.asarray(getattr(cat[f"flux_err_{band}"], "value", cat[f"flux_err_{band}"]),
+                       float)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            snr = np.fmax(snr, np.where(np.isfinite(f / e), f / e, 0.0))
+    keep = snr >= _MIN_CANDIDATE_SNR
+    if not keep.all():
+        warnings.warn(f"arc {arc}: {int((~keep).sum())} candidate(s) below {_MIN_CANDIDATE_SNR:g} "
+                      f"sigma in every band left out of the automatic pairing (ids "
+                      f"{np.asarray(cat['id'])[~keep].tolist()[:20]})", LensdualWarning,
+                      stacklevel=2)
+    return cat[keep]
 
 
 def _drop_non_positive(measured, bands, doubt):

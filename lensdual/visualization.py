@@ -358,6 +358,8 @@ def ds9_regions(pairs, catalogs=None, *, radius=0.15):
     out = []
     ids = pairs["pair_id"] if "pair_id" in pairs.colnames else range(1, len(pairs) + 1)
     for k, pid in enumerate(ids):
+        if not (np.isfinite(pairs["sky1"][k].ra.deg) and np.isfinite(pairs["sky2"][k].ra.deg)):
+            continue  # not measured: no position to draw
         colour = "green"
         if "anomalous" in pairs.colnames and pairs["anomalous"][k]:
             colour = "red"
@@ -471,6 +473,10 @@ def plot_arc_images(images, result, *, band=None, fig=None, margin=0.4, scale_ba
         data, wcs, north = _north_up(img)
         sky = result[f"sky{arc[-1]}"]
         px, py = wcs.world_to_pixel(sky)
+        finite = np.isfinite(px) & np.isfinite(py)
+        if not finite.any():
+            raise ValueError(f"no pair has a finite position on arc {arc}")
+        px, py = px[finite], py[finite]
         scale = float(np.sqrt(abs(np.linalg.det(wcs.pixel_scale_matrix))) * 3600.0)
         pad = margin / scale
         box = (int(np.ceil(np.ptp(py) + 2 * pad)) + 1, int(np.ceil(np.ptp(px) + 2 * pad)) + 1)
@@ -483,12 +489,16 @@ def plot_arc_images(images, result, *, band=None, fig=None, margin=0.4, scale_ba
         ax.imshow(cut.data, origin="lower", cmap="gray_r", norm=norm)
         cx, cy = cut.wcs.world_to_pixel(sky)
         radius = 0.12 / scale
-        if len(cx) > 1:
+        good = np.isfinite(cx) & np.isfinite(cy)
+        if good.sum() > 1:
             from scipy.spatial import cKDTree
 
-            nearest = cKDTree(np.column_stack([cx, cy])).query(np.column_stack([cx, cy]), k=2)[0]
+            pts = np.column_stack([cx[good], cy[good]])
+            nearest = cKDTree(pts).query(pts, k=2)[0]
             radius = min(radius, 0.4 * float(np.median(nearest[:, 1])))
         for x, y, pid, c in zip(cx, cy, ids, colour, strict=True):
+            if not (np.isfinite(x) and np.isfinite(y)):
+                continue  # a pair whose position on this arc was not measured
             ax.add_patch(plt.Circle((x, y), radius, fill=False, color=c, lw=1.2))
             ax.annotate(str(pid), (x, y), xytext=(4, 4), textcoords="offset points",
                         color=c, fontsize=8, fontweight="bold")

@@ -415,3 +415,24 @@ def test_unsubtracted_sky_is_named(demo_dir, tmp_path, capsys):
     err = capsys.readouterr().err
     assert "point source(s) found on arc L1" in err and "not to be subtracted" in err
     no_leftovers(tmp_path, out)
+
+
+def test_figures_and_regions_skip_unmeasured_pairs(demo_dir):
+    import matplotlib
+
+    matplotlib.use("agg")
+    from astropy.coordinates import SkyCoord
+    from astropy.nddata import CCDData
+    from matplotlib.patches import Circle
+
+    from lensdual.visualization import ds9_regions, plot_arc_images
+
+    result = QTable.read(demo_dir / "pairs.ecsv", format="ascii.ecsv")
+    ra, dec = result["sky1"].ra.deg.copy(), result["sky1"].dec.deg.copy()
+    ra[0] = dec[0] = np.nan  # pair 1 not measured on L1
+    result["sky1"] = SkyCoord(ra, dec, unit="deg")
+    images = {arc: CCDData.read(demo_dir / "images" / f"{arc}_F150W.fits", hdu=0)
+              for arc in ("L1", "L2")}
+    fig = plot_arc_images(images, result, mapped=False)
+    assert len([p for p in fig.axes[0].patches if isinstance(p, Circle)]) == len(result) - 1
+    assert len(ds9_regions(result)["pairs"]) == 3 * (len(result) - 1)
