@@ -613,8 +613,8 @@ def _find_hdu(hdul, hdu, path):
         for i, h in enumerate(hdul):
             if _is_2d_image(h):
                 return i
-        raise _HDUError(f"{path} has no HDU with 2-D image data (HDUs: {_hdu_names(hdul)})",
-                        on_hdu_key=False)
+        raise _HDUError(f"{path} has no HDU with 2-D image data (HDUs: {_hdu_names(hdul)})"
+                        + _cube_hint(hdul), on_hdu_key=False)
     if isinstance(hdu, int):
         if hdu >= len(hdul):
             n = len(hdul)
@@ -635,9 +635,21 @@ def _find_hdu(hdul, hdu, path):
             what = "a table"
         else:
             what = f"{len(h.shape)}-D data" if h.shape else "no data"
-        raise _HDUError(f"{_hdu_label(hdu)} of {path} has no 2-D image data (it has {what})",
-                        on_hdu_key=True)
+        raise _HDUError(f"{_hdu_label(hdu)} of {path} has no 2-D image data (it has {what})"
+                        + _cube_hint(hdul), on_hdu_key=True)
     return index
+
+
+def _cube_hint(hdul):
+    """Words on the image HDUs that are cubes (their shapes, and what to do)."""
+    cubes = [(i, h.shape) for i, h in enumerate(hdul) if h.is_image and len(h.shape or ()) > 2]
+    if not cubes:
+        return ""
+    listed = ", ".join(f"HDU {i} has shape {shape}" for i, shape in cubes)
+    single = any(all(n == 1 for n in shape[:-2]) for _, shape in cubes)
+    return (f"; {listed}" + (": a cube of one plane; write that plane as a 2-D image (e.g. "
+                            "data[0] with the celestial WCS, wcs.celestial)" if single else
+                            ": a cube; write the plane of the band as a 2-D image"))
 
 
 def _header_wcs(header, hdul):

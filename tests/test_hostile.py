@@ -436,3 +436,21 @@ def test_figures_and_regions_skip_unmeasured_pairs(demo_dir):
     fig = plot_arc_images(images, result, mapped=False)
     assert len([p for p in fig.axes[0].patches if isinstance(p, Circle)]) == len(result) - 1
     assert len(ds9_regions(result)["pairs"]) == 3 * (len(result) - 1)
+
+
+def test_single_plane_cube_names_its_shape(tmp_path):
+    from astropy.wcs import WCS
+
+    from lensdual.config import ConfigError, load_config
+
+    w = WCS(naxis=3)
+    w.wcs.ctype = ["RA---TAN", "DEC--TAN", "WAVE"]
+    w.wcs.crval = [110.8, -73.45, 1.5e-6]
+    w.wcs.crpix = [20, 20, 1]
+    w.wcs.cdelt = [-1e-5, 1e-5, 1e-7]
+    fits.PrimaryHDU(np.zeros((1, 40, 40)), w.to_header()).writeto(tmp_path / "cube.fits")
+    cfg = {"bands": {"F150W": {"psf_fwhm": "0.07 arcsec"}},
+           "arcs": {arc: {"F150W": {"image": str(tmp_path / "cube.fits")}}
+                    for arc in ("L1", "L2")}}
+    with pytest.raises(ConfigError, match=r"HDU 0 has shape \(1, 40, 40\): a cube of one plane"):
+        load_config(write(tmp_path / "c.toml", cfg))
