@@ -31,8 +31,7 @@ from numba import njit
 
 __all__ = []
 
-# The numba flags of the package: cached, no fastmath (it mishandles NaN).
-JIT_OPTIONS = {"cache": True, "fastmath": False, "nogil": True}
+from .._numba import JIT_OPTIONS  # noqa: F401  (the package-wide options)
 
 
 @njit(**JIT_OPTIONS)

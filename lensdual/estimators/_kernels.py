@@ -35,8 +35,7 @@ from numba import njit
 
 __all__ = []
 
-# One place for the numba flags of the package: cached, no fastmath (it mishandles NaN).
-JIT_OPTIONS = {"cache": True, "fastmath": False, "nogil": True}
+from .._numba import JIT_OPTIONS  # noqa: F401  (the package-wide options)
 
 STATUS_OK = 0
 STATUS_NO_TRIANGLE = 1

@@ -64,10 +64,8 @@ from numba import njit
 
 __all__ = []
 
-# The package's numba flags (cached, never fastmath, never parallel), plus IEEE
-# division semantics: a singular point yields inf/NaN instead of raising, and the
-# inner loop carries no zero-division checks.
-JIT_OPTIONS = {"cache": True, "fastmath": False, "nogil": True, "error_model": "numpy"}
+# IEEE division semantics: a singular point yields inf/NaN instead of raising.
+from .._numba import JIT_OPTIONS_NUMPY_ERRORS as JIT_OPTIONS  # noqa: F401
 
 P_X, P_Y, P_THETA, P_EPS, P_CORE, P_CUT, P_B0 = range(7)
 N_PARAMS = 7

@@ -28,8 +28,7 @@ from numba import njit
 
 __all__ = []
 
-# Same numba flags as lensdual.estimators: cached, never fastmath (it mishandles NaN).
-JIT_OPTIONS = {"cache": True, "fastmath": False, "nogil": True}
+from .._numba import JIT_OPTIONS  # noqa: F401  (the package-wide options)
 
 # A mapped triangle whose |signed area| is below this fraction of its longest
 # squared edge is treated as degenerate: only the distance-to-edges test is used.
