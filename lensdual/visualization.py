@@ -284,7 +284,10 @@ def plot_duality(result, *, bands=None, ax=None, annotate=True, title=None):
                         fmt=marker, ms=5, color=colour, mfc="none" if k else colour,
                         lw=0.8, capsize=1.5, label=label, zorder=3)
     if annotate:
-        top = np.nanmax(np.vstack(values[1:]), axis=0)
+        stacked = np.vstack(values[1:])
+        # the highest band per pair; NaN for a pair with no flux ratio (not measured)
+        top = np.where(np.isfinite(stacked).any(axis=0),
+                       np.max(np.where(np.isfinite(stacked), stacked, -np.inf), axis=0), np.nan)
         for x, y, i, bad in zip(size, top, ids, flagged, strict=True):
             if np.isfinite(x) and np.isfinite(y):
                 ax.annotate(str(i), (x, y), xytext=(3, 4), textcoords="offset points",

@@ -454,3 +454,38 @@ def test_single_plane_cube_names_its_shape(tmp_path):
                     for arc in ("L1", "L2")}}
     with pytest.raises(ConfigError, match=r"HDU 0 has shape \(1, 40, 40\): a cube of one plane"):
         load_config(write(tmp_path / "c.toml", cfg))
+
+
+def test_one_bad_candidate_does_not_kill_the_run(demo_dir, tmp_path):
+    """A manual pair whose L2 source lies off the image: NaN and a named note, the run
+    goes on and the other pairs are tested."""
+    from astropy.coordinates import SkyCoord
+
+    cfg = absolute_config(demo_dir)
+    previous = QTable.read(demo_dir / "pairs.ecsv", format="ascii.ecsv")
+    cats = {}
+    for arc in ("L1", "L2"):
+        cat = QTable.read(demo_dir / f"catalog_{arc}.ecsv", format="ascii.ecsv")
+        ra, dec = list(cat["sky"].ra.deg), list(cat["sky"].dec.deg)
+        ids = list(np.asarray(cat["id"]))
+        if arc == "L2":  # a source 1 degree away: off the image
+            ra.append(ra[0])
+            dec.append(dec[0] + 1.0)
+            ids.append(999)
+        QTable({"id": ids, "sky": SkyCoord(ra, dec, unit="deg")}).write(
+            tmp_path / f"{arc}.ecsv", format="ascii.ecsv")
+        cats[arc] = str(tmp_path / f"{arc}.ecsv")
+    id1, id2 = list(previous["id1"]), list(previous["id2"])
+    id2[-1] = 999
+    QTable({"id1": id1, "id2": id2}).write(tmp_path / "pairs.ecsv", format="ascii.ecsv")
+    cfg["catalogs"] = cats
+    cfg["pairing"] = {"method": "manual", "file": str(tmp_path / "pairs.ecsv")}
+    out = tmp_path / "out"
+    assert main(["run", str(write(tmp_path / "c.toml", cfg)), "--outdir", str(out),
+                 "--quiet"]) == 0
+    result = QTable.read(out / "pairs.ecsv", format="ascii.ecsv")
+    bad = result[-1]
+    assert not bad["tested"] and not bad["anomalous"]
+    assert "L2" in str(bad["doubt"]) or "off the arc-to-arc map" in str(bad["doubt"])
+    assert result["tested"][:-1].sum() >= 7
+    assert "could not be tested" in (out / "report.txt").read_text()
