@@ -133,61 +133,12 @@ def _row(nbr, a):
 
 
 @njit(**JIT_OPTIONS)
-def _normal_sums(t1, t2, weight_power, acc):
+def _normal_sums_knn(t1, t2, nbr, weight_power, acc):
     """Weighted normal-equation sums of the first-order Quad fit, for every pair.
 
     ``acc[a]`` receives ``(Sxx, Sxy, Syy, Txx, Txy, Tyx, Tyy)`` with
-    ``S = sum_b w D2 D2^T`` and ``T = sum_b w D1 D2^T``. The baseline from
-    ``a`` to ``b`` is minus the one from ``b`` to ``a`` on both arcs and has
-    the same weight, so it adds the same products to both pairs: each
-    unordered pair is visited once.
-    """
-    n = t1.shape[0]
-    square = weight_power == 2.0
-    for a in range(n):
-        for k in range(7):
-            acc[a, k] = 0.0
-    for a in range(n):
-        for b in range(a + 1, n):
-            dx = t2[b, 0] - t2[a, 0]
-            dy = t2[b, 1] - t2[a, 1]
-            ex = t1[b, 0] - t1[a, 0]
-            ey = t1[b, 1] - t1[a, 1]
-            r2 = dx * dx + dy * dy
-            w = 1.0 / r2 if square else r2 ** (-0.5 * weight_power)
-            wx = w * dx
-            wy = w * dy
-            c0 = wx * dx
-            c1 = wx * dy
-            c2 = wy * dy
-            c3 = ex * wx
-            c4 = ex * wy
-            c5 = ey * wx
-            c6 = ey * wy
-            acc[a, 0] += c0
-            acc[a, 1] += c1
-            acc[a, 2] += c2
-            acc[a, 3] += c3
-            acc[a, 4] += c4
-            acc[a, 5] += c5
-            acc[a, 6] += c6
-            acc[b, 0] += c0
-            acc[b, 1] += c1
-            acc[b, 2] += c2
-            acc[b, 3] += c3
-            acc[b, 4] += c4
-            acc[b, 5] += c5
-            acc[b, 6] += c6
-
-
-@njit(**JIT_OPTIONS)
-def _normal_sums_knn(t1, t2, nbr, weight_power, acc):
-    """:func:`_normal_sums` over the neighbour row of each pair.
-
-    Each pair sums its own baselines, in the order of its row. On the shared
-    row ``arange(N)`` this adds the same products in the same order as
-    :func:`_normal_sums` (a reversed baseline negates both factors of every
-    product, exactly), so the sums are bit-identical.
+    ``S = sum_b w D2 D2^T`` and ``T = sum_b w D1 D2^T`` over the baselines to
+    the neighbours ``b`` in the row of pair ``a``, in row order.
     """
     for a in range(t1.shape[0]):
         _pair_sums(t1, t2, _row(nbr, a), a, weight_power, acc[a])
@@ -234,7 +185,7 @@ _NORMAL_COND_MAX = 1e6
 
 @njit(**JIT_OPTIONS)
 def _solve_normal(s, out):
-    """``J = T S^-1`` from the sums of :func:`_normal_sums` for one pair.
+    """``J = T S^-1`` from the sums of :func:`_normal_sums_knn` for one pair.
 
     Returns False, leaving ``out`` untouched, when ``S`` is too badly
     conditioned for the normal equations to be accurate.
@@ -414,10 +365,7 @@ def relative_jacobians_knn(t1, t2, nbr, method, weight_power, min_sin, cond_max,
     elif method == METHOD_QUAD:
         # closed-form normal equations, QR where they are badly conditioned
         acc = np.empty((n, 7))
-        if nbr.shape[0] == 1:
-            _normal_sums(t1, t2, weight_power, acc)  # all pairs: each baseline once
-        else:
-            _normal_sums_knn(t1, t2, nbr, weight_power, acc)
+        _normal_sums_knn(t1, t2, nbr, weight_power, acc)
         for a in range(n):
             if _solve_normal(acc[a], jac[a]):
                 status[a] = STATUS_OK

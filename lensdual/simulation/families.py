@@ -202,6 +202,9 @@ FAMILY_PARAMETERS = {
         "description": ("real Lenstool model of SMACS0723 (Mahler et al. 2023), fold pair of "
                         "system 5 (images 5.1 and 5.2, z = 1.425)"),
         "z_source": 1.425,
+        "lenstool": {"family": "smacs_lenstool", "model": "SMACS0723 Lenstool model",
+                     "folder": SMACS0723_LENSTOOL_DIR, "file": "best.par",
+                     "env": "LENSDUAL_SMACS0723_DIR"},
         "fold_point": (4.753, -1.832) * u.arcsec,
         "normal": (-0.462, 0.887),
         "distance": (0.05, 0.2) * u.arcsec,
@@ -216,6 +219,9 @@ FAMILY_PARAMETERS = {
                         "estimator), the SN Refsdal host's macro-images 1.3 (L1) and 1.2 "
                         "(L2), sources over the knots' patch of the source plane"),
         "z_source": 1.4888,
+        "lenstool": {"family": "macs1149_lenstool", "model": "CATS v4 Lenstool model",
+                     "folder": HFF_LENSTOOL_DIR, "file": "macs1149_v4/best.par",
+                     "env": "LENSDUAL_HFF_DIR"},
         "fold_point": (-2.24, 5.69) * u.arcsec,
         "normal": (0.0, 1.0),
         "distance": (0.1, 0.7) * u.arcsec,
@@ -232,11 +238,6 @@ def _check_family(family):
     if not isinstance(family, str) or family not in FAMILIES:
         raise ValueError(f"family must be one of {FAMILIES}, got {family!r}")
     return family
-
-
-def _lenstool_dir():
-    env = os.environ.get("LENSDUAL_SMACS0723_DIR")
-    return Path(env) if env else SMACS0723_LENSTOOL_DIR
 
 
 def _arcsec(value):
@@ -284,29 +285,18 @@ def _smacs_analog_system(p):
 
 
 def _lenstool_system(p):
+    """A family on a real Lenstool model: ``p["lenstool"]`` names the family, the model,
+    its default folder, the file under it and the environment variable overriding it."""
     from ..parametric.lenstool import read_lenstool
 
-    folder = _lenstool_dir()
-    path = folder / "best.par"
+    spec = p["lenstool"]
+    env = os.environ.get(spec["env"])
+    path = (Path(env) if env else spec["folder"]) / spec["file"]
     if not path.is_file():
         raise FileNotFoundError(
-            f"the smacs_lenstool family needs the SMACS0723 Lenstool model {path} (the "
-            "data folder shared/data/smacs0723_mahler2022 next to the project, or the "
-            "folder named by the environment variable LENSDUAL_SMACS0723_DIR); it is "
-            "missing")
-    return read_lenstool(path).lens_system(z_source=p["z_source"])
-
-
-def _macs1149_system(p):
-    from ..parametric.lenstool import read_lenstool
-
-    env = os.environ.get("LENSDUAL_HFF_DIR")
-    path = (Path(env) if env else HFF_LENSTOOL_DIR) / "macs1149_v4" / "best.par"
-    if not path.is_file():
-        raise FileNotFoundError(
-            f"the macs1149_lenstool family needs the CATS v4 Lenstool model {path} (the "
-            "data folder shared/data/hff_cats_lenstool next to the project, or the folder "
-            "named by the environment variable LENSDUAL_HFF_DIR); it is missing")
+            f"the {spec['family']} family needs the {spec['model']} {path} (the data folder "
+            f"shared/data/{spec['folder'].name} next to the project, or the folder named by "
+            f"the environment variable {spec['env']}); it is missing")
     return read_lenstool(path).lens_system(z_source=p["z_source"])
 
 
@@ -316,7 +306,7 @@ _LENS_BUILDERS = {
     "galaxy_fold": _galaxy_components,
     "smacs_analog": _smacs_analog_system,
     "smacs_lenstool": _lenstool_system,
-    "macs1149_lenstool": _macs1149_system,
+    "macs1149_lenstool": _lenstool_system,
 }
 
 
