@@ -17,6 +17,7 @@ from scipy.special import chdtrc, erfc
 from ._parallel import check_client, run_tasks
 from ._validation import as_int, as_real
 from .estimators import DEFAULT_METHOD, TESTABLE_STATUS, size_magnification
+from .estimators.core import _poly_terms
 from .exceptions import LensdualWarning
 
 __all__ = ["POSITION_COLUMNS", "SNR_DEFINITIONS", "check_duality", "pair_bands", "flux_ratios",
@@ -501,19 +502,6 @@ def check_duality(
 _NULL_BLOCK = 50
 _NULL_MIN_REALISATIONS = 100
 _NULL_MAX_DEGREE = 4
-
-
-def _poly_terms(u, degree):
-    """Monomials of degree <= ``degree`` and their x and y derivatives."""
-    x, y = u[:, 0], u[:, 1]
-    f, fx, fy = [], [], []
-    for deg in range(degree + 1):
-        for i in range(deg + 1):
-            px, py = deg - i, i
-            f.append(x**px * y**py)
-            fx.append(px * x ** max(px - 1, 0) * y**py)
-            fy.append(py * x**px * y ** max(py - 1, 0))
-    return np.column_stack(f), np.column_stack(fx), np.column_stack(fy)
 
 
 def _smooth_map(t1, t2, sigma, alpha=0.05):

@@ -604,16 +604,18 @@ def _adaptive_table(t1, t2, sigma, wp, sigma_pos, max_neighbours=DEFAULT_MAX_NEI
     return table
 
 
-def _poly_design(u, degree):
-    """Monomials u_x^i u_y^j (i + j <= degree) and their x and y derivatives."""
-    cols, dx, dy = [], [], []
-    for total in range(degree + 1):
-        for j in range(total + 1):
-            i = total - j
-            cols.append(u[:, 0] ** i * u[:, 1] ** j)
-            dx.append(i * u[:, 0] ** max(i - 1, 0) * u[:, 1] ** j if i else np.zeros(len(u)))
-            dy.append(j * u[:, 0] ** i * u[:, 1] ** max(j - 1, 0) if j else np.zeros(len(u)))
-    return np.column_stack(cols), np.column_stack(dx), np.column_stack(dy)
+def _poly_terms(u, degree):
+    """Monomials of degree <= ``degree`` and their x and y derivatives (also the
+    null map of :func:`lensdual.duality.null_calibration`)."""
+    x, y = u[:, 0], u[:, 1]
+    f, fx, fy = [], [], []
+    for deg in range(degree + 1):
+        for i in range(deg + 1):
+            px, py = deg - i, i
+            f.append(x**px * y**py)
+            fx.append(px * x ** max(px - 1, 0) * y**py)
+            fy.append(py * x**px * y ** max(py - 1, 0))
+    return np.column_stack(f), np.column_stack(fx), np.column_stack(fy)
 
 
 def _global_fit(t1, t2, degree):
@@ -621,7 +623,7 @@ def _global_fit(t1, t2, degree):
     centre = t2.mean(axis=0)
     scale = np.max(np.abs(t2 - centre)) or 1.0
     uu = (t2 - centre) / scale
-    design, dx, dy = _poly_design(uu, degree)
+    design, dx, dy = _poly_terms(uu, degree)
     q, r = np.linalg.qr(design)
     coef = np.linalg.solve(r, q.T @ t1)
     resid = t1 - design @ coef
