@@ -1638,16 +1638,23 @@ def _exposure_weighted(spec):
     return False
 
 
-def _sky_scale(data, err, mask, where):
-    """The factor that makes ``err`` match the image's own sky noise (with a warning)."""
+def _sky_noise(data, err, mask):
+    """``(scatter, quoted)``: the robust (3-sigma clipped) scatter of the image's sky
+    pixels and the median error the map quotes there (NaN without sky pixels)."""
     from astropy.stats import sigma_clipped_stats
-
-    from .exceptions import LensdualWarning
 
     good = ~mask & np.isfinite(err)
     _, median, std = sigma_clipped_stats(data[good], sigma=3.0, maxiters=5)
     sky = good & (np.abs(data - median) < 3.0 * std)
-    factor = float(std / np.median(err[sky])) if sky.any() else 1.0
+    return float(std), (float(np.median(err[sky])) if sky.any() else np.nan)
+
+
+def _sky_scale(data, err, mask, where):
+    """The factor that makes ``err`` match the image's own sky noise (with a warning)."""
+    from .exceptions import LensdualWarning
+
+    std, quoted = _sky_noise(data, err, mask)
+    factor = std / quoted if np.isfinite(quoted) else 1.0
     warnings.warn(f"{where}: an exposure-time weight (not inverse variance); errors are "
                   f"1/sqrt(WHT) scaled by {factor:.3g} to the sky noise of the image",
                   LensdualWarning, stacklevel=3)
@@ -1667,16 +1674,11 @@ def _read_map(path, hdu, slices, unit=None):
 
 def _check_noise(data, err, mask, where):
     """Warn when the error map disagrees with the image's own sky noise by > _NOISE_FACTOR."""
-    from astropy.stats import sigma_clipped_stats
-
     from .exceptions import LensdualWarning
 
-    good = ~mask & np.isfinite(err)
-    if good.sum() < 100:
+    if np.count_nonzero(~mask & np.isfinite(err)) < 100:
         return
-    _, median, std = sigma_clipped_stats(data[good], sigma=3.0, maxiters=5)
-    sky = good & (np.abs(data - median) < 3.0 * std)
-    quoted = float(np.median(err[sky])) if sky.any() else np.nan
+    std, quoted = _sky_noise(data, err, mask)
     if not (np.isfinite(quoted) and std > 0 and quoted > 0):
         return
     ratio = quoted / std
@@ -1736,9 +1738,10 @@ def _read_image(spec, arc, psf):
         err = np.full(weight.shape, np.nan)
         err[good] = 1.0 / np.sqrt(weight[good])
         mask |= ~good
-        if _exposure_weighted(spec):
+        if _exposure_weighted(spec):  # scaled to the sky noise: nothing left to check
             err *= _sky_scale(data, err, mask, f"{where} (weight map {spec.weight.name})")
-        _check_noise(data, err, mask, f"{where} (weight map {spec.weight.name})")
+        else:
+            _check_noise(data, err, mask, f"{where} (weight map {spec.weight.name})")
         uncertainty = StdDevUncertainty(err)
     meta = _meta(header)
     meta["FILENAME"] = str(spec.image)
