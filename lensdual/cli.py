@@ -573,7 +573,9 @@ def pairing_doubts(pairs):
     doubt = np.array([""] * n, dtype=object)
     rms = float(pairs.meta.get("rms_robust", np.nan)) if hasattr(pairs, "meta") else np.nan
     if "residual" in pairs.colnames and np.isfinite(rms) and rms > 0:
-        res = np.asarray(u_value(pairs["residual"]), dtype=float)
+        col = pairs["residual"]
+        res = np.asarray(col.to_value("arcsec") if getattr(col, "unit", None) else col,
+                         dtype=float)
         with np.errstate(invalid="ignore"):
             off = res > _DOUBT_RESIDUAL * rms
         for k in np.flatnonzero(off):
@@ -631,13 +633,6 @@ def _drop_non_positive(measured, bands, doubt):
             if bad.any():
                 for col in (f"flux{arc}_{band}", f"flux_err{arc}_{band}"):
                     measured[col][bad] = np.nan * getattr(measured[col], "unit", 1)
-
-
-def u_value(column):
-    """A column in arcsec as plain floats (Quantity or not)."""
-    import astropy.units as u
-
-    return column.to_value(u.arcsec) if hasattr(column, "unit") and column.unit else column
 
 
 def _flag(row):

@@ -256,7 +256,7 @@ def _family_summary(p_values, snr_threshold):
 CHROMATIC_ALPHA = 1e-3
 
 
-def _doubts(tab, flux, chromatic_alpha):
+def _doubts(tab, theta1, theta2, flux, chromatic_alpha):
     """Why each pair is doubtful ("" when it is not): the input's ``doubt`` column,
     then the chromatic check."""
     n = len(tab)
@@ -265,7 +265,6 @@ def _doubts(tab, flux, chromatic_alpha):
                           for d in np.asarray(tab["doubt"], dtype=object)], dtype=object)
     else:
         doubt = np.array([""] * n, dtype=object)
-    theta1, theta2 = _positions(tab)
     lost = ~(np.isfinite(theta1.value).all(axis=1) & np.isfinite(theta2.value).all(axis=1))
     for k in np.flatnonzero(lost & (doubt == "")):
         doubt[k] = "position not measured (NaN)"
@@ -428,7 +427,7 @@ def check_duality(
     bands = pair_bands(tab)
     theta1, theta2 = _positions(tab)
     flux = flux_ratios(tab)  # validates the flux columns before the bootstrap runs
-    doubt = _doubts(tab, flux, chromatic_alpha)
+    doubt = _doubts(tab, theta1, theta2, flux, chromatic_alpha)
     keep = doubt == ""
     try:
         size = size_magnification(
