@@ -8,6 +8,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _demo_config import absolute_config as _absolute_config
+from _demo_config import write as _write
 from astropy.table import QTable
 
 from lensdual.cli import main
@@ -153,24 +155,6 @@ def test_run_default_outdir_is_relative_to_the_config(demo_dir, tmp_path):
     shutil.copy(demo_dir / "run.toml", copy / "run.toml")
     assert main(["run", str(copy / "run.toml"), "--quiet"]) == 0
     assert (copy / "run-output" / "pairs.ecsv").is_file()
-
-
-def _absolute_config(demo_dir):
-    cfg = tomllib.loads((demo_dir / "run.toml").read_text())
-    for arc in ("L1", "L2"):
-        for spec in cfg["arcs"][arc].values():
-            for key in ("image", "error"):
-                spec[key] = str(demo_dir / spec[key])
-    for spec in cfg["bands"].values():
-        spec["psf"] = str(demo_dir / spec["psf"])
-    return cfg
-
-
-def _write(path, data):
-    from lensdual.config import format_config
-
-    path.write_text(format_config(data))
-    return path
 
 
 def _bad_configs(demo_dir):

@@ -3,10 +3,10 @@ of the demo's configuration, asserting the exit code, the message and that nothi
 half-written is left."""
 
 import sys
-import tomllib
 
 import numpy as np
 import pytest
+from _demo_config import absolute_config, write
 from astropy.io import fits
 from astropy.table import QTable
 
@@ -20,25 +20,6 @@ def demo_dir(tmp_path_factory):
     out = tmp_path_factory.mktemp("hostile") / "demo"
     assert main(["demo", "--outdir", str(out), "--write-config", "--quiet", *FAST]) == 0
     return out
-
-
-def absolute_config(demo_dir):
-    cfg = tomllib.loads((demo_dir / "run.toml").read_text())
-    for arc in ("L1", "L2"):
-        for spec in cfg["arcs"][arc].values():
-            for key in ("image", "error"):
-                if key in spec:
-                    spec[key] = str(demo_dir / spec[key])
-    for spec in cfg["bands"].values():
-        spec["psf"] = str(demo_dir / spec["psf"])
-    return cfg
-
-
-def write(path, cfg):
-    from lensdual.config import format_config
-
-    path.write_text(format_config(cfg))
-    return path
 
 
 def no_leftovers(tmp_path, out):
