@@ -1001,7 +1001,7 @@ def test_single_plane_cube_is_squeezed(small_image):
 
 def _photometry_with_and_without_cutout(monkeypatch, image, xy, **kwargs):
     """psf_photometry forced onto a cut-out, and on the whole image; the boxes used."""
-    import lensdual.photometry as phot
+    import lensdual.photometry._psf as phot
 
     boxes = []
     unpack = phot._unpack_image
@@ -1053,7 +1053,7 @@ def test_cutout_gives_the_whole_image_result(runs, monkeypatch, kwargs):
 
 
 def test_cutout_box_and_fallback(small_image, monkeypatch):
-    import lensdual.photometry as phot
+    import lensdual.photometry._psf as phot
 
     # the box: bounding box of the positions plus the margin, clipped to the image
     box = phot._cutout_box(np.array([10.2, 30.7]), np.array([5.0, 8.0]), (100, 200), 4)

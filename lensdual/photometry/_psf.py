@@ -26,9 +26,9 @@ from astropy.wcs.wcsapi import BaseHighLevelWCS, BaseLowLevelWCS, HighLevelWCSWr
 from scipy.ndimage import gaussian_filter
 from scipy.special import erf
 
-from ._frames import mean_direction, tangent_to_sky, tangent_xy
-from ._validation import as_int, as_positions, as_real, split_image
-from .exceptions import LensdualWarning
+from .._frames import mean_direction, tangent_to_sky, tangent_xy
+from .._validation import as_int, as_positions, as_real, split_image
+from ..exceptions import LensdualWarning
 
 __all__ = [
     "BACKGROUND_STRATEGIES",
