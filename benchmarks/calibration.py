@@ -12,7 +12,10 @@ noise, and each estimator is run on them. Reported per cell:
 - ``tested``: fraction of pairs the duality test can test (adaptive status
   "ok" or "misfit"; "untestable" pairs are reported but not tested);
 - ``ok``: fraction of pairs whose adaptive fit passed its chi-square test;
-- ``ffr``: false-flag rate at SNR 3 among tested pairs (nominal 0.27 %);
+- ``ffr``: false-flag rate at SNR 3 among tested pairs (nominal 0.27 %),
+  flags as :func:`lensdual.duality.check_duality` sets them (significance,
+  Student's t for "misfit" pairs); ``ffr_u95`` its one-sided 95 %
+  Clopper-Pearson upper limit;
 - ``pull_med``, ``pull_w``: median and robust (16-84 %) half-width of
   ln(mu_size / mu_true) / sigma;
 - ``bias``: median of ln(mu_size / mu_true);
@@ -33,8 +36,9 @@ import warnings
 
 import numpy as np
 from astropy import units as u
+from scipy.stats import beta as beta_dist
 
-from lensdual.duality import gaussian_p_value
+from lensdual.duality import duality_significance, gaussian_p_value
 from lensdual.estimators import TESTABLE_STATUS, size_magnification
 from lensdual.simulation import FAMILIES, clean_constellation
 
@@ -56,7 +60,7 @@ def constellations(family, n_sources, n_const, seed=0):
 
 def run_cell(constellations, sigma_mas, method, n_noise, seed=0):
     rng = np.random.default_rng(seed)
-    err, sd, status = [], [], []
+    err, sd, status, dof = [], [], [], []
     sig = sigma_mas / 1000.0
     for t1, t2, mu in constellations:
         for _ in range(n_noise):
@@ -70,28 +74,42 @@ def run_cell(constellations, sigma_mas, method, n_noise, seed=0):
             err.append(np.log(np.asarray(tab["mu_size"]) / mu))
             sd.append(np.asarray(tab["ln_mu_size_err"]))
             status.append(np.asarray(tab["mu_size_status"]))
-    err, sd, status = map(np.concatenate, (err, sd, status))
+            dof.append(np.asarray(tab["ln_mu_size_err_dof"], dtype=float))
+    err, sd, status, dof = map(np.concatenate, (err, sd, status, dof))
     flux_sd = np.sqrt(2) * FLUX_ERR
     ln_flux_noise = flux_sd * rng.standard_normal(err.size)
     tested = np.isin(status, TESTABLE_STATUS)
     tot = np.hypot(sd, flux_sd)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        # Welch-Satterthwaite degrees of freedom of the total error, as check_duality
+        tot_dof = np.where(dof < np.inf, tot**4 * dof / sd**4, np.inf)
+    tested &= ~(tot_dof <= 0)
+
+    def flagged(snr):
+        """check_duality's flag: significance (Gaussian equivalent) above 3."""
+        return duality_significance(snr[tested], tot_dof[tested]) > 3
+
     pull = err / sd
     out = {"n": int(tested.sum()), "tested": float(tested.mean()),
            "ok": float(np.mean(status == "ok"))}
     if not tested.any():
         nan = float("nan")
-        out.update(ffr=nan, ffr_exact=nan, pull_med=nan, pull_w=nan, bias=nan, sig=nan,
+        out.update(ffr=nan, ffr_u95=nan, ffr_exact=nan, pull_med=nan, pull_w=nan, bias=nan, sig=nan,
                    pow10=nan, pow25=nan, pow50=nan)
         return out
     snr0 = np.abs(ln_flux_noise - err) / tot
-    out["ffr"] = float(np.mean(snr0[tested] > 3))
-    out["ffr_exact"] = float(np.mean((np.abs(err) / tot)[tested] > 3))
+    n_flag = int(np.sum(flagged(snr0)))
+    out["ffr"] = n_flag / out["n"]
+    # one-sided 95 % upper limit (Clopper-Pearson; pairs of one constellation
+    # are correlated, so this is indicative)
+    out["ffr_u95"] = float(beta_dist.ppf(0.95, n_flag + 1, out["n"] - n_flag))
+    out["ffr_exact"] = float(np.mean(flagged(np.abs(err) / tot)))
     q16, q50, q84 = np.percentile(pull[tested], [15.87, 50, 84.13])
     out.update(pull_med=q50, pull_w=0.5 * (q84 - q16), bias=float(np.median(err[tested])),
                sig=float(np.median(sd[tested])))
     for a in (0.10, 0.25, 0.50):
         snr = np.abs(np.log1p(a) + ln_flux_noise - err) / tot
-        out[f"pow{int(a * 100)}"] = float(np.mean(snr[tested] > 3))
+        out[f"pow{int(a * 100)}"] = float(np.mean(flagged(snr)))
     out["nominal"] = float(gaussian_p_value(3.0))
     return out
 
@@ -103,15 +121,19 @@ def main(argv=None):
     parser.add_argument("--families", default=",".join(FAMILIES))
     parser.add_argument("--n-sources", default=",".join(map(str, N_SOURCES)))
     parser.add_argument("--noise", default=",".join(map(str, NOISE_MAS)))
+    parser.add_argument("--n-const", type=int, default=None,
+                        help="constellations per cell (default 10, --quick 5)")
+    parser.add_argument("--seed", type=int, default=0, help="first constellation seed")
     args = parser.parse_args(argv)
     n_const, n_noise = (5, 5) if args.quick else (10, 10)
-    cols = ("n", "tested", "ok", "ffr", "ffr_exact", "pull_med", "pull_w", "bias", "sig", "pow10",
-            "pow25", "pow50")
+    n_const = args.n_const or n_const
+    cols = ("n", "tested", "ok", "ffr", "ffr_u95", "ffr_exact", "pull_med", "pull_w", "bias",
+            "sig", "pow10", "pow25", "pow50")
     print("family n_sources method noise_mas " + " ".join(cols))
     for name in args.families.split(","):
         for n_src in map(int, args.n_sources.split(",")):
             try:
-                cons = constellations(name, n_src, n_const)
+                cons = constellations(name, n_src, n_const, seed=args.seed)
             except (FileNotFoundError, RuntimeError) as exc:
                 print(f"# {name} N={n_src}: skipped ({exc})")
                 continue

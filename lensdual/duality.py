@@ -12,6 +12,7 @@ import warnings
 import numpy as np
 from astropy import units as u
 from astropy.table import QTable, Table
+from scipy import stats
 from scipy.special import chdtrc, erfc
 
 from ._parallel import check_client, run_tasks
@@ -21,7 +22,7 @@ from .estimators.core import _poly_terms
 from .exceptions import LensdualWarning
 
 __all__ = ["POSITION_COLUMNS", "SNR_DEFINITIONS", "check_duality", "pair_bands", "flux_ratios",
-           "holm_adjust", "null_calibration", "gaussian_p_value"]
+           "holm_adjust", "null_calibration", "gaussian_p_value", "duality_significance"]
 
 #: Position columns every pairs table needs (arcsec or any angle unit).
 POSITION_COLUMNS = ("x1", "y1", "x2", "y2")
@@ -205,6 +206,63 @@ def gaussian_p_value(snr):
     return erfc(snr / np.sqrt(2.0))
 
 
+def _t_p_value(snr, dof):
+    """Two-sided p-value of ``snr`` under Student's t with ``dof`` degrees of
+    freedom (Gaussian where ``dof`` is infinite)."""
+    snr = np.asarray(snr, dtype=float)
+    dof = np.broadcast_to(np.asarray(dof, dtype=float), snr.shape)
+    gauss = ~(dof < np.inf)
+    with np.errstate(invalid="ignore"):
+        p = np.where(gauss, erfc(snr / np.sqrt(2.0)),
+                     2.0 * stats.t.sf(snr, np.where(gauss, 1.0, dof)))
+    return p
+
+
+def duality_significance(snr, dof=np.inf):
+    """Gaussian-equivalent significance of a duality SNR whose error has ``dof``
+    degrees of freedom.
+
+    A pair's SNR, ``|ln R| / sigma``, follows a standard normal under the
+    null only when ``sigma`` is known. Where part of ``sigma`` is itself
+    estimated from ``dof`` residuals (the ``"misfit"`` pairs of the adaptive
+    estimator), it follows Student's t with ``dof`` degrees of freedom; its
+    two-sided p-value is converted back to the SNR a Gaussian statistic
+    would need for the same p-value, so that one threshold means one
+    false-alarm probability for every pair.
+
+    Parameters
+    ----------
+    snr : array_like
+        Non-negative SNRs (NaN allowed).
+    dof : array_like
+        Degrees of freedom of each SNR's error, broadcast against ``snr``;
+        ``inf`` (default) for a known error, where the significance equals
+        the SNR. Must be positive (NaN allowed: the significance is NaN).
+
+    Returns
+    -------
+    significance : `~numpy.ndarray`
+        ``Phi^-1(1 - p / 2)``, ``p`` the two-sided t p-value; at most ``snr``.
+
+    Examples
+    --------
+    >>> from lensdual.duality import duality_significance
+    >>> float(duality_significance(3.0))
+    3.0
+    >>> round(float(duality_significance(3.0, dof=4)), 2)
+    1.95
+    """
+    snr = np.asarray(snr, dtype=float)
+    dof = np.asarray(dof, dtype=float)
+    if np.any(dof <= 0):
+        raise ValueError("dof must be positive (inf for a known error)")
+    dof = np.broadcast_to(dof, snr.shape)
+    p = _t_p_value(snr, dof)
+    with np.errstate(invalid="ignore"):
+        out = np.where(~(dof < np.inf), snr, stats.norm.isf(0.5 * p))
+    return out
+
+
 def holm_adjust(p_values):
     """Holm-Bonferroni adjusted p-values (family-wise error control).
 
@@ -348,7 +406,10 @@ def check_duality(
     n_bootstrap : int
         Bootstrap realisations (default 1000).
     snr_threshold : float
-        A pair is ``anomalous`` when its SNR exceeds this (default 3).
+        A pair is ``anomalous`` when its significance (the Gaussian
+        equivalent of its SNR, below) exceeds this (default 3): the
+        false-alarm probability per pair is that of ``|Z| > snr_threshold``
+        for every pair.
     seed : int, `numpy.random.Generator` or None
         Seed of the bootstrap.
     snr_definition : {"log", "paper"}
@@ -387,14 +448,22 @@ def check_duality(
         ``mu_flux_err_<band>``, ``mu_flux``, ``mu_flux_err``,
         ``chromatic_chi2``, ``chromatic_dof``, ``chromatic_pvalue``,
         ``duality_ratio`` (``mu_flux / mu_size``), ``duality_ratio_err``,
-        ``snr``, ``snr_paper``, ``tested``, ``p_value``, ``p_value_holm``
-        and ``anomalous``; also ``ln_mu_size_err`` and ``mu_size_status``.
+        ``snr``, ``snr_paper``, ``snr_dof``, ``significance``, ``tested``,
+        ``p_value``, ``p_value_holm`` and ``anomalous``; also
+        ``ln_mu_size_err``, ``ln_mu_size_err_dof`` and ``mu_size_status``.
         ``tested`` is False where the pair could not be tested (no finite
         SNR, or ``mu_size_status`` ``"untestable"`` or ``"failed"``); such
         pairs are never ``anomalous`` and have NaN p-values. Pairs whose
-        adaptive status is ``"misfit"`` are tested with their widened errors
-        (see the calibration page for how that holds). ``p_value`` is
-        the two-sided Gaussian p-value of ``snr`` (:func:`gaussian_p_value`),
+        adaptive status is ``"misfit"`` are tested with their widened
+        errors, which are estimated from ``ln_mu_size_err_dof`` residuals:
+        their SNR follows Student's t with ``snr_dof`` degrees of freedom
+        (Welch-Satterthwaite, the flux error being known; infinite, i.e.
+        Gaussian, for ``"ok"`` pairs and the bootstrap methods), and
+        ``significance`` is its Gaussian equivalent
+        (:func:`duality_significance`; equal to the SNR where ``snr_dof``
+        is infinite). See the calibration page for how that holds.
+        ``p_value`` is the two-sided p-value of the SNR (Gaussian, or
+        Student's t),
         ``p_value_holm`` its Holm-Bonferroni adjustment over the tested
         pairs (:func:`holm_adjust`). A ``pair_id`` column (from 1) is added
         when missing. ``meta['duality']`` records the settings and the
@@ -465,18 +534,33 @@ def check_duality(
         snr = np.abs(np.log(ratio)) / ln_total
         rel_size_err = np.asarray(size["mu_size_err"]) / mu_size
         snr_paper = np.abs(ratio - 1.0) / (ratio * rel_size_err)
+        size_dof = np.asarray(size["ln_mu_size_err_dof"], dtype=float)
+        if snr_definition == "log":
+            # Welch-Satterthwaite: the flux error is known, the size error
+            # may be estimated from size_dof residuals
+            dof = np.where(size_dof < np.inf, ln_total**4 * size_dof / ln_size_err**4, np.inf)
+        else:
+            dof = size_dof
+    tab["ln_mu_size_err_dof"] = size_dof
     tab["duality_ratio"] = ratio
     tab["duality_ratio_err"] = ratio * ln_total
     tab["snr"] = snr
     tab["snr_paper"] = snr_paper
     chosen = snr if snr_definition == "log" else snr_paper
-    tested = np.isfinite(chosen) & np.isin(np.asarray(size["mu_size_status"]), TESTABLE_STATUS)
-    pval = np.where(tested, gaussian_p_value(np.where(tested, chosen, 0.0)), np.nan)
+    tested = (np.isfinite(chosen) & np.isin(np.asarray(size["mu_size_status"]), TESTABLE_STATUS)
+              & (dof > 0))
+    dof = np.where(tested, dof, np.nan)
+    pval = np.where(tested, _t_p_value(np.where(tested, chosen, 0.0),
+                                       np.where(tested, dof, np.inf)), np.nan)
+    signif = np.where(tested, duality_significance(np.where(tested, chosen, 0.0),
+                                                   np.where(tested, dof, np.inf)), np.nan)
+    tab["snr_dof"] = dof
+    tab["significance"] = signif
     tab["doubt"] = doubt
     tab["tested"] = tested
     tab["p_value"] = pval
     tab["p_value_holm"] = holm_adjust(pval)
-    tab["anomalous"] = tested & (chosen > snr_threshold)
+    tab["anomalous"] = tested & (signif > snr_threshold)
 
     tab.meta["bands"] = bands
     meta = {
@@ -549,10 +633,14 @@ def _null_block(task):
     noise1 = rng.standard_normal((size, n, 2)) * sigma[0][None, :, None]
     noise2 = rng.standard_normal((size, n, 2)) * sigma[1][None, :, None]
     ln_flux = np.log(mu_true)[None, :] + ln_flux_err[None, :] * rng.standard_normal((size, n))
-    mu_size, ln_sd, ok = _adaptive_batch(t1, t2, noise1, noise2, sigma, wp)
+    mu_size, ln_sd, ok, size_dof = _adaptive_batch(t1, t2, noise1, noise2, sigma, wp)
     with np.errstate(divide="ignore", invalid="ignore"):
-        snr = np.abs(ln_flux - np.log(mu_size)) / np.hypot(ln_flux_err[None, :], ln_sd)
-    return np.where(ok & np.isfinite(snr), snr, np.nan)
+        total = np.hypot(ln_flux_err[None, :], ln_sd)
+        snr = np.abs(ln_flux - np.log(mu_size)) / total
+        dof = np.where(size_dof < np.inf, total**4 * size_dof / ln_sd**4, np.inf)
+        ok = ok & np.isfinite(snr) & (dof > 0)
+        signif = duality_significance(np.where(ok, snr, 0.0), np.where(ok, dof, np.inf))
+    return np.where(ok, signif, np.nan)
 
 
 def _seed_entropy(seed):
@@ -606,12 +694,14 @@ def null_calibration(pairs, *, sigma_pos, n_realisations=1000, snr_threshold=3.0
     Returns
     -------
     table : `~astropy.table.QTable`
-        One row per pair: ``pair_id``, ``snr`` (observed, as
-        :func:`check_duality`), ``tested``, ``p_value`` (Gaussian),
-        ``p_value_empirical`` (``(1 + #null SNR >= snr) / (1 + #null)`` of
-        that pair), ``false_alarm_rate`` (fraction of that pair's null
-        realisations above the threshold) and ``null_snr`` (its
-        ``n_realisations`` null SNRs; NaN where untested). ``meta`` holds
+        One row per pair: ``pair_id``, ``snr`` and ``significance``
+        (observed, as :func:`check_duality`), ``tested``, ``p_value`` (as
+        :func:`check_duality`), ``p_value_empirical`` (``(1 + #null
+        significance >= significance) / (1 + #null)`` of that pair),
+        ``false_alarm_rate`` (fraction of that pair's null realisations
+        above the threshold) and ``null_snr`` (its ``n_realisations`` null
+        significances, the Gaussian-equivalent SNRs that the threshold is
+        applied to; NaN where untested). ``meta`` holds
         ``false_alarm_rate`` (over all pairs), ``nominal_false_alarm_rate``,
         ``expected_false_flags`` (mean number of flags per null
         realisation), ``p_any_false_flag`` (fraction of null realisations
@@ -674,7 +764,7 @@ def null_calibration(pairs, *, sigma_pos, n_realisations=1000, snr_threshold=3.0
     parts = run_tasks(_null_tasks, tasks, client)
     null = np.vstack([blk for part in parts for blk in part])  # (n_real, N)
 
-    snr = np.asarray(observed["snr"], dtype=float)
+    snr = np.asarray(observed["significance"], dtype=float)
     tested = np.asarray(observed["tested"], dtype=bool)
     valid = np.isfinite(null)
     n_valid = valid.sum(axis=0)
@@ -689,7 +779,8 @@ def null_calibration(pairs, *, sigma_pos, n_realisations=1000, snr_threshold=3.0
 
     out = QTable()
     out["pair_id"] = observed["pair_id"]
-    out["snr"] = snr
+    out["snr"] = observed["snr"]
+    out["significance"] = snr
     out["tested"] = tested
     out["p_value"] = observed["p_value"]
     out["p_value_empirical"] = p_emp

@@ -154,14 +154,17 @@ def adaptive(t1, t2, s1, s2, pilot, chi2_crit, min_extra=1, report_extra=1, min_
              lookahead=5):
     """One pass of the adaptive estimator given pilot Jacobians (N, 2, 2).
 
-    Returns J (N, 2, 2), the error of ln|det J| and the status (0 ok,
-    1 misfit, 2 failed, 3 untestable), following the rules documented in
+    Returns J (N, 2, 2), the error of ln|det J|, the status (0 ok,
+    1 misfit, 2 failed, 3 untestable) and the degrees of freedom of the
+    error (infinite when ok, the chosen fit's residual ones otherwise),
+    following the rules documented in
     :func:`lensdual.estimators.size_magnification`.
     """
     n = len(t1)
     jac = np.full((n, 2, 2), np.nan)
     sd = np.full(n, np.nan)
     status = np.full(n, 2)
+    dofs = np.zeros(n)
     for a in range(n):
         order = np.argsort(((t2 - t2[a]) ** 2).sum(axis=1), kind="stable")
         best = fallback = worst = None
@@ -185,19 +188,19 @@ def adaptive(t1, t2, s1, s2, pilot, chi2_crit, min_extra=1, report_extra=1, min_
                 if chi2_r <= chi2_crit[dof_r]:
                     consistent.append((np.log(abs(det)), s**2))
                     if fallback is None or sf < fallback[1]:
-                        fallback = (j, sf, np.log(abs(det)), dr, k)
+                        fallback = (j, sf, np.log(abs(det)), dr, k, dof_r)
                 elif worst is None or sf < worst[1]:
-                    worst = (j, sf)
+                    worst = (j, sf, dof_r)
         if best is not None:
-            jac[a], sd[a], status[a] = best[0], best[1], 0
+            jac[a], sd[a], status[a], dofs[a] = best[0], best[1], 0, np.inf
         elif fallback is not None and len(consistent) >= min_candidates:
-            _, _, l_best, d_best, k_best = fallback
+            _, _, l_best, d_best, k_best, dofs[a] = fallback
             near = [v for (d, k), v in reported.items()
                     if d == d_best and k_best < k <= k_best + lookahead]
             spread = max(max((c - l_best) ** 2 - v for c, v in consistent + near), 0.0)
             jac[a], sd[a], status[a] = fallback[0], np.hypot(fallback[1], np.sqrt(spread)), 1
         elif fallback is not None:
-            jac[a], sd[a], status[a] = fallback[0], fallback[1], 3
+            jac[a], sd[a], status[a], dofs[a] = fallback[0], fallback[1], 3, fallback[5]
         elif worst is not None:
-            jac[a], sd[a], status[a] = worst[0], worst[1], 3
-    return jac, sd, status
+            jac[a], sd[a], status[a], dofs[a] = worst[0], worst[1], 3, worst[2]
+    return jac, sd, status, dofs

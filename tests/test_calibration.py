@@ -8,9 +8,11 @@ import pytest
 from astropy import units as u
 from astropy.table import QTable
 from scipy.stats import chi2, norm
+from scipy.stats import t as t_dist
 
 from lensdual.duality import (
     check_duality,
+    duality_significance,
     gaussian_p_value,
     holm_adjust,
     null_calibration,
@@ -49,9 +51,10 @@ def _kernel_one_pass(t1, t2, s1, s2):
     jac = np.empty((n, 2, 2))
     sd = np.empty(n)
     st = np.empty(n, dtype=np.int64)
+    dof = np.empty(n)
     _kernels.adaptive_jacobians(t1, t2, s1, s2, crit, 1, 1, 2, 5, 1, 2.0, 1e10, jac, sd,
-                                st)
-    return (jac, sd, st), ref.adaptive(t1, t2, s1, s2, pilot, crit)
+                                st, dof)
+    return (jac, sd, st, dof), ref.adaptive(t1, t2, s1, s2, pilot, crit)
 
 
 @pytest.mark.parametrize("bend", [0.0, 1.0])
@@ -65,8 +68,9 @@ def test_adaptive_kernel_matches_numpy_reference(bend):
     s2 = rng.uniform(0.002, 0.006, n) * (1 - 0.9 * bend)
     t1 = t1 + s1[:, None] * rng.standard_normal((n, 2))
     t2 = t2 + s2[:, None] * rng.standard_normal((n, 2))
-    (jac, sd, st), (jac_ref, sd_ref, st_ref) = _kernel_one_pass(t1, t2, s1, s2)
+    (jac, sd, st, dof), (jac_ref, sd_ref, st_ref, dof_ref) = _kernel_one_pass(t1, t2, s1, s2)
     np.testing.assert_array_equal(st, st_ref)
+    np.testing.assert_array_equal(dof[st != 2], dof_ref[st != 2])
     if bend:
         assert set(st.tolist()) - {0}, "the curved case must exercise the misfit tiers"
     np.testing.assert_allclose(jac, jac_ref, rtol=1e-6, atol=1e-8)
@@ -204,7 +208,20 @@ def test_check_duality_calibrated_columns_and_meta():
     assert res.meta["duality"]["method"] == "adaptive"
     tested = np.asarray(res["tested"])
     assert tested.all()
-    np.testing.assert_allclose(res["p_value"], gaussian_p_value(np.asarray(res["snr"])))
+    # p-values: Student's t with the Welch-Satterthwaite dof for "misfit" pairs,
+    # Gaussian for "ok" ones; the significance is the Gaussian equivalent
+    snr, dof = np.asarray(res["snr"]), np.asarray(res["snr_dof"])
+    gauss = np.isinf(dof)
+    assert gauss.any()
+    expect = np.where(gauss, 2 * norm.sf(snr), 2 * t_dist.sf(snr, np.where(gauss, 1, dof)))
+    np.testing.assert_allclose(res["p_value"], expect, rtol=1e-10)
+    np.testing.assert_allclose(res["p_value"], gaussian_p_value(np.asarray(res["significance"])),
+                               rtol=1e-8)
+    np.testing.assert_array_equal(np.asarray(res["significance"])[gauss], snr[gauss])
+    size_dof = np.asarray(res["ln_mu_size_err_dof"])
+    status = np.asarray(res["mu_size_status"])
+    assert np.isinf(size_dof[status == "ok"]).all()
+    assert (size_dof[status == "misfit"] >= 1).all()
     np.testing.assert_allclose(res["p_value_holm"], holm_adjust(np.asarray(res["p_value"])))
     assert list(np.flatnonzero(res["anomalous"])) == [3]
     meta = res.meta["duality"]
@@ -217,6 +234,20 @@ def test_check_duality_calibrated_columns_and_meta():
     # the paper's quad: tested columns too, bootstrap error in ln_mu_size_err
     res_q = check_duality(_pairs(), "quad", sigma_pos=3 * u.mas, n_bootstrap=50, seed=0)
     assert "ln_mu_size_err" in res_q.colnames and res_q.meta["duality"]["n_tested"] == 16
+
+
+def test_duality_significance_against_closed_forms():
+    snr = np.array([0.0, 1.0, 3.0, 8.0, np.nan])
+    np.testing.assert_array_equal(duality_significance(snr), snr)
+    # one degree of freedom: Cauchy, two-sided p = 1 - 2 arctan(t) / pi
+    p = 1 - 2 * np.arctan(snr) / np.pi
+    np.testing.assert_allclose(duality_significance(snr, 1.0), norm.isf(p / 2), rtol=1e-10)
+    # large dof tends to the Gaussian; fewer dof, smaller significance
+    assert abs(duality_significance(3.0, 1e6) - 3.0) < 1e-4
+    s = duality_significance(np.full(4, 3.0), [2.0, 4.0, 10.0, 30.0])
+    assert np.all(np.diff(s) > 0) and np.all(s < 3.0)
+    with pytest.raises(ValueError, match="dof must be positive"):
+        duality_significance(3.0, 0.0)
 
 
 @pytest.mark.filterwarnings("ignore::lensdual.exceptions.EstimatorWarning")

@@ -574,7 +574,7 @@ def _slope_covariance(L, p, scale, work, out):
 def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_extra,
                    min_candidates, lookahead, order, dsort, U, Yr, W, A, rhs, L, scale, beta,
                    work, jac_out):
-    """Adaptive local-polynomial Jacobian at pair ``a``; returns (ln_sd, status).
+    """Adaptive local-polynomial Jacobian at pair ``a``; returns (ln_sd, status, dof).
 
     The points are those of the neighbour ``row`` of ``a`` (``a`` included).
     The noise of each baseline is the effective variance
@@ -596,6 +596,12 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
     ``lookahead`` larger neighbourhoods of its degree (``ADAPTIVE_MISFIT``,
     when at least ``min_candidates`` fits are self-consistent). Otherwise
     the least-bad fit is returned as ``ADAPTIVE_UNTESTABLE``.
+
+    ``dof`` is the number of degrees of freedom the error was estimated
+    with: infinite for ``ADAPTIVE_OK`` (the exact propagation of the known
+    position errors), the residual degrees of freedom ``2 (k - p)`` of the
+    chosen fit otherwise (its PRESS misfit and the spread are estimates
+    from that many residuals, so its significance follows Student's t).
 
     The reported fit's chi-square and PRESS (a pass over the points with
     the leverages, the costly part) are computed only while no neighbourhood
@@ -631,7 +637,7 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
     hmax = np.sqrt(dsort[n - 1])
     if not hmax > 0.0:
         jac_out[:, :] = np.nan
-        return np.nan, ADAPTIVE_FAILED
+        return np.nan, ADAPTIVE_FAILED, 0.0
     for k in range(n):
         b = order[k]
         _monomials((t2[b, 0] - t2[a, 0]) / hmax, (t2[b, 1] - t2[a, 1]) / hmax, U[k])
@@ -666,6 +672,8 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
     best_fb_ln = 0.0
     best_fb_k = 0
     best_fb_dr = 0
+    best_fb_dof = 0.0
+    best_un_dof = 0.0
     cov = np.empty((2, 3))
     spow = np.empty(4)
     jb = np.empty((2, 2))
@@ -794,15 +802,17 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
                         best_fb_k = kk
                         best_fb_dr = dt + report_extra
                         best_fb = sdf
+                        best_fb_dof = float(dof_r)
                         fallback = True
                         _rotate_back(c, s, jr00, jr01, jr10, jr11, jf)
                 elif sdf < best_un:
                     best_un = sdf
+                    best_un_dof = float(dof_r)
                     untestable = True
                     _rotate_back(c, s, jr00, jr01, jr10, jr11, ju)
     if found:
         _copy_jacobian(jb, jac_out)
-        return best_sd, ADAPTIVE_OK
+        return best_sd, ADAPTIVE_OK, np.inf
     if fallback and n_consistent >= min_candidates:
         _copy_jacobian(jf, jac_out)
         # model uncertainty: the largest change of ln|det J| beyond noise among
@@ -815,37 +825,39 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
             if cand_ok[i] or near:
                 # a difference beyond that fit's own noise is evidence of bias
                 spread = max(spread, (cand_ln[i] - best_fb_ln) ** 2 - cand_var[i])
-        return np.sqrt(best_fb * best_fb + spread), ADAPTIVE_MISFIT
+        return np.sqrt(best_fb * best_fb + spread), ADAPTIVE_MISFIT, best_fb_dof
     if fallback:  # one self-consistent fit only: its model error cannot be judged
         _copy_jacobian(jf, jac_out)
-        return best_fb, ADAPTIVE_UNTESTABLE
+        return best_fb, ADAPTIVE_UNTESTABLE, best_fb_dof
     if untestable:
         _copy_jacobian(ju, jac_out)
-        return best_un, ADAPTIVE_UNTESTABLE
+        return best_un, ADAPTIVE_UNTESTABLE, best_un_dof
     jac_out[:, :] = np.nan
-    return np.nan, ADAPTIVE_FAILED
+    return np.nan, ADAPTIVE_FAILED, 0.0
 
 
 @njit(**JIT_OPTIONS)
 def adaptive_jacobians_knn(t1, t2, nbr, s1, s2, chi2_crit, min_extra, report_extra,
                            min_candidates, lookahead, n_pass, weight_power, cond_max, jac,
-                           ln_sd, status):
+                           ln_sd, status, dof):
     """The adaptive Jacobian at every pair (see :func:`_adaptive_pair`), from its row.
 
     The pilot Jacobian of the first pass is the first-order Quad one (on the
     same neighbour rows); each further pass uses the previous pass's result
     (its own pilot where that failed). ``ln_sd`` receives the standard error
-    of ``ln|det J|``. ``chi2_crit`` must cover ``2 K`` degrees of freedom.
+    of ``ln|det J|`` and ``dof`` the degrees of freedom it was estimated
+    with (see :func:`_adaptive_pair`). ``chi2_crit`` must cover ``2 K``
+    degrees of freedom.
     """
     adaptive_range_knn(t1, t2, nbr, s1, s2, chi2_crit, min_extra, report_extra,
                        min_candidates, lookahead, n_pass, weight_power, cond_max, 0,
-                       t1.shape[0], jac, ln_sd, status)
+                       t1.shape[0], jac, ln_sd, status, dof)
 
 
 @njit(**JIT_OPTIONS)
 def adaptive_range_knn(t1, t2, nbr, s1, s2, chi2_crit, min_extra, report_extra,
                        min_candidates, lookahead, n_pass, weight_power, cond_max, start, stop,
-                       jac, ln_sd, status):
+                       jac, ln_sd, status, dof):
     """:func:`adaptive_jacobians_knn` for the pairs ``start <= a < stop`` only.
 
     Each pair's estimate depends on its own row and pilot only, so disjoint
@@ -883,7 +895,7 @@ def adaptive_range_knn(t1, t2, nbr, s1, s2, chi2_crit, min_extra, report_extra,
     work = np.empty(_ADAPTIVE_NCOEF_MAX)
     for p in range(n_pass):
         for a in range(start, stop):
-            ln_sd[a], status[a] = _adaptive_pair(
+            ln_sd[a], status[a], dof[a] = _adaptive_pair(
                 t1, t2, s1, s2, a, _row(nbr, a), pilot[a - start], chi2_crit, min_extra,
                 report_extra, min_candidates, lookahead, order, dsort, U, Yr, W, A, rhs, L,
                 scale, beta, work, jac[a])
@@ -898,22 +910,23 @@ def adaptive_range_knn(t1, t2, nbr, s1, s2, chi2_crit, min_extra, report_extra,
 @njit(**JIT_OPTIONS)
 def adaptive_jacobians(t1, t2, s1, s2, chi2_crit, min_extra, report_extra,
                        min_candidates, lookahead, n_pass, weight_power, cond_max, jac, ln_sd,
-                       status):
+                       status, dof):
     """:func:`adaptive_jacobians_knn` with every point for every pair (no cap)."""
     adaptive_jacobians_knn(t1, t2, all_rows(t1.shape[0]), s1, s2, chi2_crit, min_extra,
                            report_extra, min_candidates, lookahead, n_pass, weight_power,
-                           cond_max, jac, ln_sd, status)
+                           cond_max, jac, ln_sd, status, dof)
 
 
 @njit(**JIT_OPTIONS)
 def adaptive_batch_knn(t1, t2, nbr, noise1, noise2, s1, s2, chi2_crit, min_extra,
                        report_extra, min_candidates, lookahead, n_pass, weight_power, cond_max,
-                       det_out, ln_sd_out, status_out):
+                       det_out, ln_sd_out, status_out, dof_out):
     """The adaptive estimator on ``B`` noisy copies of a constellation.
 
-    ``noise1``, ``noise2`` are (B, N, 2) offsets; ``det_out``, ``ln_sd_out``
-    and ``status_out`` (B, N) receive the signed determinant, the error of
-    its logarithm and the status code. The neighbour rows stay fixed.
+    ``noise1``, ``noise2`` are (B, N, 2) offsets; ``det_out``, ``ln_sd_out``,
+    ``status_out`` and ``dof_out`` (B, N) receive the signed determinant, the
+    error of its logarithm, the status code and the error's degrees of
+    freedom. The neighbour rows stay fixed.
     """
     nb = noise1.shape[0]
     n = t1.shape[0]
@@ -922,6 +935,7 @@ def adaptive_batch_knn(t1, t2, nbr, noise1, noise2, s1, s2, chi2_crit, min_extra
     jac = np.empty((n, 2, 2))
     st = np.empty(n, dtype=np.int64)
     sd = np.empty(n)
+    df = np.empty(n)
     for k in range(nb):
         for i in range(n):
             for d in range(2):
@@ -929,18 +943,19 @@ def adaptive_batch_knn(t1, t2, nbr, noise1, noise2, s1, s2, chi2_crit, min_extra
                 p2[i, d] = t2[i, d] + noise2[k, i, d]
         adaptive_jacobians_knn(p1, p2, nbr, s1, s2, chi2_crit, min_extra, report_extra,
                                min_candidates, lookahead, n_pass, weight_power, cond_max, jac,
-                               sd, st)
+                               sd, st, df)
         for i in range(n):
             det_out[k, i] = jac[i, 0, 0] * jac[i, 1, 1] - jac[i, 0, 1] * jac[i, 1, 0]
             ln_sd_out[k, i] = sd[i]
             status_out[k, i] = st[i]
+            dof_out[k, i] = df[i]
 
 
 @njit(**JIT_OPTIONS)
 def adaptive_batch(t1, t2, noise1, noise2, s1, s2, chi2_crit, min_extra, report_extra,
                    min_candidates, lookahead, n_pass, weight_power, cond_max, det_out,
-                   ln_sd_out, status_out):
+                   ln_sd_out, status_out, dof_out):
     """:func:`adaptive_batch_knn` with every point for every pair (no cap)."""
     adaptive_batch_knn(t1, t2, all_rows(t1.shape[0]), noise1, noise2, s1, s2, chi2_crit,
                        min_extra, report_extra, min_candidates, lookahead, n_pass,
-                       weight_power, cond_max, det_out, ln_sd_out, status_out)
+                       weight_power, cond_max, det_out, ln_sd_out, status_out, dof_out)

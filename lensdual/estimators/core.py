@@ -254,7 +254,7 @@ def relative_jacobian(theta1, theta2, method="quad", *, weight_power=2, min_angl
             raise ValueError("method 'adaptive' needs sigma_pos (the position errors its "
                              "local fits are tested against)")
         sigma = _as_sigma(sigma_pos, t1.shape[0], positive=True)
-        jac, _, status = _adaptive(t1, t2, sigma, wp, cap)
+        jac, _, status, _ = _adaptive(t1, t2, sigma, wp, cap)
         _warn_adaptive(status)
         return jac
     jac, status = _jacobians(t1, t2, _neighbour_rows(t2, cap), code, wp, min_sin)
@@ -278,37 +278,40 @@ def _adaptive_settings(n, wp):
 
 
 def _adaptive(t1, t2, sigma, wp, max_neighbours=DEFAULT_MAX_NEIGHBOURS):
-    """Run the adaptive kernel: Jacobians, errors of ln|det J|, status codes."""
+    """Run the adaptive kernel: Jacobians, errors of ln|det J|, status codes and
+    the errors' degrees of freedom."""
     n = t1.shape[0]
     nbr = _neighbour_rows(t2, max_neighbours)
     jac = np.empty((n, 2, 2))
     ln_sd = np.empty(n)
     status = np.empty(n, dtype=np.int64)
+    dof = np.empty(n)
     settings = _adaptive_settings(nbr.shape[1], wp)
     threads = min(_MAX_THREADS, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
                   else (os.cpu_count() or 1))
     if n < _THREAD_MIN_PAIRS or threads < 2:
         _kernels.adaptive_jacobians_knn(t1, t2, nbr, sigma[0], sigma[1], *settings, jac, ln_sd,
-                                        status)
-        return jac, ln_sd, status
+                                        status, dof)
+        return jac, ln_sd, status, dof
     # independent pairs: ranges in threads (same result as one call, bit for bit)
     edges = np.linspace(0, n, 4 * threads + 1).astype(int)
 
     def run(i):
         _kernels.adaptive_range_knn(t1, t2, nbr, sigma[0], sigma[1], *settings,
-                                    int(edges[i]), int(edges[i + 1]), jac, ln_sd, status)
+                                    int(edges[i]), int(edges[i + 1]), jac, ln_sd, status, dof)
 
     with ThreadPoolExecutor(threads) as pool:
         list(pool.map(run, range(len(edges) - 1)))
-    return jac, ln_sd, status
+    return jac, ln_sd, status, dof
 
 
 def _adaptive_batch(t1, t2, noise1, noise2, sigma, wp=2.0,
                     max_neighbours=DEFAULT_MAX_NEIGHBOURS):
     """The adaptive estimator on noisy copies ``t + noise`` (shape (B, N, 2)).
 
-    Returns ``|det J|``, the error of its logarithm and whether the status
-    is not "failed" (the pair is tested), each of shape (B, N). No validation: for
+    Returns ``|det J|``, the error of its logarithm, whether the status is
+    "ok" or "misfit" (the pair is tested) and the error's degrees of freedom,
+    each of shape (B, N). No validation: for
     :func:`lensdual.duality.null_calibration`. The neighbour rows are those
     of ``t2`` (the copies re-rank the points within them).
     """
@@ -317,10 +320,11 @@ def _adaptive_batch(t1, t2, noise1, noise2, sigma, wp=2.0,
     det = np.empty((b, n))
     ln_sd = np.empty((b, n))
     status = np.empty((b, n), dtype=np.int64)
+    dof = np.empty((b, n))
     _kernels.adaptive_batch_knn(t1, t2, nbr, noise1, noise2, sigma[0], sigma[1],
-                                *_adaptive_settings(nbr.shape[1], wp), det, ln_sd, status)
+                                *_adaptive_settings(nbr.shape[1], wp), det, ln_sd, status, dof)
     testable = (status == _kernels.ADAPTIVE_OK) | (status == _kernels.ADAPTIVE_MISFIT)
-    return np.abs(det), ln_sd, testable
+    return np.abs(det), ln_sd, testable, dof
 
 
 def _warn_adaptive(status):
@@ -453,8 +457,13 @@ def size_magnification(
     (PRESS) misfit, and widened by the largest difference between its
     ``ln mu_size`` and that of the other self-consistent fits (the model
     uncertainty); ``mu_size_status`` is ``"misfit"``, and the pair is tested.
-    With fewer than two self-consistent fits, or none, the least-bad
-    estimate is returned with ``mu_size_status = "untestable"``:
+    That error is itself estimated from the chosen fit's ``2 (k - p)``
+    residual degrees of freedom (``k`` points, ``p`` coefficients per
+    component), given in ``ln_mu_size_err_dof``: its significance follows
+    Student's t with that many degrees of freedom, not a Gaussian (see
+    :func:`~lensdual.duality.check_duality`). With fewer than two
+    self-consistent fits, or none, the least-bad estimate is returned with
+    ``mu_size_status = "untestable"``:
     :func:`~lensdual.duality.check_duality` does not test such pairs (an
     `~lensdual.exceptions.EstimatorWarning` names them). See the
     calibration page of the docs for the measurements behind these choices.
@@ -506,6 +515,11 @@ def size_magnification(
           distribution of ``|det J|`` (``"adaptive"``: of the log-normal
           ``mu_size * exp(+-ln_mu_size_err)``);
         - ``ln_mu_size_err``: the error of ``ln mu_size``;
+        - ``ln_mu_size_err_dof``: the degrees of freedom that error was
+          estimated with: infinite where it is the propagation of the known
+          position errors (status ``"ok"``, and the bootstrap methods), the
+          chosen fit's residual degrees of freedom for ``"misfit"`` and
+          ``"untestable"``, NaN for ``"failed"``;
         - ``mu_size_p16``, ``mu_size_p50``, ``mu_size_p84``: the bootstrap
           percentiles (``"adaptive"``: ``mu_size * exp(-1, 0, +1 sigma)``);
         - ``n_bootstrap_valid``: realisations with a finite estimate (the
@@ -570,11 +584,13 @@ def _sigma_meta(sigma_pos):
     return sigma_pos if sigma_pos.isscalar else "per-pair (see sigma_pos argument)"
 
 
-def _size_table(det, jac, pct, ln_err, n_valid, status):
+def _size_table(det, jac, pct, ln_err, n_valid, status, ln_err_dof=None):
     table = QTable()
     table["mu_size"] = np.abs(det)
     table["mu_size_err"] = 0.5 * (pct[2] - pct[0])
     table["ln_mu_size_err"] = ln_err
+    table["ln_mu_size_err_dof"] = (np.full(len(det), np.inf) if ln_err_dof is None
+                                   else np.asarray(ln_err_dof, dtype=float))
     table["mu_size_p16"] = pct[0]
     table["mu_size_p50"] = pct[1]
     table["mu_size_p84"] = pct[2]
@@ -587,13 +603,14 @@ def _size_table(det, jac, pct, ln_err, n_valid, status):
 
 def _adaptive_table(t1, t2, sigma, wp, sigma_pos, max_neighbours=DEFAULT_MAX_NEIGHBOURS):
     """size_magnification for method 'adaptive' (analytic errors, no bootstrap)."""
-    jac, ln_sd, status = _adaptive(t1, t2, sigma, wp, max_neighbours)
+    jac, ln_sd, status, dof = _adaptive(t1, t2, sigma, wp, max_neighbours)
     _warn_adaptive(status)
     det = jac[:, 0, 0] * jac[:, 1, 1] - jac[:, 0, 1] * jac[:, 1, 0]
     mu = np.abs(det)
     pct = np.vstack([mu * np.exp(-ln_sd), mu, mu * np.exp(ln_sd)])
     names = np.array([ADAPTIVE_STATUS[int(c)] for c in status])
-    table = _size_table(det, jac, pct, ln_sd, np.zeros(len(mu), dtype=int), names)
+    dof = np.where(status == _kernels.ADAPTIVE_FAILED, np.nan, dof)
+    table = _size_table(det, jac, pct, ln_sd, np.zeros(len(mu), dtype=int), names, dof)
     table.meta["method"] = "adaptive"
     table.meta["error_model"] = (
         "linear propagation of sigma_pos through the accepted local fit (chi-square test "
