@@ -52,7 +52,7 @@ def _kernel_one_pass(t1, t2, s1, s2):
     sd = np.empty(n)
     st = np.empty(n, dtype=np.int64)
     dof = np.empty(n)
-    _kernels.adaptive_jacobians(t1, t2, s1, s2, crit, 1, 1, 2, 5, 1, 2.0, 1e10, jac, sd,
+    _kernels.adaptive_jacobians(t1, t2, s1, s2, crit, 1, 1, 2, 5, n, 1, 2.0, 1e10, jac, sd,
                                 st, dof)
     return (jac, sd, st, dof), ref.adaptive(t1, t2, s1, s2, pilot, crit)
 

@@ -544,15 +544,16 @@ def test_large_constellation_adaptive_is_calibrated():
     q16, q84 = np.percentile(pull, [15.87, 84.13])
     assert 0.8 < 0.5 * (q84 - q16) < 1.2
     assert np.mean(np.abs(pull) > 3) < 0.01
-    # capped vs uncapped on 200 pairs (measured: median difference 1e-12 sigma,
-    # 90 % within 0.9 sigma; the uncapped fit may use more than 64 points)
+    # capped vs uncapped on 200 pairs (measured: median difference 0.16 sigma;
+    # the capped fit tries neighbourhoods above 16 points on a grid only, the
+    # uncapped one every neighbourhood, also above 64 points)
     sub = slice(0, 200)
     kw = {"sigma_pos": sig * u.arcsec}
     a = _size_magnification(o1[sub] * u.arcsec, o2[sub] * u.arcsec, **kw)
     b = _size_magnification(o1[sub] * u.arcsec, o2[sub] * u.arcsec, max_neighbours=None, **kw)
     z = np.abs(np.log(np.asarray(a["mu_size"]) / np.asarray(b["mu_size"])))
     z /= np.hypot(np.asarray(a["ln_mu_size_err"]), np.asarray(b["ln_mu_size_err"]))
-    assert np.median(z) < 1e-6
+    assert np.median(z) < 0.4
     assert np.percentile(z, 90) < 1.5
     # the capped errors are as large or larger (fewer points; the pilot differs slightly)
     ratio = np.asarray(a["ln_mu_size_err"]) / np.asarray(b["ln_mu_size_err"])

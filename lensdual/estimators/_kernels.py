@@ -572,7 +572,8 @@ def _slope_covariance(L, p, scale, work, out):
 
 @njit(**JIT_OPTIONS)
 def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_extra,
-                   min_candidates, lookahead, order, dsort, U, Yr, W, A, rhs, L, scale, beta,
+                   min_candidates, lookahead, k_dense, order, dsort, U, Yr, W, A, rhs, L, scale,
+                   beta,
                    work, jac_out):
     """Adaptive local-polynomial Jacobian at pair ``a``; returns (ln_sd, status, dof).
 
@@ -596,6 +597,10 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
     ``lookahead`` larger neighbourhoods of its degree (``ADAPTIVE_MISFIT``,
     when at least ``min_candidates`` fits are self-consistent). Otherwise
     the least-bad fit is returned as ``ADAPTIVE_UNTESTABLE``.
+
+    Neighbourhoods of up to ``k_dense`` points are all tried; larger ones on
+    a geometric grid (each at least 1/8 larger than the last tried) and the
+    full row (``k_dense >= K`` tries every one).
 
     ``dof`` is the number of degrees of freedom the error was estimated
     with: infinite for ``ADAPTIVE_OK`` (the exact propagation of the known
@@ -669,6 +674,7 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
     cand_ok = np.empty(4 * n, dtype=np.bool_)
     n_cand = 0
     n_consistent = 0
+    k_last = 0
     best_fb_ln = 0.0
     best_fb_k = 0
     best_fb_dr = 0
@@ -678,10 +684,12 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
     spow = np.empty(4)
     jb = np.empty((2, 2))
     jf = np.empty((2, 2))
+    ywy = np.zeros(2)
     for k in range(n):
         # add point order[k] to both normal systems (full cubic design)
         for comp in range(2):
             w = W[k, comp]
+            ywy[comp] += w * Yr[k, comp] * Yr[k, comp]
             for i in range(_ADAPTIVE_NCOEF_MAX):
                 wi = w * U[k, i]
                 rhs[comp, i] += wi * Yr[k, comp]
@@ -691,6 +699,12 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
         hk = np.sqrt(dsort[k])
         if not hk > 0.0:
             continue
+        # beyond k_dense points, fits are tried on a geometric grid of
+        # neighbourhood sizes only (steps of about 1/8), and at the full row
+        if kk > k_dense and kk < n:
+            if 8 * (kk - k_last) < k_last:
+                continue
+        k_last = kk
         # the largest fit of this neighbourhood; one factorisation per component
         # serves all fits (the leading blocks of the factor)
         p_max = 0
@@ -718,13 +732,11 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
                 continue
             for comp in range(2):
                 _factored_solve(L[comp], pt, scale, rhs[comp], beta[comp])
-                w_sum = 0.0
-                for q in range(kk):
-                    r = Yr[q, comp]
-                    for i in range(pt):
-                        r -= U[q, i] * beta[comp, i]
-                    w_sum += W[q, comp] * r * r
-                chi2 += w_sum
+                # at the least-squares solution, r^T W r = y^T W y - beta^T rhs
+                w_sum = ywy[comp]
+                for i in range(pt):
+                    w_sum -= beta[comp, i] * rhs[comp, i]
+                chi2 += max(w_sum, 0.0)
             dof = 2 * (kk - pt)
             passed = chi2 <= chi2_crit[dof]
             if found and not passed:
@@ -838,7 +850,7 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
 
 @njit(**JIT_OPTIONS)
 def adaptive_jacobians_knn(t1, t2, nbr, s1, s2, chi2_crit, min_extra, report_extra,
-                           min_candidates, lookahead, n_pass, weight_power, cond_max, jac,
+                           min_candidates, lookahead, k_dense, n_pass, weight_power, cond_max, jac,
                            ln_sd, status, dof):
     """The adaptive Jacobian at every pair (see :func:`_adaptive_pair`), from its row.
 
@@ -850,18 +862,21 @@ def adaptive_jacobians_knn(t1, t2, nbr, s1, s2, chi2_crit, min_extra, report_ext
     degrees of freedom.
     """
     adaptive_range_knn(t1, t2, nbr, s1, s2, chi2_crit, min_extra, report_extra,
-                       min_candidates, lookahead, n_pass, weight_power, cond_max, 0,
+                       min_candidates, lookahead, k_dense, n_pass, weight_power, cond_max, 0,
                        t1.shape[0], jac, ln_sd, status, dof)
 
 
 @njit(**JIT_OPTIONS)
 def adaptive_range_knn(t1, t2, nbr, s1, s2, chi2_crit, min_extra, report_extra,
-                       min_candidates, lookahead, n_pass, weight_power, cond_max, start, stop,
+                       min_candidates, lookahead, k_dense, n_pass, weight_power, cond_max,
+                       start, stop,
                        jac, ln_sd, status, dof):
     """:func:`adaptive_jacobians_knn` for the pairs ``start <= a < stop`` only.
 
     Each pair's estimate depends on its own row and pilot only, so disjoint
-    ranges can run in separate threads (the kernels release the GIL).
+    ranges can run in separate threads (the kernels release the GIL). With a
+    cap (``k_dense`` below the row length ``K``) the pilot passes use the
+    ``2 k_dense`` nearest points of each row only.
     """
     k = nbr.shape[1]
     pilot = np.empty((stop - start, 2, 2))
@@ -894,10 +909,13 @@ def adaptive_range_knn(t1, t2, nbr, s1, s2, chi2_crit, min_extra, report_extra,
     beta = np.empty((2, _ADAPTIVE_NCOEF_MAX))
     work = np.empty(_ADAPTIVE_NCOEF_MAX)
     for p in range(n_pass):
+        # with a cap (k_dense < K), the passes that only make the next pass's
+        # pilot use the 2 k_dense nearest points
+        k_row = k if (p + 1 == n_pass or k_dense >= k) else min(k, 2 * k_dense)
         for a in range(start, stop):
             ln_sd[a], status[a], dof[a] = _adaptive_pair(
-                t1, t2, s1, s2, a, _row(nbr, a), pilot[a - start], chi2_crit, min_extra,
-                report_extra, min_candidates, lookahead, order, dsort, U, Yr, W, A, rhs, L,
+                t1, t2, s1, s2, a, _row(nbr, a)[:k_row], pilot[a - start], chi2_crit, min_extra,
+                report_extra, min_candidates, lookahead, k_dense, order, dsort, U, Yr, W, A, rhs, L,
                 scale, beta, work, jac[a])
         if p + 1 < n_pass:
             for a in range(start, stop):
@@ -909,17 +927,19 @@ def adaptive_range_knn(t1, t2, nbr, s1, s2, chi2_crit, min_extra, report_extra,
 
 @njit(**JIT_OPTIONS)
 def adaptive_jacobians(t1, t2, s1, s2, chi2_crit, min_extra, report_extra,
-                       min_candidates, lookahead, n_pass, weight_power, cond_max, jac, ln_sd,
+                       min_candidates, lookahead, k_dense, n_pass, weight_power, cond_max, jac,
+                       ln_sd,
                        status, dof):
     """:func:`adaptive_jacobians_knn` with every point for every pair (no cap)."""
     adaptive_jacobians_knn(t1, t2, all_rows(t1.shape[0]), s1, s2, chi2_crit, min_extra,
-                           report_extra, min_candidates, lookahead, n_pass, weight_power,
+                           report_extra, min_candidates, lookahead, k_dense, n_pass, weight_power,
                            cond_max, jac, ln_sd, status, dof)
 
 
 @njit(**JIT_OPTIONS)
 def adaptive_batch_knn(t1, t2, nbr, noise1, noise2, s1, s2, chi2_crit, min_extra,
-                       report_extra, min_candidates, lookahead, n_pass, weight_power, cond_max,
+                       report_extra, min_candidates, lookahead, k_dense, n_pass, weight_power,
+                       cond_max,
                        det_out, ln_sd_out, status_out, dof_out):
     """The adaptive estimator on ``B`` noisy copies of a constellation.
 
@@ -942,7 +962,8 @@ def adaptive_batch_knn(t1, t2, nbr, noise1, noise2, s1, s2, chi2_crit, min_extra
                 p1[i, d] = t1[i, d] + noise1[k, i, d]
                 p2[i, d] = t2[i, d] + noise2[k, i, d]
         adaptive_jacobians_knn(p1, p2, nbr, s1, s2, chi2_crit, min_extra, report_extra,
-                               min_candidates, lookahead, n_pass, weight_power, cond_max, jac,
+                               min_candidates, lookahead, k_dense, n_pass, weight_power, cond_max,
+                               jac,
                                sd, st, df)
         for i in range(n):
             det_out[k, i] = jac[i, 0, 0] * jac[i, 1, 1] - jac[i, 0, 1] * jac[i, 1, 0]
@@ -953,9 +974,9 @@ def adaptive_batch_knn(t1, t2, nbr, noise1, noise2, s1, s2, chi2_crit, min_extra
 
 @njit(**JIT_OPTIONS)
 def adaptive_batch(t1, t2, noise1, noise2, s1, s2, chi2_crit, min_extra, report_extra,
-                   min_candidates, lookahead, n_pass, weight_power, cond_max, det_out,
+                   min_candidates, lookahead, k_dense, n_pass, weight_power, cond_max, det_out,
                    ln_sd_out, status_out, dof_out):
     """:func:`adaptive_batch_knn` with every point for every pair (no cap)."""
     adaptive_batch_knn(t1, t2, all_rows(t1.shape[0]), noise1, noise2, s1, s2, chi2_crit,
-                       min_extra, report_extra, min_candidates, lookahead, n_pass,
+                       min_extra, report_extra, min_candidates, lookahead, k_dense, n_pass,
                        weight_power, cond_max, det_out, ln_sd_out, status_out, dof_out)

@@ -64,6 +64,11 @@ _ADAPTIVE_MIN_CANDIDATES = 2
 _ADAPTIVE_LOOKAHEAD = 5
 # Passes of the effective-variance iteration (pilot Jacobian -> estimate).
 _ADAPTIVE_PASSES = 2
+# With a neighbour cap in force (more pairs than max_neighbours), every
+# neighbourhood of up to this many points is tried, larger ones on a
+# geometric grid (steps of 1/8). Without a cap (N <= max_neighbours) every
+# neighbourhood is tried.
+_ADAPTIVE_K_DENSE = 10
 
 # Largest condition estimate accepted for the (column-equilibrated)
 # least-squares design of the Quad estimators.
@@ -270,11 +275,13 @@ def _chi2_critical(n, alpha=None):
     return crit
 
 
-def _adaptive_settings(n, wp):
-    """The adaptive kernels' settings after the errors, for ``n`` points per fit."""
+def _adaptive_settings(n, wp, capped=False):
+    """The adaptive kernels' settings after the errors, for ``n`` points per fit
+    (``capped``: rows of ``n`` nearest neighbours out of more points)."""
+    k_dense = _ADAPTIVE_K_DENSE if capped else n
     return (_chi2_critical(n), _ADAPTIVE_MIN_EXTRA, _ADAPTIVE_REPORT_EXTRA,
-            _ADAPTIVE_MIN_CANDIDATES, _ADAPTIVE_LOOKAHEAD, _ADAPTIVE_PASSES, float(wp),
-            _COND_MAX)
+            _ADAPTIVE_MIN_CANDIDATES, _ADAPTIVE_LOOKAHEAD, k_dense, _ADAPTIVE_PASSES,
+            float(wp), _COND_MAX)
 
 
 def _adaptive(t1, t2, sigma, wp, max_neighbours=DEFAULT_MAX_NEIGHBOURS):
@@ -286,7 +293,7 @@ def _adaptive(t1, t2, sigma, wp, max_neighbours=DEFAULT_MAX_NEIGHBOURS):
     ln_sd = np.empty(n)
     status = np.empty(n, dtype=np.int64)
     dof = np.empty(n)
-    settings = _adaptive_settings(nbr.shape[1], wp)
+    settings = _adaptive_settings(nbr.shape[1], wp, nbr.shape[1] < n)
     threads = min(_MAX_THREADS, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
                   else (os.cpu_count() or 1))
     if n < _THREAD_MIN_PAIRS or threads < 2:
@@ -322,7 +329,8 @@ def _adaptive_batch(t1, t2, noise1, noise2, sigma, wp=2.0,
     status = np.empty((b, n), dtype=np.int64)
     dof = np.empty((b, n))
     _kernels.adaptive_batch_knn(t1, t2, nbr, noise1, noise2, sigma[0], sigma[1],
-                                *_adaptive_settings(nbr.shape[1], wp), det, ln_sd, status, dof)
+                                *_adaptive_settings(nbr.shape[1], wp, nbr.shape[1] < n), det,
+                                ln_sd, status, dof)
     testable = (status == _kernels.ADAPTIVE_OK) | (status == _kernels.ADAPTIVE_MISFIT)
     return np.abs(det), ln_sd, testable, dof
 
