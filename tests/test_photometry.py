@@ -1066,3 +1066,138 @@ def test_cutout_box_and_fallback(small_image, monkeypatch):
     data[:, :20] = np.nan
     res = psf_photometry(data, [[5.0, 10.0]], psf=FWHM, warn=False)
     assert not np.isfinite(res["flux"][0])
+
+
+# ---------------------------------------------------------------------------
+# ArcPSFPhotometry: set up once, called on images (issue 14, item 2)
+# ---------------------------------------------------------------------------
+
+
+def _same_table(a, b):
+    assert a.colnames == b.colnames
+    for name in a.colnames:
+        if name == "sky":
+            assert np.all(a[name].separation(b[name]) == 0 * u.deg)
+        elif name == "flag_note":
+            assert list(a[name]) == list(b[name])
+        else:
+            np.testing.assert_array_equal(np.asarray(a[name]), np.asarray(b[name]), err_msg=name)
+    assert a.meta == b.meta
+
+
+@pytest.mark.parametrize(
+    "settings",
+    [
+        {"psf": FWHM},
+        {"psf": None, "background": "residual", "neighbour_passes": 2},
+        {"psf": FWHM * SCALE * u.arcsec, "background": "local", "group_radius": 0},
+    ],
+    ids=["ridge", "residual-fwhm-fitted", "local-angle"],
+)
+def test_arc_psf_photometry_equals_psf_photometry(settings):
+    from lensdual.photometry import ArcPSFPhotometry
+
+    image, xy, _ = close_groups()
+    start = np.vstack([xy, [[45.0, 12.0]]]) + 0.2
+    phot = ArcPSFPhotometry(**settings)
+    by_object = phot(image, start, label="scene A")
+    by_function = psf_photometry(image, start, label="scene A", **settings)
+    _same_table(by_object, by_function)
+    assert by_object.meta["input"] == "scene A"
+    # the object is reusable: a second image gives what the function gives on it
+    other = CCDData(
+        image.data[:, ::-1].copy(), unit=image.unit, uncertainty=image.uncertainty, wcs=image.wcs
+    )
+    mirrored = np.column_stack([59.0 - start[:, 0], start[:, 1]])
+    _same_table(phot(other, mirrored), psf_photometry(other, mirrored, **settings))
+
+
+def test_arc_psf_photometry_checks_its_settings_at_init():
+    from photutils.background import LocalBackground
+
+    from lensdual.photometry import ArcPSFPhotometry
+
+    bad = [
+        ({"psf": "gauss"}, TypeError, "psf must be"),
+        ({"psf": -2.0}, ValueError, "psf .*FWHM.* must be finite and positive"),
+        ({"psf": 0 * u.arcsec}, ValueError, "psf .*FWHM.* must be finite and positive"),
+        ({"psf": 2 * u.s}, TypeError, "psf as a Quantity"),
+        ({"psf": np.ones((3, 3))}, ValueError, "psf as an array must be a 2-D PSF image"),
+        ({"psf": FWHM, "oversampling": 4}, ValueError, "applies to a PSF image"),
+        ({"oversampling": 0}, ValueError, "oversampling must be an integer >= 1"),
+        ({"background": "median"}, ValueError, "background must be one of"),
+        ({"background": 3}, TypeError, "background must be a string"),
+        ({"fit_shape": 8}, ValueError, "fit_shape must be an odd integer"),
+        ({"smooth_sigma": 0}, ValueError, "smooth_sigma must be >"),
+        ({"maxiters": 0}, ValueError, "maxiters"),
+        ({"neighbour_passes": -1}, ValueError, "neighbour_passes"),
+        ({"xy_bounds": 0}, ValueError, "xy_bounds"),
+        ({"group_radius": -1}, ValueError, "group_radius"),
+        ({"background": "local", "local_radii": (5, 3)}, ValueError, "0 <= inner < outer"),
+        ({"background": "local", "local_radii": "wide"}, TypeError, "local_radii must be a pair"),
+    ]
+    for settings, error, match in bad:
+        with pytest.raises(error, match=match):
+            ArcPSFPhotometry(**settings)
+    # settings that need the image are checked when it comes
+    phot = ArcPSFPhotometry(0.07 * u.arcsec)
+    with pytest.raises(ValueError, match="needs an image with a celestial WCS"):
+        phot(np.zeros((20, 20)), [(10.0, 10.0)])
+    # local_radii is used (and checked) only by the "local" strategy, as before
+    ArcPSFPhotometry(FWHM, local_radii="ignored")
+    ArcPSFPhotometry(FWHM, background=LocalBackground(4, 8), local_radii="ignored")
+    assert repr(ArcPSFPhotometry(FWHM, background="plane")).startswith(
+        "ArcPSFPhotometry(psf=2.5, fit_shape=None, background='plane'"
+    )
+
+
+def test_warnings_name_the_caller(small_image):
+    """The summary warning points at the line that called the photometry, through the
+    function and the object alike."""
+    from lensdual.photometry import ArcPSFPhotometry
+
+    position = [(20.0, 15.0), (-3.0, 10.0)]
+    with pytest.warns(LensdualWarning, match="outside the image") as rec:
+        psf_photometry(small_image, position, psf=FWHM)
+    assert rec[0].filename == __file__
+    with pytest.warns(LensdualWarning, match="outside the image") as rec:
+        ArcPSFPhotometry(FWHM)(small_image, position)
+    assert rec[0].filename == __file__
+
+
+def test_groups_are_connected_components():
+    """Sources are grouped through chains of close neighbours (connected components)."""
+    from lensdual.photometry._fitting import _groups
+
+    # a chain 0-2-4 (each link 4 px, ends 8 px apart), a pair 1-3, a lone source 5
+    x = np.array([0.0, 50.0, 4.0, 53.0, 8.0, 90.0])
+    y = np.zeros(6)
+    groups = _groups(x, y, 5.0)
+    assert [g.tolist() for g in groups] == [[0, 2, 4], [1, 3]]
+    assert _groups(x, y, 0.0) == [] and _groups(x[:1], y[:1], 5.0) == []
+    # the same sets as the pairwise-distance closure, on random scenes
+    rng = np.random.default_rng(3)
+    for _ in range(50):
+        n = int(rng.integers(2, 40))
+        x, y = rng.uniform(0, 60, (2, n))
+        close = np.hypot(x[:, None] - x, y[:, None] - y) < 6.0
+        reach = close.copy()
+        for _ in range(n):  # transitive closure by repeated boolean products
+            reach = reach | ((reach.astype(int) @ reach.astype(int)) > 0)
+        expected = {tuple(np.flatnonzero(row)) for row in reach if row.sum() > 1}
+        assert {tuple(g) for g in _groups(x, y, 6.0)} == expected
+
+
+def test_flags_keep_the_meaning_of_photutils_bits():
+    """Every photutils PSF flag bit is a PhotometryFlag of the same meaning; lensdual's
+    own bits are above all of photutils'."""
+    flags_module = pytest.importorskip("photutils.psf.flags")  # photutils >= 2.3
+    PSF_FLAGS = flags_module.PSF_FLAGS
+
+    # photutils' names, lensdual's where they differ
+    renamed = {"negative_flux": "NON_POSITIVE_FLUX"}
+    photutils_bits = dict(PSF_FLAGS.flag_dict)
+    for bit, name in photutils_bits.items():
+        assert PhotometryFlag(bit).name == renamed.get(name, name.upper())
+    own = [f for f in PhotometryFlag if int(f) not in photutils_bits]
+    assert own and all(int(f) > max(photutils_bits) for f in own)

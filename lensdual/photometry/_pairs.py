@@ -1,0 +1,395 @@
+"""The pairs table: PSF photometry of the point-source pairs of two arcs."""
+
+import warnings
+from collections.abc import Mapping
+
+import numpy as np
+from astropy import units as u
+from astropy.coordinates import SkyCoord
+from astropy.nddata import NDData
+from astropy.table import QTable, Table
+
+from .._frames import mean_direction, tangent_to_sky
+from .._validation import as_positions
+from ..exceptions import LensdualWarning
+from ._background import _DEFAULT_BACKGROUND
+from ._flags import _BAD_FLAGS, describe_flags
+from ._inputs import (
+    _as_oversampling,
+    _as_wcs,
+    _describe_input,
+    _file_of,
+    _pixel_to_tangent_errors,
+    _squeeze_plane,
+)
+from ._psf import ArcPSFPhotometry
+
+__all__ = ["measure_pairs"]
+
+
+def _check_images(images, name):
+    """Validate a dict of bands; return it with single-plane cubes squeezed to 2-D."""
+    if not isinstance(images, Mapping):
+        raise TypeError(f"{name} must be a dict {{band: CCDData}}, got {type(images).__name__}")
+    if not images:
+        raise ValueError(f"{name} must hold at least one band, got none")
+    out = {}
+    for band, img in images.items():
+        if not isinstance(band, str) or not band:
+            raise TypeError(
+                f"the keys (band names) of {name} must be non-empty strings, got {band!r}"
+            )
+        if not isinstance(img, NDData):
+            raise TypeError(
+                f"{name}[{band!r}] must be a CCDData or NDData with a WCS, got {type(img).__name__}"
+            )
+        img = _squeeze_plane(img, f"{name}[{band!r}]")
+        out[band] = img
+        if img.wcs is None:
+            raise ValueError(f"{name}[{band!r}] has no WCS; measure_pairs needs celestial WCSs")
+        wcs = _as_wcs(img.wcs, f"{name}[{band!r}].wcs")
+        ny, nx = np.shape(img.data)[-2:]
+        try:
+            sky = wcs.pixel_to_world((nx - 1) / 2.0, (ny - 1) / 2.0)
+        except Exception:  # noqa: BLE001 - any failure: not a usable celestial WCS
+            sky = None
+        if not isinstance(sky, SkyCoord):
+            raise ValueError(f"{name}[{band!r}] has no celestial WCS")
+    return out
+
+
+def _initial_sky(pairs, reference):
+    """Initial SkyCoord positions on both arcs from a pairs table."""
+    cols = pairs.colnames
+    if "sky1" in cols and "sky2" in cols:
+        sky1, sky2 = pairs["sky1"], pairs["sky2"]
+        if not isinstance(sky1, SkyCoord) or not isinstance(sky2, SkyCoord):
+            raise TypeError("pairs['sky1'] and pairs['sky2'] must be SkyCoord columns")
+        return sky1, sky2
+    if all(c in cols for c in ("x1", "y1", "x2", "y2")):
+        if reference is None:
+            raise ValueError(
+                "pairs gives x1, y1, x2, y2: pass reference, the SkyCoord of the origin of "
+                "their tangent-plane frame (x towards the west, y towards the north)"
+            )
+        out = []
+        for arc in ("1", "2"):
+            cols_xy = []
+            for name in (f"x{arc}", f"y{arc}"):
+                col = pairs[name]
+                if getattr(col, "unit", None) is None or col.unit.physical_type != "angle":
+                    raise TypeError(
+                        f"pairs[{name!r}] must have angular units (e.g. arcsec), got "
+                        f"{getattr(col, 'unit', None)}"
+                    )
+                cols_xy.append(u.Quantity(col).to_value(u.arcsec))
+            p = as_positions(np.column_stack(cols_xy) * u.arcsec, f"pairs x{arc}, y{arc}")
+            out.append(tangent_to_sky(p[:, 0], p[:, 1], reference))
+        return tuple(out)
+    raise ValueError(
+        "pairs must have SkyCoord columns sky1 and sky2, or angle columns x1, y1, x2, y2 "
+        f"(with reference=...), got columns {cols}"
+    )
+
+
+def measure_pairs(
+    images_l1,
+    images_l2,
+    pairs,
+    *,
+    psf=None,
+    bands=None,
+    reference=None,
+    background=_DEFAULT_BACKGROUND,
+    fit_shape=None,
+    xy_bounds=None,
+    neighbour_passes=10,
+    oversampling=None,
+    check_psf=True,
+):
+    r"""PSF photometry of the point-source pairs of two arcs, into a pairs table.
+
+    Every band of both arcs is measured with :func:`psf_photometry`, starting
+    from the initial positions in ``pairs``; the fitted positions are put in
+    one common tangent-plane frame and combined over the bands.
+
+    Parameters
+    ----------
+    images_l1, images_l2 : dict of str to `~astropy.nddata.CCDData`
+        The bands of arcs L1 and L2 (cut-outs or whole images), each an
+        NDData/CCDData with a celestial WCS (an uncertainty, mask and unit
+        are used as by :func:`psf_photometry`). The bands of one arc may have
+        different pixel grids.
+    pairs : `~astropy.table.Table`
+        One row per pair with the initial positions: SkyCoord columns
+        ``sky1`` and ``sky2``, or angle columns ``x1``, ``y1``, ``x2``,
+        ``y2`` in the tangent-plane frame about ``reference`` (see Notes).
+        ``pair_id`` is kept (1, 2, ... when absent); other columns are
+        copied. The table is not modified.
+    psf : PSF or dict of str to PSF, optional
+        The PSF as for :func:`psf_photometry` (a Gaussian FWHM, a PSF image,
+        an ImagePSF or None to fit the FWHM), for all bands or per band (a
+        dict; a band it lacks gets None).
+    bands : list of str, optional
+        The bands to measure; default: all bands of ``images_l1``. Every band
+        must be in both dicts.
+    reference : `~astropy.coordinates.SkyCoord`, optional
+        Origin of the output frame. Default: the mean initial position of all
+        point sources on both arcs (the mean of their unit vectors). Needed
+        when ``pairs`` gives ``x1, y1, x2, y2`` (their frame's origin, also
+        used for the output).
+    background, fit_shape, xy_bounds, neighbour_passes, check_psf
+        Passed to :func:`psf_photometry`.
+    oversampling : int, (int, int) or dict of str to those, optional
+        The oversampling of PSF images (see :func:`psf_photometry`), for all
+        bands or per band (a dict; a band it lacks gets None).
+
+    Returns
+    -------
+    table : `~astropy.table.QTable`
+        A new pairs table (see :ref:`pairs-table`): the input columns, with
+        these set or replaced:
+
+        * ``pair_id``;
+        * ``x1``, ``y1``, ``x2``, ``y2`` (arcsec): fitted positions in the
+          common frame, the inverse-variance weighted mean over the bands;
+        * ``pos_err1``, ``pos_err2`` (arcsec): their 1-sigma error per
+          coordinate, :math:`(\sum_b \sigma_b^{-2})^{-1/2}` with
+          :math:`\sigma_b` the band's rms of the x and y errors in arcsec;
+        * ``sky1``, ``sky2``: the same positions as SkyCoord (frame of
+          ``reference``);
+        * per band ``flux1_<band>``, ``flux2_<band>``, ``flux_err1_<band>``,
+          ``flux_err2_<band>`` (image unit; L2 converted to the unit of L1),
+          and ``flags1_<band>``, ``flags2_<band>`` (:class:`PhotometryFlag`
+          bits; 0 is a clean fit);
+        * ``photometry_flags``: per pair, the sum of the unusable flags
+          (:data:`UNUSABLE_FLAGS`) of all its fits; 0 when all were usable;
+        * ``photometry_note``: per pair, what was not measured and why, in
+          words, each entry naming the pair id, the source id (columns
+          ``id1``/``id2`` when present), the arc, the band and the file
+          (``meta['FILENAME']`` of the image); "" when clean;
+        * ``measured``: True when both positions are known and at least one
+          band has both fluxes (the pair can be tested).
+
+        ``meta['bands']`` lists the bands, ``meta['reference']`` is the
+        frame origin (SkyCoord), ``meta['photometry']`` the settings.
+        Fluxes of fits with an unusable flag (non-positive flux, no
+        convergence, no covariance, no or too few pixels, non-finite
+        results, a position off the image, a flux error that is not finite
+        and positive, a fit that raised) are NaN ("not measured"), with NaN
+        errors, and such fits do not enter the positions; a position that no
+        band measured is NaN. One bad candidate never stops the call.
+
+    Raises
+    ------
+    TypeError
+        Images not dicts of NDData, ``pairs`` not a table, ``reference`` not
+        a SkyCoord.
+    ValueError
+        An image without a celestial WCS, a band missing from one arc,
+        ``pairs`` without positions, x/y positions without ``reference``,
+        incompatible flux units, a bad ``oversampling``, the errors of
+        :func:`psf_photometry` on a whole image (no valid pixel, a PSF image
+        that does not match the sources), named with the arc, band and file.
+
+    Warns
+    -----
+    LensdualWarning
+        Some fits are flagged (one warning for the whole call, with the
+        notes and the pairs that cannot be tested).
+
+    Notes
+    -----
+    The frame is the gnomonic (tangent-plane) projection about
+    ``reference``, with **x pointing west** and y north:
+    :math:`x = -\xi`, :math:`y = \eta`, where :math:`(\xi, \eta)` are the
+    standard coordinates (:math:`\xi \approx \Delta\alpha\cos\delta` towards
+    the east), computed exactly from the offsets in
+    `~astropy.coordinates.SkyOffsetFrame` about ``reference``. On an image
+    with north up and east to the left, x and y thus grow with the pixel
+    coordinates. The reflection relative to the usual east-north frame is
+    common to both arcs and changes neither ``mu_size`` nor the parity.
+    """
+    images_l1 = _check_images(images_l1, "images_l1")
+    images_l2 = _check_images(images_l2, "images_l2")
+    if bands is None:
+        bands = list(images_l1)
+    elif isinstance(bands, str):
+        bands = [bands]
+    else:
+        bands = list(bands)
+    if not bands:
+        raise ValueError("bands must name at least one band, got none")
+    for name, images in (("images_l1", images_l1), ("images_l2", images_l2)):
+        missing = [b for b in bands if b not in images]
+        if missing:
+            raise ValueError(f"band(s) {missing} missing from {name} (it has {list(images)})")
+    if not isinstance(pairs, Table):
+        raise TypeError(f"pairs must be an astropy Table or QTable, got {type(pairs).__name__}")
+    if len(pairs) == 0:
+        raise ValueError("pairs has no rows")
+    if reference is not None:
+        if not isinstance(reference, SkyCoord) or not reference.isscalar:
+            raise TypeError(f"reference must be a scalar SkyCoord or None, got {reference!r}")
+    for band in bands:
+        u1, u2 = images_l1[band].unit, images_l2[band].unit
+        if (u1 is None) != (u2 is None):
+            raise ValueError(
+                f"band {band!r}: images_l1 and images_l2 must both have flux units or both have "
+                f"none (got {u1} and {u2})"
+            )
+        if u1 is not None and not u2.is_equivalent(u1):
+            raise ValueError(
+                f"band {band!r}: the unit {u2} of images_l2 is not convertible to the unit "
+                f"{u1} of images_l1"
+            )
+    if isinstance(psf, Mapping):
+        psf_of = {b: psf.get(b) for b in bands}
+    else:
+        psf_of = dict.fromkeys(bands, psf)
+    if isinstance(oversampling, Mapping):
+        os_of = {b: oversampling.get(b) for b in bands}
+    else:
+        os_of = dict.fromkeys(bands, oversampling)
+    for band in bands:
+        _as_oversampling(os_of[band], f"oversampling of band {band!r}")
+    # one photometry per band, its settings checked before any image is measured
+    phot_of = {
+        band: ArcPSFPhotometry(
+            psf_of[band],
+            background=background,
+            fit_shape=fit_shape,
+            xy_bounds=xy_bounds,
+            neighbour_passes=neighbour_passes,
+            warn=False,
+            oversampling=os_of[band],
+            check_psf=check_psf,
+        )
+        for band in bands
+    }
+
+    sky1_init, sky2_init = _initial_sky(pairs, reference)
+    if reference is None:
+        reference = mean_direction(sky1_init, sky2_init)
+
+    n = len(pairs)
+    out = QTable(pairs, copy=True)
+    if "pair_id" not in out.colnames:
+        out.add_column(np.arange(1, n + 1), name="pair_id", index=0)
+    ids = np.asarray(out["pair_id"])
+
+    per_arc = {}
+    flagged = []  # per arc and band: the pairs with an unusable fit
+    notes = [[] for _ in range(n)]  # per pair: why something was not measured
+    pair_flags = np.zeros(n, np.int64)  # per pair: OR of the unusable flags
+    for arc, images, sky_init in (("1", images_l1, sky1_init), ("2", images_l2, sky2_init)):
+        sum_w = np.zeros(n)
+        sum_x = np.zeros(n)
+        sum_y = np.zeros(n)
+        fluxes = {}
+        src_ids = np.asarray(out[f"id{arc}"]) if f"id{arc}" in out.colnames else None
+        for band in bands:
+            img = images[band]
+            wcs = _as_wcs(img.wcs, f"images_l{arc}[{band!r}].wcs")
+            label = _describe_input(f"images_l{arc}[{band!r}] (arc L{arc}, band {band})", img)
+            px, py = wcs.world_to_pixel(sky_init)
+            px, py = np.atleast_1d(px), np.atleast_1d(py)
+            res = phot_of[band](img, np.column_stack([px, py]), label=label)
+            flags = np.asarray(res["flags"], dtype=np.int64)
+            bad = (flags & _BAD_FLAGS) != 0
+            path = _file_of(img)
+            if bad.any():
+                flagged.append(f"L{arc} {band}: pairs {ids[bad].tolist()[:10]}")
+            for i in np.flatnonzero(bad):
+                src = "" if src_ids is None else f" (source id {src_ids[i]})"
+                where = f"L{arc} {band}" + ("" if path is None else f" [{path}]")
+                notes[i].append(
+                    f"pair {ids[i]}{src}, {where}: {describe_flags(flags[i], unusable_only=True)}"
+                )
+                pair_flags[i] |= flags[i] & _BAD_FLAGS
+            good = np.isfinite(res["x_fit"]) & np.isfinite(res["y_fit"])
+            safe_x = np.where(good, res["x_fit"], np.where(np.isfinite(px), px, 0.0))
+            safe_y = np.where(good, res["y_fit"], np.where(np.isfinite(py), py, 0.0))
+            xb, yb, sig = _pixel_to_tangent_errors(
+                wcs,
+                safe_x,
+                safe_y,
+                np.asarray(res["x_err"]),
+                np.asarray(res["y_err"]),
+                reference,
+            )
+            xb, yb = np.where(good, xb, np.nan), np.where(good, yb, np.nan)
+            ok = np.isfinite(xb) & np.isfinite(yb) & np.isfinite(sig) & (sig > 0) & ~bad
+            w = np.where(ok, 1.0 / np.where(ok, sig, 1.0) ** 2, 0.0)
+            sum_w += w
+            sum_x += np.where(ok, xb, 0.0) * w
+            sum_y += np.where(ok, yb, 0.0) * w
+            flux, flux_err = res["flux"].copy(), res["flux_err"].copy()
+            flux[bad] = np.nan  # not measured (pairs-table convention)
+            flux_err[bad] = np.nan
+            fluxes[band] = (flux, flux_err, flags)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            xm = np.where(sum_w > 0, sum_x / sum_w, np.nan)
+            ym = np.where(sum_w > 0, sum_y / sum_w, np.nan)
+            err = np.where(sum_w > 0, 1.0 / np.sqrt(sum_w), np.nan)
+        for i in np.flatnonzero(sum_w == 0):
+            notes[i].append(f"pair {ids[i]}: no band measured its L{arc} position (NaN)")
+        per_arc[arc] = (xm, ym, err, fluxes)
+
+    for arc in ("1", "2"):
+        xm, ym, err, _ = per_arc[arc]
+        out[f"x{arc}"] = xm * u.arcsec
+        out[f"y{arc}"] = ym * u.arcsec
+        out[f"pos_err{arc}"] = err * u.arcsec
+        out[f"sky{arc}"] = tangent_to_sky(xm, ym, reference)
+    for band in bands:
+        f1, e1, g1 = per_arc["1"][3][band]
+        f2, e2, g2 = per_arc["2"][3][band]
+        if isinstance(f1, u.Quantity):
+            f2, e2 = f2.to(f1.unit), e2.to(f1.unit)
+        out[f"flux1_{band}"] = f1
+        out[f"flux2_{band}"] = f2
+        out[f"flux_err1_{band}"] = e1
+        out[f"flux_err2_{band}"] = e2
+        out[f"flags1_{band}"] = g1
+        out[f"flags2_{band}"] = g2
+    positions_ok = np.ones(n, bool)
+    for arc in ("1", "2"):
+        positions_ok &= np.isfinite(per_arc[arc][0]) & np.isfinite(per_arc[arc][1])
+    some_band = np.zeros(n, bool)
+    for band in bands:
+        f1, f2 = per_arc["1"][3][band][0], per_arc["2"][3][band][0]
+        some_band |= np.isfinite(np.asarray(getattr(f1, "value", f1))) & np.isfinite(
+            np.asarray(getattr(f2, "value", f2))
+        )
+    measured = positions_ok & some_band
+    for i in np.flatnonzero(positions_ok & ~some_band):
+        notes[i].append(f"pair {ids[i]}: no band has both fluxes (no flux ratio)")
+    out["photometry_flags"] = pair_flags
+    out["photometry_note"] = ["; ".join(v) for v in notes]
+    out["measured"] = measured
+    out.meta["bands"] = list(bands)
+    out.meta["reference"] = reference
+    out.meta["photometry"] = {
+        "background": background if isinstance(background, str) else repr(background),
+        "fit_shape": fit_shape,
+        "xy_bounds": xy_bounds,
+        "neighbour_passes": neighbour_passes,
+        "psf": {b: repr(p) for b, p in psf_of.items()},
+        "oversampling": {b: os_of[b] for b in bands},
+        "frame": "gnomonic about reference, x west, y north, arcsec",
+    }
+    troubled = np.flatnonzero([bool(v) for v in notes])
+    if troubled.size:
+        dropped = np.flatnonzero(~measured)
+        text = (
+            f"measure_pairs: {troubled.size} of {n} pair(s) not fully measured (NaN where "
+            f"unusable; see the photometry_flags, photometry_note and flags columns)"
+        )
+        if flagged:
+            text += "; flagged fits: " + ", ".join(flagged)
+        if dropped.size:
+            text += f"; pairs {ids[dropped].tolist()} cannot be tested (measured = False)"
+        text += ". Why: " + "; ".join(out["photometry_note"][i] for i in troubled[:30])
+        warnings.warn(text, LensdualWarning, stacklevel=2)
+    return out
