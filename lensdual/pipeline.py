@@ -1,4 +1,16 @@
-"""Analyses a Python user runs without the command line.
+"""The analyses a Python user runs without the command line.
+
+:func:`analyse` is the image pipeline of ``lensdual demo`` and ``lensdual run``:
+point sources are detected on each arc
+(:func:`~lensdual.detection.find_point_sources`), measured by PSF photometry
+(:func:`~lensdual.photometry.psf_photometry`, for their colours), paired
+across the arcs (:func:`~lensdual.pairing.pair_constellations`, automatic or
+from a manual list), re-measured as pairs
+(:func:`~lensdual.photometry.measure_pairs`) and tested for geometrical
+duality (:func:`~lensdual.duality.check_duality`). It returns an `Analysis`;
+:func:`format_pairs_table`, :func:`verdict` and :func:`format_report` turn it
+into the text the commands print. Writing files is left to the caller (the
+command line writes ECSV tables, figures and DS9 regions).
 
 :func:`analyse_knots` is the catalogue-only analysis of ``lensdual run`` with a
 ``[knots]`` table: the knots of a multiply-imaged galaxy in a published
@@ -7,7 +19,10 @@ magnification is measured with position errors taken from the constellation
 itself, and compared with the magnification ratios of lens models.
 """
 
+import warnings
+from contextlib import nullcontext
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 from astropy import units as u
@@ -15,14 +30,576 @@ from astropy import units as u
 from ._validation import as_angle_scalar, as_real
 from .estimators import DEFAULT_METHOD, estimate_sigma_pos
 
-__all__ = ["KnotAnalysis", "analyse_knots", "knot_report"]
+__all__ = [
+    "Analysis",
+    "PipelineError",
+    "analyse",
+    "format_pairs_table",
+    "format_report",
+    "pairing_doubts",
+    "verdict",
+    "KnotAnalysis",
+    "analyse_knots",
+    "knot_report",
+]
+
+#: Fewest consistent pairs the automatic pairing accepts (lensdual.pairing).
+_MIN_AUTO_PAIRS = 4
+#: Why an estimator needs its minimum number of pairs (the error messages).
+_MIN_PAIRS_WHY = {
+    "adaptive": " (its smallest local fit is a quadratic on a pair and six neighbours, "
+                "plus one degree of freedom to test it); with fewer pairs no error bar "
+                "of mu_size can be trusted",
+}
+#: Below this many pairs the paper's estimators fit one nearly global map: their
+#: mu_size is almost the same for every pair and their error omits the map's curvature.
+_FEW_PAIRS = 7
+
+
+class PipelineError(RuntimeError):
+    """The analysis cannot go on (no detections, too few pairs, ...)."""
+
+
+class _NoProgress:
+    """The progress of :func:`analyse` when nobody watches: every step is silent."""
+
+    @staticmethod
+    def step(name):
+        return nullcontext()
+
+
+def _fmt(value, spec=".3f"):
+    value = float(value)
+    return "nan" if not np.isfinite(value) else format(value, spec)
+
+
+# ---------------------------------------------------------------------------
+# the image pipeline shared by lensdual demo and lensdual run
+# ---------------------------------------------------------------------------
+
+
+@dataclass
+class Analysis:
+    """What :func:`analyse` found.
+
+    Parameters
+    ----------
+    catalogs : dict of str to `~astropy.table.QTable`
+        The point-source catalogue of each arc (``"L1"``, ``"L2"``) with its
+        PSF fluxes per band.
+    pairs : `~astropy.table.QTable`
+        The pairing (output of :func:`~lensdual.pairing.pair_constellations`).
+    result : `~astropy.table.QTable`
+        The duality table (output of :func:`~lensdual.duality.check_duality`
+        on the PSF-measured pairs).
+    sigma_pos : `~astropy.units.Quantity`
+        The positional errors used for the bootstrap.
+    warnings : list of str
+        The distinct warnings raised on the way.
+    """
+
+    catalogs: dict
+    pairs: object
+    result: object
+    sigma_pos: object
+    warnings: list = field(default_factory=list)
+
+
+def _catalogue(images, psf, catalog=None, oversampling=None):
+    """Detections (or the given catalogue) of one arc, with PSF fluxes per band."""
+    from astropy.table import QTable
+
+    from .detection import find_point_sources
+    from .photometry import psf_photometry
+
+    if catalog is None:
+        found = find_point_sources(images)
+        if found is None:
+            return None
+        catalog = {"id": found["id"], "sky": found["sky_centroid"]}
+    out = QTable({"id": catalog["id"], "sky": catalog["sky"]})
+    for k, (band, image) in enumerate(images.items()):
+        xy = np.column_stack(image.wcs.world_to_pixel(out["sky"]))
+        if k == 0:  # pixel position on the first band, for reference
+            out["x_pix"], out["y_pix"] = xy[:, 0], xy[:, 1]
+        phot = psf_photometry(image, xy, psf=psf.get(band), warn=False,
+                              oversampling=(oversampling or {}).get(band))
+        out[f"flux_{band}"] = phot["flux"]
+        out[f"flux_err_{band}"] = phot["flux_err"]
+    return out
+
+
+def analyse(images, *, psf=None, estimator="adaptive", sigma_pos="auto", n_bootstrap=1000,
+            snr_threshold=3.0, seed=0, catalogs=None, manual_pairs=None, progress=None,
+            null_realisations=0, oversampling=None):
+    """Run the pipeline from images of two arcs to the duality table.
+
+    Parameters
+    ----------
+    images : dict
+        ``{"L1": {band: CCDData}, "L2": {band: CCDData}}``; every image needs
+        a celestial WCS; the same bands on both arcs.
+    psf : dict of str to PSF, optional
+        Per band, what :func:`~lensdual.photometry.psf_photometry` takes as
+        ``psf`` (a FWHM, a PSF image, or None to fit a Gaussian FWHM).
+    estimator : {"adaptive", "quad2", "quad", "2v"}
+        Size-magnification estimator (default ``"adaptive"``).
+    sigma_pos : "auto" or `~astropy.units.Quantity`
+        Positional error of the bootstrap. ``"auto"`` (default): each point
+        source's own error from the PSF fits (``pos_err1``, ``pos_err2``).
+    n_bootstrap, snr_threshold, seed
+        As in :func:`~lensdual.duality.check_duality`; ``seed`` also seeds
+        the pairing.
+    catalogs : dict of str to `~astropy.table.Table`, optional
+        Point-source lists of the arcs (``id`` and ``sky`` columns) used
+        instead of detection.
+    manual_pairs : `~astropy.table.Table`, optional
+        ``id1``, ``id2`` of the pairs (catalogue ids): manual pairing.
+    progress : object, optional
+        Reports the steps: its ``step(name)`` is a context manager entered
+        around each step (the command line's progress bar). Default: silent.
+    null_realisations : int
+        With ``estimator="adaptive"`` and a value >= 100, also run
+        :func:`~lensdual.duality.null_calibration` with that many
+        realisations: its summary goes to ``meta['duality']['null_calibration']``
+        and its per-pair empirical p-values to column ``p_value_empirical``.
+    oversampling : dict of str to int, optional
+        Per band, the oversampling of its PSF image (see
+        :func:`~lensdual.photometry.psf_photometry`).
+
+    Returns
+    -------
+    `Analysis`
+        The catalogues, the pairing, the duality table, the positional
+        errors used and the warnings raised on the way.
+
+    Raises
+    ------
+    PipelineError
+        No point sources on an arc, or too few pairs.
+    """
+    from .duality import check_duality
+    from .estimators import METHODS
+    from .pairing import pair_constellations
+    from .photometry import measure_pairs
+
+    psf = dict(psf or {})
+    progress = progress or _NoProgress()
+    if estimator not in METHODS:
+        raise ValueError(f"estimator must be one of {list(METHODS)}, got {estimator!r}")
+    n_min = max(METHODS[estimator], _MIN_AUTO_PAIRS if manual_pairs is None else 3)
+    bands = list(images["L1"])
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        cats = {}
+        for arc in ("L1", "L2"):
+            with progress.step(f"detect + photometry {arc}"):
+                given = None if catalogs is None else catalogs[arc]
+                cats[arc] = _catalogue(images[arc], psf, given, oversampling)
+            n_found = 0 if cats[arc] is None else len(cats[arc])
+            if n_found < n_min:
+                hints = [str(w.message) for w in caught
+                         if w.category.__name__ == "NoDetectionsWarning"]
+                raise PipelineError(
+                    f"only {n_found} point source(s) found on arc {arc}: the {estimator} "
+                    f"estimator needs at least {n_min} pairs{_MIN_PAIRS_WHY.get(estimator, '')}"
+                    + (f". The detection said: {hints[-1]}" if hints else ""))
+        to_pair = cats if manual_pairs is not None else {
+            arc: _significant(cat, bands, arc) for arc, cat in cats.items()}
+        with progress.step("pair"):
+            try:
+                pairs = pair_constellations(
+                    to_pair["L1"], to_pair["L2"], ids=manual_pairs, position_columns="sky",
+                    flux_columns=[f"flux_{b}" for b in bands], seed=seed)
+            except ValueError as err:
+                raise PipelineError(f"pairing failed: {err}") from err
+            if len(pairs) < n_min:
+                raise PipelineError(
+                    f"only {len(pairs)} pair(s) found: the {estimator} estimator needs at "
+                    f"least {n_min}{_MIN_PAIRS_WHY.get(estimator, '')}")
+        with progress.step("PSF photometry of the pairs"):
+            measured = measure_pairs(images["L1"], images["L2"], pairs, psf=psf, bands=bands,
+                                     oversampling=oversampling or None)
+        doubt = pairing_doubts(pairs)
+        _drop_non_positive(measured, bands, doubt)
+        if "measured" in measured.colnames:
+            for k in np.flatnonzero(~np.asarray(measured["measured"], dtype=bool)):
+                if not doubt[k]:
+                    doubt[k] = f"not measured ({measured['photometry_note'][k]})"
+        measured["doubt"] = np.array([str(d) for d in doubt], dtype=str)
+        step = (f"mu_size ({estimator})" if estimator == "adaptive"
+                else f"mu_size ({estimator}, {n_bootstrap} bootstraps)")
+        with progress.step(step):
+            if isinstance(sigma_pos, str):
+                sigma = np.vstack([measured["pos_err1"].to_value(u.arcsec),
+                                   measured["pos_err2"].to_value(u.arcsec)]) * u.arcsec
+            else:
+                sigma = sigma_pos
+            result = check_duality(measured, estimator, sigma_pos=sigma,
+                                   n_bootstrap=n_bootstrap, snr_threshold=snr_threshold,
+                                   seed=seed)
+        if null_realisations and estimator == "adaptive":
+            with progress.step(f"null calibration ({null_realisations} realisations)"):
+                _add_null_calibration(result, measured, sigma, null_realisations,
+                                      snr_threshold, seed)
+    messages = list(dict.fromkeys(f"{w.category.__name__}: {w.message}" for w in caught))
+    return Analysis(cats, pairs, result, sigma, messages)
+
+# ---------------------------------------------------------------------------
+# pairing doubts, flags and the verdict
+# ---------------------------------------------------------------------------
+
+
+def format_pairs_table(result):
+    """The per-pair table as printed by the commands.
+
+    Parameters
+    ----------
+    result : `~astropy.table.QTable`
+        The duality table (:func:`~lensdual.duality.check_duality`, e.g.
+        ``Analysis.result``) with the ``id1``, ``id2`` columns of the pairing.
+
+    Returns
+    -------
+    str
+        One line per pair: ids, ``mu_flux`` per band, ``mu_size`` and its
+        error, their ratio, the SNR and the flag (``ANOMALOUS``, ``ok`` or
+        ``untested (why)``), under a header line.
+    """
+    bands = list(result.meta.get("bands", []))
+    head = ["pair", "id1", "id2"] + [f"mu_flux {b}" for b in bands] + [
+        "mu_size", "+-", "ratio", "SNR", "flag"]
+    rows = []
+    for row in result:
+        cells = [str(row["pair_id"]), str(row["id1"]), str(row["id2"])]
+        cells += [_fmt(row[f"mu_flux_{b}"]) for b in bands]
+        cells += [_fmt(row["mu_size"]), _fmt(row["mu_size_err"]),
+                  _fmt(row["duality_ratio"]), _fmt(row["snr"], ".1f"),
+                  _flag(row)]
+        rows.append(cells)
+    widths = [max(len(h), *(len(r[k]) for r in rows)) if rows else len(h)
+              for k, h in enumerate(head)]
+    lines = ["  ".join(h.rjust(w) for h, w in zip(head, widths, strict=True))]
+    lines.append("  ".join("-" * w for w in widths))
+    lines += ["  ".join(c.rjust(w) for c, w in zip(r, widths, strict=True)) for r in rows]
+    return "\n".join(lines)
+
+
+#: A pair is a doubtful pairing when another partner fits about as well (confidence
+#: below this) ...
+_DOUBT_CONFIDENCE = 1e-3
+#: ... or when its offset from the arc-to-arc map exceeds this many robust rms.
+_DOUBT_RESIDUAL = 6.0
+
+
+def pairing_doubts(pairs):
+    """Why each pair of a pairing is doubtful.
+
+    A mis-pair must never look like a sub-halo. The pairing
+    (:func:`~lensdual.pairing.pair_constellations`) gives every pair its
+    offset from the fitted arc-to-arc map (``residual``) and the probability
+    that its partner is the right one (``confidence``). A pair is doubtful
+    when its confidence is below 1e-3 (another partner fits as well: e.g.
+    two swapped ids, or a spurious detection next to the true image), or
+    when its residual exceeds 6 times the robust rms of the pairing (it is
+    off the map: e.g. a manual pair on blank sky). Colours are checked by
+    :func:`~lensdual.duality.check_duality` (``chromatic_alpha``).
+
+    Parameters
+    ----------
+    pairs : `~astropy.table.QTable`
+        A pairing (:func:`~lensdual.pairing.pair_constellations`); without
+        its ``residual`` and ``confidence`` columns no pair is doubtful.
+
+    Returns
+    -------
+    doubt : `~numpy.ndarray` of object
+        Per pair, why it is doubtful, or ``""`` when it is not.
+    """
+    n = len(pairs)
+    doubt = np.array([""] * n, dtype=object)
+    rms = float(pairs.meta.get("rms_robust", np.nan)) if hasattr(pairs, "meta") else np.nan
+    if "residual" in pairs.colnames and np.isfinite(rms) and rms > 0:
+        col = pairs["residual"]
+        res = np.asarray(col.to_value("arcsec") if getattr(col, "unit", None) else col,
+                         dtype=float)
+        with np.errstate(invalid="ignore"):
+            off = res > _DOUBT_RESIDUAL * rms
+        for k in np.flatnonzero(off):
+            doubt[k] = (f"off the arc-to-arc map (residual {1e3 * res[k]:.0f} mas, "
+                        f"{res[k] / rms:.0f} x the pairing's robust rms)")
+    if "confidence" in pairs.colnames:
+        conf = np.asarray(pairs["confidence"], dtype=float)
+        with np.errstate(invalid="ignore"):
+            low = (doubt == "") & (conf < _DOUBT_CONFIDENCE)
+        for k in np.flatnonzero(low):
+            doubt[k] = (f"ambiguous pairing (confidence {conf[k]:.1g}: another partner fits "
+                        "about as well)")
+    return doubt
+
+
+#: Automatic pairing uses only candidates whose PSF flux is at least this many sigma
+#: in some band: blank-sky detections would otherwise drown the constellation's
+#: triangles (and become spurious pairs).
+_MIN_CANDIDATE_SNR = 3.0
+
+
+def _significant(cat, bands, arc):
+    """The rows of a catalogue significant in at least one band (warning for the rest)."""
+    from .exceptions import LensdualWarning
+
+    snr = np.zeros(len(cat))
+    for band in bands:
+        f = np.asarray(getattr(cat[f"flux_{band}"], "value", cat[f"flux_{band}"]), float)
+        e = np.asarray(getattr(cat[f"flux_err_{band}"], "value", cat[f"flux_err_{band}"]),
+                       float)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            snr = np.fmax(snr, np.where(np.isfinite(f / e), f / e, 0.0))
+    keep = snr >= _MIN_CANDIDATE_SNR
+    if not keep.all():
+        warnings.warn(f"arc {arc}: {int((~keep).sum())} candidate(s) below {_MIN_CANDIDATE_SNR:g} "
+                      f"sigma in every band left out of the automatic pairing (ids "
+                      f"{np.asarray(cat['id'])[~keep].tolist()[:20]})", LensdualWarning,
+                      stacklevel=2)
+    return cat[keep]
+
+
+def _drop_non_positive(measured, bands, doubt):
+    """A non-positive PSF flux (blank sky, a spurious candidate) is no flux: NaN in that
+    band, and the pair is doubtful (in place)."""
+    for band in bands:
+        for arc in ("1", "2"):
+            flux = measured[f"flux{arc}_{band}"]
+            values = np.asarray(getattr(flux, "value", flux), dtype=float)
+            with np.errstate(invalid="ignore"):
+                bad = np.isfinite(values) & (values <= 0)
+            for k in np.flatnonzero(bad):
+                if not doubt[k]:
+                    doubt[k] = (f"non-positive flux on L{arc} in {band} ({values[k]:.3g}): "
+                                "blank sky or a spurious detection")
+            if bad.any():
+                for col in (f"flux{arc}_{band}", f"flux_err{arc}_{band}"):
+                    measured[col][bad] = np.nan * getattr(measured[col], "unit", 1)
+
+
+def _flag(row):
+    """The flag column of the printed table: ANOMALOUS, ok, or why a pair is untested."""
+    if row["anomalous"]:
+        return "ANOMALOUS"
+    if "tested" in row.colnames and not row["tested"]:
+        return f"untested ({_untested_reason(row)})"
+    return "ok"
+
+
+def _untested_reason(row):
+    if "doubt" in row.colnames and str(row["doubt"]):
+        return "doubtful pairing"
+    status = str(row["mu_size_status"]) if "mu_size_status" in row.colnames else ""
+    if not np.isfinite(float(row["mu_size"])):
+        return "no mu_size"
+    if status in ("untestable", "failed"):
+        return f"mu_size {status}"
+    if not np.isfinite(float(row["mu_flux"])):
+        return "no flux ratio"
+    return "no SNR"
+
+
+def verdict(result, sigma_pos):
+    """One paragraph on which pairs break duality, and how strongly.
+
+    Parameters
+    ----------
+    result : `~astropy.table.QTable`
+        The duality table (:func:`~lensdual.duality.check_duality`, e.g.
+        ``Analysis.result``).
+    sigma_pos : `~astropy.units.Quantity`
+        The positional errors used (``Analysis.sigma_pos``): a scalar or one
+        per point source.
+
+    Returns
+    -------
+    str
+        The verdict: what was measured and how, the pairs that could not be
+        tested and why, the calibration of the family of tests, and each pair
+        that breaks duality.
+    """
+    meta = result.meta.get("duality", {})
+    bands = list(result.meta.get("bands", []))
+    threshold = meta.get("snr_threshold", 3.0)
+    sig = np.asarray(u.Quantity(sigma_pos, u.arcsec).to_value(u.mas))
+    if sig.size > 1:
+        sig_text = f"positional errors from the PSF fits (median {np.median(sig):.1f} mas)"
+    else:
+        sig_text = f"sigma_pos = {float(sig):.1f} mas"
+    method = meta.get("method", "?")
+    errors = ("analytic errors that include the estimator's truncation error"
+              if method == "adaptive" else
+              f"{meta.get('n_bootstrap', '?')} bootstrap realisations (position noise only)")
+    text = (f"{len(result)} point-source pairs were measured on arcs L1 and L2 in "
+            f"{len(bands)} band{'s' if len(bands) != 1 else ''} ({', '.join(bands)}). "
+            f"Size magnifications from the {method} estimator with "
+            f"{sig_text} and {errors}; a pair is "
+            f"anomalous when |ln(mu_flux/mu_size)| exceeds {threshold:g} times its error. ")
+    if "tested" in result.colnames:
+        n_tested = int(np.count_nonzero(result["tested"]))
+        untested = result[~np.asarray(result["tested"], dtype=bool)]
+    else:
+        n_tested, untested = meta.get("n_tested", len(result)), result[:0]
+    if len(untested):
+        reasons = {}
+        for row in untested:
+            reasons.setdefault(_untested_reason(row), []).append(str(row["pair_id"]))
+        listed = "; ".join(f"{why}: pair{'s' if len(ids) > 1 else ''} {', '.join(ids)}"
+                           for why, ids in reasons.items())
+        text += (f"{len(untested)} pair(s) could not be tested and are NOT passes "
+                 f"(column 'tested'; {listed}). ")
+        doubtful = untested[[bool(str(d)) for d in untested["doubt"]]] if "doubt" in \
+            untested.colnames else untested[:0]
+        if len(doubtful):
+            text += ("Doubtful pairings are left out of the size magnification of the other "
+                     "pairs and never counted as anomalies: "
+                     + "; ".join(f"pair {r['pair_id']} ({r['id1']}, {r['id2']}): {r['doubt']}"
+                                 for r in doubtful) + ". ")
+    if method != "adaptive" and len(result) < _FEW_PAIRS:
+        text += (f"WARNING: only {len(result)} pairs: the {method} estimator then fits one "
+                 "nearly global map (mu_size almost the same for every pair) and its error "
+                 "holds the position noise only, not the map's curvature, so its flags are "
+                 f"not calibrated. Use at least {_FEW_PAIRS} pairs and the adaptive "
+                 "estimator. ")
+    bad = result[np.asarray(result["anomalous"], dtype=bool)]
+    text += _calibration_sentence(len(bad), n_tested, meta)
+    if len(bad) == 0:
+        if n_tested == 0:
+            text += ("No pair could be tested, so the data say nothing about geometrical "
+                     "duality here: no conclusion on sub-haloes.")
+        elif len(untested):
+            text += (f"No pair breaks geometrical duality among the {n_tested} tested: no "
+                     "sub-halo is detected near them; the untested pairs are no evidence "
+                     "either way.")
+        else:
+            text += ("No pair breaks geometrical duality: flux and size magnifications agree "
+                     "everywhere, so no sub-halo is detected near these point sources.")
+        return text
+    parts = []
+    for row in bad:
+        ratio = float(row["duality_ratio"])
+        if ratio > 1:
+            how = f"its L1 image is {ratio - 1:.0%} brighter, relative to L2,"
+        else:
+            how = f"its L2 image is {1 / ratio - 1:.0%} brighter, relative to L1,"
+        parts.append(f"pair {row['pair_id']} (mu_flux = {_fmt(row['mu_flux'])} +- "
+                     f"{_fmt(row['mu_flux_err'])}, mu_size = {_fmt(row['mu_size'])} +- "
+                     f"{_fmt(row['mu_size_err'])}, ratio {_fmt(ratio, '.2f')}, SNR "
+                     f"{_fmt(row['snr'], '.1f')}: {how} than the geometry allows)")
+    n_bad = len(bad)
+    text += (f"{n_bad} pair{'s break' if n_bad > 1 else ' breaks'} geometrical duality: "
+             + "; ".join(parts) + ". A flux anomaly at fixed geometry is the signature of "
+             "unseen sub-structure (a sub-halo) near one of the two images. "
+             f"The other {n_tested - n_bad} tested pairs agree with duality.")
+    return text
+
+
+def _add_null_calibration(result, measured, sigma, n_realisations, snr_threshold, seed):
+    """Run the null calibration and record it in ``result`` (in place)."""
+    from .duality import null_calibration
+
+    null = null_calibration(measured, sigma_pos=sigma, n_realisations=n_realisations,
+                            snr_threshold=snr_threshold, seed=seed)
+    result["p_value_empirical"] = null["p_value_empirical"]
+    keys = ("n_realisations", "false_alarm_rate", "nominal_false_alarm_rate",
+            "expected_false_flags", "p_any_false_flag", "family_wise_p_empirical",
+            "map_degree", "map_chi2_dof")
+    result.meta["duality"]["null_calibration"] = {k: null.meta[k] for k in keys}
+
+
+def _percent(p):
+    """A probability as a percentage, '< 0.01 %' below 1e-4."""
+    if not np.isfinite(p):
+        return "undefined"
+    return "< 0.01%" if p < 1e-4 else f"{100 * p:.2g}%"
+
+
+def _calibration_sentence(n_bad, n_tested, meta):
+    """'k pairs of N flagged; the chance of at least one such flag without any sub-halo...'."""
+    if "p_any_false_flag" not in meta:
+        return ""
+    text = (f"{n_bad} pair{'s' if n_bad != 1 else ''} of {n_tested} tested flagged "
+            f"(expected without any sub-halo: {meta['expected_false_flags']:.2g}); ")
+    if n_bad:
+        text += (f"the chance of at least one flag as strong without any sub-halo is "
+                 f"{_percent(meta['family_wise_p'])}. ")
+    else:
+        text += (f"the chance of at least one flag without any sub-halo is "
+                 f"{_percent(meta['p_any_false_flag'])}. ")
+    null = meta.get("null_calibration")
+    if null:
+        floor = (" (the smallest p-value this many realisations can give)"
+                 if null["family_wise_p_empirical"] <= 1.5 / null["n_realisations"] else "")
+        text += (f"On {null['n_realisations']} simulated clean constellations like this one "
+                 f"(null calibration) {null['false_alarm_rate']:.2%} of pairs were flagged "
+                 f"(nominal {null['nominal_false_alarm_rate']:.2%}), "
+                 f"{null['p_any_false_flag']:.1%} of them had at least one flag, and a flag "
+                 f"as strong as the strongest here occurred in "
+                 f"{_percent(null['family_wise_p_empirical'])}{floor}. ")
+    return text
+
+
+def format_report(analysis, extra=()):
+    """The report the commands print and write to ``report.txt``.
+
+    Parameters
+    ----------
+    analysis : `Analysis`
+        What :func:`analyse` found.
+    extra : sequence of str, optional
+        Paragraphs appended after the verdict (empty ones are skipped).
+
+    Returns
+    -------
+    str
+        The pairs table (:func:`format_pairs_table`), the :func:`verdict`,
+        the extra paragraphs and the warnings raised on the way.
+    """
+    parts = [format_pairs_table(analysis.result), "", verdict(analysis.result,
+                                                             analysis.sigma_pos)]
+    parts += [p for p in extra if p]
+    if analysis.warnings:
+        parts += ["", "Warnings raised on the way:"] + [f"  {w}" for w in analysis.warnings]
+    return "\n".join(parts)
+
+
+def _parametric_paragraph(table):
+    """The report's paragraph on a parametric comparison table."""
+    meta = table.meta.get("parametric", {})
+    parts = []
+    if meta.get("fit_model"):
+        parts.append(f"A parametric lenstronomy fit ({' + '.join(meta['fit_model'])}, "
+                     f"chi2 = {meta.get('chi2', float('nan')):.1f} for {meta.get('dof')} "
+                     f"degrees of freedom at sigma_pos = {meta.get('sigma_pos', 0) * 1e3:.0f} "
+                     "mas)")
+    if meta.get("lenstool"):
+        parts.append(f"the Lenstool model {Path(meta['lenstool']).name}")
+    text = " and ".join(parts) + " predicted |mu(L1)/mu(L2)| for every pair"
+    text = text[0].upper() + text[1:]
+    model_label = "the fitted model" if meta.get("fit_model") else "the Lenstool model"
+    for col, label in (("anomalous_model", model_label),
+                       ("anomalous_lenstool", "the Lenstool model")):
+        if col in table.colnames:
+            ids = [str(i) for i in table["pair_id"][np.asarray(table[col], dtype=bool)]]
+            text += (f"; against {label}, {len(ids)} pair(s) break duality"
+                     + (f" ({', '.join(ids)})" if ids else ""))
+    return text + " (parametric.ecsv, parametric.png)."
+
+# ---------------------------------------------------------------------------
+# the catalogue-only (knots) analysis
+# ---------------------------------------------------------------------------
 
 
 @dataclass(frozen=True)
 class KnotAnalysis:
     """Result of :func:`analyse_knots`.
 
-    Attributes
+    Parameters
     ----------
     knot_pairs : `~lensdual.pairing.KnotPairs`
         The pairs tables and the fate of every knot image.
@@ -49,8 +626,6 @@ class KnotAnalysis:
 
 
 def _model_name(path, taken):
-    from pathlib import Path
-
     p = Path(path)
     name = "".join(c if c.isalnum() else "_" for c in (p.parent.name or p.stem)) or "model"
     base, k = name, 2
@@ -89,6 +664,8 @@ def analyse_knots(catalogue, macro_images, *, knots=None, assign=None, mapping=N
     Returns
     -------
     `KnotAnalysis`
+        The pairs of every pair of macro-images, their ``mu_size`` and, with
+        models, the models' ratios.
 
     Examples
     --------
@@ -165,8 +742,19 @@ def analyse_knots(catalogue, macro_images, *, knots=None, assign=None, mapping=N
 
 
 def knot_report(analysis):
-    """A text report of a `KnotAnalysis`: assignment, then one block per pair of
-    macro-images with every knot's ``mu_size`` and model ratios."""
+    """A text report of a `KnotAnalysis`.
+
+    Parameters
+    ----------
+    analysis : `KnotAnalysis`
+        What :func:`analyse_knots` found.
+
+    Returns
+    -------
+    str
+        The assignment of the knot images, then one block per pair of
+        macro-images with every knot's ``mu_size`` and model ratios.
+    """
     lines = [analysis.knot_pairs.summary()]
     for key, tab in analysis.tables.items():
         sigma = analysis.sigma_pos[key]

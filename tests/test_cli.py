@@ -147,6 +147,45 @@ def test_run_reproduces_the_demo(demo_dir, tmp_path):
                                    rtol=1e-6, err_msg=name)
 
 
+def test_the_demo_from_python_gives_the_command_s_report(demo_dir):
+    """lensdual.demo and lensdual.pipeline, called from Python without the command line,
+    give the demo command's pairs table and report for the same settings."""
+    from lensdual.demo import compare_with_truth, render_demo, simulate_demo, truth_paragraph
+    from lensdual.pipeline import Analysis, analyse, format_pairs_table, format_report
+
+    system, truth = simulate_demo(n_sources=8, seed=3)
+    demo = render_demo(system, truth, seed=3)
+    analysis = analyse(demo.images, psf=demo.psf, n_bootstrap=200, seed=3,
+                       null_realisations=200)
+    assert isinstance(analysis, Analysis)
+    comparison = compare_with_truth(analysis.result, truth, demo.centre)
+    report = (demo_dir / "report.txt").read_text()
+    assert report.startswith(format_pairs_table(analysis.result) + "\n")
+    assert report == format_report(analysis, ["", truth_paragraph(comparison)]) + "\n"
+    table = QTable.read(demo_dir / "pairs.ecsv", format="ascii.ecsv")
+    assert list(table["pair_id"]) == list(analysis.result["pair_id"])
+    for name in ("mu_size", "mu_size_err", "mu_flux", "snr"):
+        np.testing.assert_allclose(np.asarray(table[name]), np.asarray(analysis.result[name]),
+                                   rtol=1e-12, err_msg=name)
+
+
+def test_pipeline_names_stay_importable_from_the_cli():
+    import lensdual.cli as cli
+    import lensdual.demo
+    import lensdual.pipeline
+
+    for name in ("analyse", "Analysis", "PipelineError", "verdict", "format_pairs_table",
+                 "pairing_doubts"):
+        assert getattr(cli, name) is getattr(lensdual.pipeline, name), name
+    for name in ("simulate_demo", "compare_with_truth", "DEMO_SUBHALOES", "DEMO_BANDS"):
+        assert getattr(cli, name) is getattr(lensdual.demo, name), name
+    # bad settings fail before any work
+    with pytest.raises(ValueError, match="estimator must be one of"):
+        lensdual.pipeline.analyse({"L1": {}, "L2": {}}, estimator="quad3")
+    with pytest.raises(ValueError, match="between 3 and 18"):
+        lensdual.demo.simulate_demo(n_sources=2)
+
+
 def test_run_default_outdir_is_relative_to_the_config(demo_dir, tmp_path):
     import shutil
 

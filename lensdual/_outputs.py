@@ -1,0 +1,235 @@
+"""The files of the ``lensdual`` commands: the output directory and what goes in it.
+
+Every command writes into a temporary sibling of its output directory and moves
+the files there only once all of them have been written
+(:func:`atomic_directory`); a manifest lists what lensdual wrote, so that stale
+outputs of an earlier run can be removed without touching other files.
+"""
+
+import os
+import shutil
+import tempfile
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+
+#: The file in an output directory that lists what lensdual wrote there.
+MANIFEST = ".lensdual-outputs"
+#: lensdual's own output names, recognised without a manifest (older versions).
+KNOWN_OUTPUTS = ("pairs.ecsv", "catalog_L1.ecsv", "catalog_L2.ecsv", "pairing_map.png",
+                  "duality.png", "report.txt", "parametric.ecsv", "parametric.png",
+                  "truth_comparison.ecsv", "run.toml", "knot_images.ecsv", "pairs.reg",
+                  "sources_L1.reg", "sources_L2.reg", "constellation.png")
+
+
+def earlier_outputs(outdir):
+    """Files of ``outdir`` that an earlier lensdual run wrote (relative paths)."""
+    manifest = outdir / MANIFEST
+    if manifest.is_file():
+        names = [line.strip() for line in manifest.read_text().splitlines() if line.strip()]
+        return [n for n in names if (outdir / n).is_file() and ".." not in Path(n).parts]
+    found = [n for n in KNOWN_OUTPUTS if (outdir / n).is_file()]
+    found += sorted(p.name for p in outdir.glob("knots_*.ecsv"))
+    found += sorted(p.name for p in outdir.glob("knots_*.png"))
+    return found
+
+
+def check_output_directory(outdir):
+    """Fail early, before any analysis, when ``outdir`` cannot be written.
+
+    Raises
+    ------
+    OSError
+        ``outdir`` (or a parent) is not a directory, cannot be created, or
+        is not writable; the message names the path.
+    """
+    outdir = Path(outdir)
+    if outdir.exists() and not outdir.is_dir():
+        raise NotADirectoryError(f"output directory {outdir} exists and is not a directory")
+    parent = outdir.resolve().parent
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+        probe = Path(tempfile.mkdtemp(prefix=f".{outdir.name}.probe-", dir=parent))
+        probe.rmdir()
+    except OSError as err:
+        raise OSError(f"cannot write the output directory {outdir}: {err.strerror or err} "
+                      f"(in {parent}); choose another --outdir") from None
+    if outdir.exists() and not os.access(outdir, os.W_OK | os.X_OK):
+        raise PermissionError(f"output directory {outdir} is not writable; choose another "
+                              "--outdir")
+
+
+@contextmanager
+def atomic_directory(outdir, removed=None):
+    """Write into a temporary sibling of ``outdir``; move the files there on success.
+
+    Nothing is left in ``outdir`` when the block raises: files already there
+    are only replaced once every output has been written. Then lensdual's own
+    outputs of an earlier run that this run did not write again are removed
+    (their names are appended to ``removed``), so that no stale file sits
+    next to new ones; other files are never touched.
+    """
+    outdir = Path(outdir)
+    parent = outdir.resolve().parent
+    parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{outdir.name}.partial-", dir=parent))
+    try:
+        yield tmp
+        outdir.mkdir(parents=True, exist_ok=True)
+        written = sorted(str(p.relative_to(tmp)) for p in tmp.rglob("*") if p.is_file())
+        stale = [n for n in earlier_outputs(outdir) if n not in written]
+        for path in sorted(tmp.rglob("*")):
+            target = outdir / path.relative_to(tmp)
+            if path.is_dir():
+                target.mkdir(parents=True, exist_ok=True)
+            else:
+                os.replace(path, target)
+        for name in stale:
+            (outdir / name).unlink(missing_ok=True)
+        if removed is not None:
+            removed.extend(stale)
+        (outdir / MANIFEST).write_text("\n".join(written) + "\n")
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def write_table(table, path):
+    """Write ``table`` as ECSV to ``path`` (replacing it)."""
+    table.write(path, format="ascii.ecsv", overwrite=True)
+
+
+def write_figures(analysis, directory, *, title, images=None):
+    """The pairing map, the duality figure and (with ``images``) the pairs on both arcs."""
+    import matplotlib
+
+    if matplotlib.get_backend().lower() not in ("agg", "pdf", "svg", "cairo"):
+        matplotlib.use("agg")
+    import matplotlib.pyplot as plt
+
+    from .visualization import plot_duality, plot_pairing_map
+
+    fig, ax = plt.subplots(figsize=(5.5, 5.5))
+    plot_pairing_map(analysis.pairs, analysis.catalogs["L1"], analysis.catalogs["L2"], ax=ax)
+    ax.set_title(f"{title}: pairing (L1 rotated onto L2)", fontsize="medium")
+    fig.tight_layout()
+    fig.savefig(directory / "pairing_map.png", dpi=120)
+    plt.close(fig)
+    if images is not None:
+        from .visualization import plot_arc_images
+
+        fig = plot_arc_images(images, analysis.result)
+        fig.suptitle(f"{title}: the pairs on both arcs", fontsize="medium")
+        fig.savefig(directory / "constellation.png", dpi=110)
+        plt.close(fig)
+    fig, ax = plt.subplots(figsize=(5.5, 5.5))
+    plot_duality(analysis.result, ax=ax, title=f"{title}: duality test")
+    fig.tight_layout()
+    fig.savefig(directory / "duality.png", dpi=120)
+    plt.close(fig)
+
+
+def write_regions(analysis, directory):
+    """DS9 region files: the pairs (numbered, with lines) and each arc's detections."""
+    from .visualization import ds9_regions
+
+    regions = ds9_regions(analysis.result, analysis.catalogs)
+    regions["pairs"].write(str(directory / "pairs.reg"), format="ds9", overwrite=True)
+    for arc in ("L1", "L2"):
+        if arc in regions:
+            regions[arc].write(str(directory / f"sources_{arc}.reg"), format="ds9",
+                               overwrite=True)
+
+
+def write_analysis(analysis, directory, report_text, *, title, images=None):
+    """Catalogues, pairs table, DS9 regions, figures and report of an analysis."""
+    for arc, cat in analysis.catalogs.items():
+        write_table(cat, directory / f"catalog_{arc}.ecsv")
+    write_table(analysis.result, directory / "pairs.ecsv")
+    write_regions(analysis, directory)
+    write_figures(analysis, directory, title=title, images=images)
+    (directory / "report.txt").write_text(report_text + "\n")
+
+
+def parametric_outputs(analysis, directory, *, lenstool=None, fit=False, model=None,
+                       z_lens=None, z_source=None, sigma_pos=0.01, centre=None, seed=0,
+                       fit_kwargs=None):
+    """The parametric comparison: table and figure into ``directory``."""
+    import astropy.units as u
+    import matplotlib.pyplot as plt
+
+    from .parametric import parametric_comparison
+
+    kwargs = {"lenstool": lenstool, "fit": fit, "z_lens": z_lens, "z_source": z_source,
+              "seed": seed, "centre": centre,
+              "fit_kwargs": {"sigma_pos": u.Quantity(sigma_pos, u.arcsec),
+                             **(fit_kwargs or {})}}
+    if model is not None:
+        kwargs["model"] = tuple(model)
+    table, fig = parametric_comparison(analysis.result, **kwargs)
+    write_table(table, directory / "parametric.ecsv")
+    fig.savefig(directory / "parametric.png", dpi=120)
+    plt.close(fig)
+    return table
+
+
+def write_run_inputs(mocks, directory, *, estimator, n_bootstrap, snr_threshold, seed,
+                     centre, parametric=False, null_realisations=0, fit_settings=None):
+    """FITS images, error maps and PSFs of the mocks, and a config that reads them.
+
+    ``fit_settings`` (with ``sigma_pos`` and ``fix_centre``) are the demo's
+    parametric-fit settings written to ``[parametric]`` when ``parametric``.
+    """
+    from astropy.io import fits
+
+    data = directory / "data"
+    data.mkdir(parents=True, exist_ok=True)
+    config = {
+        "output": {"outdir": "run-output"},
+        "analysis": {"estimator": estimator, "sigma_pos": "auto",
+                     "n_bootstrap": int(n_bootstrap), "snr_threshold": float(snr_threshold),
+                     "seed": int(seed), "null_realisations": int(null_realisations)},
+        "bands": {}, "arcs": {"L1": {}, "L2": {}},
+    }
+    for (arc, band), image in mocks.items():
+        header = image.wcs.to_header()
+        header["BUNIT"] = image.unit.to_string()
+        header["BAND"] = band
+        fits.writeto(data / f"{arc}_{band}_sci.fits", np.asarray(image.data, dtype=float),
+                     header, overwrite=True)
+        fits.writeto(data / f"{arc}_{band}_err.fits",
+                     np.asarray(image.uncertainty.array, dtype=float), header, overwrite=True)
+        config["arcs"][arc][band] = {"image": f"data/{arc}_{band}_sci.fits",
+                                     "error": f"data/{arc}_{band}_err.fits"}
+        if band not in config["bands"]:
+            fits.writeto(data / f"psf_{band}.fits", np.asarray(image.psf, dtype=float),
+                         overwrite=True)
+            config["bands"][band] = {"psf": f"data/psf_{band}.fits"}
+    if parametric:
+        config["parametric"] = {"fit": True, "z_lens": 0.39, "z_source": 2.2,
+                                "sigma_pos": f"{fit_settings['sigma_pos']} arcsec",
+                                "centre": f"{centre.ra.deg:.7f} {centre.dec.deg:.7f}",
+                                "fix_centre": bool(fit_settings.get("fix_centre", False))}
+    header = ("lensdual run configuration written by `lensdual demo --write-config`:\n"
+              "the demo's mock images as FITS files (science, error map, PSF),\n"
+              "analysed with the demo's settings. Run it with\n"
+              "    lensdual run run.toml\n"
+              "Relative paths are relative to this file.")
+    return config, header
+
+
+def write_knot_figure(table, path):
+    """``mu_size`` against the models' ratios of one knot table, as a PNG."""
+    import matplotlib
+
+    if matplotlib.get_backend().lower() not in ("agg", "pdf", "svg", "cairo"):
+        matplotlib.use("agg")
+    import matplotlib.pyplot as plt
+
+    from .parametric import plot_size_vs_model
+
+    fig, ax = plt.subplots(figsize=(5.5, 5.5))
+    plot_size_vs_model(table, ax=ax)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
