@@ -263,8 +263,10 @@ def format_pairs_table(result):
     -------
     str
         One line per pair: ids, ``mu_flux`` per band, ``mu_size`` and its
-        error, their ratio, the SNR and the flag (``ANOMALOUS``, ``ok`` or
-        ``untested (why)``), under a header line.
+        error, their ratio, the significance (the Gaussian-equivalent SNR
+        the flag is set on, see :func:`~lensdual.duality.check_duality`) and
+        the flag (``ANOMALOUS``, ``ok`` or ``untested (why)``), under a
+        header line.
     """
     bands = list(result.meta.get("bands", []))
     head = ["pair", "id1", "id2"] + [f"mu_flux {b}" for b in bands] + [
@@ -274,7 +276,7 @@ def format_pairs_table(result):
         cells = [str(row["pair_id"]), str(row["id1"]), str(row["id2"])]
         cells += [_fmt(row[f"mu_flux_{b}"]) for b in bands]
         cells += [_fmt(row["mu_size"]), _fmt(row["mu_size_err"]),
-                  _fmt(row["duality_ratio"]), _fmt(row["snr"], ".1f"),
+                  _fmt(row["duality_ratio"]), _fmt(_significance(row), ".1f"),
                   _flag(row)]
         rows.append(cells)
     widths = [max(len(h), *(len(r[k]) for r in rows)) if rows else len(h)
@@ -380,6 +382,21 @@ def _drop_non_positive(measured, bands, doubt):
             if bad.any():
                 for col in (f"flux{arc}_{band}", f"flux_err{arc}_{band}"):
                     measured[col][bad] = np.nan * getattr(measured[col], "unit", 1)
+
+
+def _significance(row):
+    """The Gaussian-equivalent SNR a flag is set on (the SNR for older tables)."""
+    return row["significance"] if "significance" in row.colnames else row["snr"]
+
+
+def _snr_words(row):
+    """"SNR 4.1", or with a Student's t error "SNR 4.1 (3.2 sigma, t with 6 dof)"."""
+    snr = float(row["snr"])
+    dof = float(row["snr_dof"]) if "snr_dof" in row.colnames else np.inf
+    if not np.isfinite(dof):
+        return f"SNR {_fmt(snr, '.1f')}"
+    return (f"SNR {_fmt(snr, '.1f')} ({_fmt(_significance(row), '.1f')} sigma: its size error "
+            f"is estimated, Student's t with {dof:.0f} degrees of freedom)")
 
 
 def _flag(row):
@@ -489,8 +506,8 @@ def verdict(result, sigma_pos):
             how = f"its L2 image is {1 / ratio - 1:.0%} brighter, relative to L1,"
         parts.append(f"pair {row['pair_id']} (mu_flux = {_fmt(row['mu_flux'])} +- "
                      f"{_fmt(row['mu_flux_err'])}, mu_size = {_fmt(row['mu_size'])} +- "
-                     f"{_fmt(row['mu_size_err'])}, ratio {_fmt(ratio, '.2f')}, SNR "
-                     f"{_fmt(row['snr'], '.1f')}: {how} than the geometry allows)")
+                     f"{_fmt(row['mu_size_err'])}, ratio {_fmt(ratio, '.2f')}, "
+                     f"{_snr_words(row)}: {how} than the geometry allows)")
     n_bad = len(bad)
     text += (f"{n_bad} pair{'s break' if n_bad > 1 else ' breaks'} geometrical duality: "
              + "; ".join(parts) + ". A flux anomaly at fixed geometry is the signature of "

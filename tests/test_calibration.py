@@ -296,3 +296,15 @@ def test_chi2_critical_values():
     crit = _chi2_critical(5)
     assert crit.shape == (11,) and np.isinf(crit[0])
     np.testing.assert_allclose(crit[1:], chi2.isf(0.05, np.arange(1, 11)))
+
+
+def test_report_words_for_student_t_pairs():
+    """The report states the significance a flag is set on, and why it is below the SNR."""
+    from lensdual.pipeline import _significance, _snr_words
+
+    tab = QTable({"snr": [4.0, 4.0], "snr_dof": [np.inf, 6.0],
+                  "significance": [4.0, float(duality_significance(4.0, 6.0))]})
+    assert _snr_words(tab[0]) == "SNR 4.0"
+    words = _snr_words(tab[1])
+    assert words.startswith("SNR 4.0 (2.7 sigma") and "6 degrees of freedom" in words
+    assert _significance(tab[1]) == tab["significance"][1]
