@@ -6,7 +6,7 @@ Run on demand (not part of the test suite)::
                                           [--no-error]
 
 Builds, in process and without FITS files, what ``lensdual run`` hands to
-:func:`lensdual.cli.analyse`: two arcs x two bands of ``size x size`` float64
+:func:`lensdual.pipeline.analyse`: two arcs x two bands of ``size x size`` float64
 `~astropy.nddata.CCDData` (nJy) with a TAN WCS, Gaussian sky noise (sigma 1,
 sky subtracted), a faint smooth arc in a region of about 600 x 600 pixels, 20
 Gaussian point sources along it and, unless ``--no-error``, an error map
@@ -16,11 +16,11 @@ Each case runs in a fresh subprocess (so that neither the Numba compilation
 of the previous case nor its freed memory counts):
 
 * ``detect``: :func:`lensdual.detection.find_point_sources` on each arc's
-  dict of bands (as ``cli._catalogue``);
+  dict of bands (as ``pipeline._catalogue``);
 * ``photometry``: :func:`lensdual.photometry.psf_photometry` of every band of
-  each arc at the true source positions (as ``cli._catalogue``), then
+  each arc at the true source positions (as ``pipeline._catalogue``), then
   :func:`lensdual.photometry.measure_pairs` of the 20 true pairs (as
-  ``cli.analyse``);
+  ``pipeline.analyse``);
 * ``run``: both, in that order (the pipeline's image work).
 
 Printed per case: the peak resident set size of the whole process
