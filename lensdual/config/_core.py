@@ -127,7 +127,7 @@ from astropy.nddata.utils import NoOverlapError
 from astropy.table import Table
 from astropy.wcs import WCS, FITSFixedWarning
 
-from .estimators import METHODS
+from ..estimators import METHODS
 
 __all__ = [
     "ConfigError",
@@ -1394,7 +1394,7 @@ class _Validator:
         if not value:
             self.add("[parametric] model: the list of profiles is empty")
             return _BAD
-        from .parametric.fitting import PROFILE_DEFAULTS
+        from ..parametric.fitting import PROFILE_DEFAULTS
 
         bad = [name for name in value if name not in PROFILE_DEFAULTS]
         for name in bad:
@@ -1651,7 +1651,7 @@ def _sky_noise(data, err, mask):
 
 def _sky_scale(data, err, mask, where):
     """The factor that makes ``err`` match the image's own sky noise (with a warning)."""
-    from .exceptions import LensdualWarning
+    from ..exceptions import LensdualWarning
 
     std, quoted = _sky_noise(data, err, mask)
     factor = std / quoted if np.isfinite(quoted) else 1.0
@@ -1674,7 +1674,7 @@ def _read_map(path, hdu, slices, unit=None):
 
 def _check_noise(data, err, mask, where):
     """Warn when the error map disagrees with the image's own sky noise by > _NOISE_FACTOR."""
-    from .exceptions import LensdualWarning
+    from ..exceptions import LensdualWarning
 
     if np.count_nonzero(~mask & np.isfinite(err)) < 100:
         return
