@@ -2,6 +2,7 @@
 
 import warnings
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
 from datetime import UTC, datetime
 
 import numpy as np
@@ -40,14 +41,16 @@ def _readonly(array):
     return view
 
 
+@dataclass(kw_only=True, eq=False, repr=False)
 class PointSourceMap:
     """Output of :class:`PointSourceFilter`: the candidate map and its ingredients.
 
     All maps have the common shape of the input bands. Instances are created
     by :class:`PointSourceFilter`; the arrays are fresh (never views of the
-    inputs) and may be modified by the caller.
+    inputs) and may be modified by the caller. Every parameter is also an
+    attribute of the same name.
 
-    Attributes
+    Parameters
     ----------
     bands : tuple of str
         Band names, in input order (``"0"``, ``"1"``, ... for a sequence).
@@ -91,38 +94,20 @@ class PointSourceMap:
         The WCS of the first band that has one.
     """
 
-    def __init__(
-        self,
-        *,
-        bands,
-        candidates,
-        normalized,
-        coadded,
-        residuals,
-        means,
-        flag_levels,
-        noise,
-        floor,
-        snr_level,
-        units,
-        unit,
-        wcs,
-        low_levels=None,
-    ):
-        self.bands = bands
-        self.low_levels = {} if low_levels is None else low_levels
-        self.candidates = candidates
-        self.normalized = normalized
-        self.coadded = coadded
-        self.residuals = residuals
-        self.means = means
-        self.flag_levels = flag_levels
-        self.noise = noise
-        self.floor = floor
-        self.snr_level = snr_level
-        self.units = units
-        self.unit = unit
-        self.wcs = wcs
+    bands: tuple
+    candidates: np.ndarray
+    normalized: np.ndarray
+    coadded: np.ndarray
+    residuals: dict
+    means: dict
+    flag_levels: dict
+    noise: dict
+    floor: float
+    snr_level: float
+    units: dict
+    unit: object
+    wcs: object
+    low_levels: dict = field(default_factory=dict)
 
     @property
     def shape(self):

@@ -856,6 +856,13 @@ class LenstoolModel:
 
     Made by :func:`read_lenstool`; not meant to be built by hand.
 
+    Parameters
+    ----------
+    path, origin, cosmology, z_lens, potentials, fitted_redshifts, reference_mode, meta
+        The attributes of the same names (keyword-only).
+    ignored : `~astropy.table.Table` or None
+        Becomes ``ignored_keywords``.
+
     Attributes
     ----------
     path : `~pathlib.Path`

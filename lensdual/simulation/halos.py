@@ -37,7 +37,7 @@ _MCR_PIVOT = 1e12
 class LensComponent:
     """One lens profile: a lenstronomy profile name and its keyword arguments.
 
-    Attributes
+    Parameters
     ----------
     profile : str
         lenstronomy profile name (e.g. ``"TNFW"``).
@@ -103,6 +103,17 @@ def nfw_angular_parameters(mass, concentration, *, z_lens, z_source, cosmology=N
 
     M200 is the mass inside the radius where the mean density is 200 times
     the critical density at ``z_lens`` (lenstronomy's convention, no little h).
+
+    Parameters
+    ----------
+    mass : `~astropy.units.Quantity`
+        M200 (a mass, scalar).
+    concentration : float, "mcr" or None
+        c200; ``None`` or ``"mcr"`` take it from :func:`mass_concentration`.
+    z_lens, z_source : float
+        Redshifts (``z_source > z_lens``).
+    cosmology : `~astropy.cosmology.Cosmology`, optional
+        Defaults to :data:`DEFAULT_COSMOLOGY`.
 
     Returns
     -------
