@@ -1,133 +1,37 @@
-r"""Configuration files of ``lensdual run``: schema, validation and loading.
+"""Loading and validating a ``lensdual run`` configuration: :func:`load_config` and the
+specification classes it returns, :func:`load_images` and :func:`band_psfs`.
 
-A run is described by a TOML file. :func:`load_config` reads it, checks every
-table, key, value and referenced file (FITS headers and HDUs, ECSV columns)
-and returns a :class:`RunConfig`; all the problems it finds are reported
-together in one :class:`ConfigError`. :func:`load_images` then reads the
-images as `~astropy.nddata.CCDData` (with WCS, uncertainty, mask and PSF) and
-:func:`band_psfs` gives the PSF of every band in the form
-:func:`~lensdual.photometry.psf_photometry` accepts. :func:`format_config` and
-:func:`write_config` write a nested dictionary as TOML text.
-
-.. rubric:: The schema
-
-Every table and key below is shown; tables and keys marked optional may be
-left out. Relative paths are relative to the directory of the configuration
-file. Angles are strings of a number and an angular unit (``"0.066 arcsec"``,
-``"10 mas"``, ``"1.2e-5 deg"``). ::
-
-    [output]
-    outdir = "lensdual-output"       # optional; default "lensdual-output"
-
-    [analysis]                       # optional, as is every key in it
-    estimator = "adaptive"           # "adaptive" (default), "2v", "quad" or "quad2"
-    sigma_pos = "auto"               # "auto" (errors of the PSF fits) or an angle > 0
-    n_bootstrap = 1000               # integer >= 10
-    snr_threshold = 3.0              # real > 0
-    seed = 0                         # integer >= 0
-    null_realisations = 0            # 0 (off) or >= 100: null calibration (estimator "adaptive")
-
-    [bands.F150W]                    # one table per band, at least one band
-    psf = "psf_F150W.fits"           # a PSF image (FITS, odd shape, same pixel scale
-    psf_hdu = 0                      #   as the images); psf_hdu: index or EXTNAME
-    [bands.F200W]
-    psf_oversampling = 4             # optional, with psf: its oversampling (default:
-                                     #   the file's OVERSAMP keyword, as WebbPSF writes)
-    psf_fwhm = "0.066 arcsec"        # or the FWHM of a Gaussian PSF (not both);
-                                     # neither: the FWHM is fitted to the sources
-
-    [arcs.L1.F150W]                  # arcs L1 and L2, each with every band of [bands]
-    image = "L1_F150W.fits"          # required; needs a celestial WCS
-    hdu = "SCI"                      # optional index or EXTNAME
-    error = "L1_F150W_err.fits"      # optional 1-sigma error map (same shape), or
-    error_hdu = 1                    # weight = "..." / weight_hdu: an inverse-variance
-                                     # map (not both); an error_hdu (weight_hdu)
-                                     # without error (weight) reads the image's file
-    unit = "nJy"                     # optional; else BUNIT; else dimensionless
-                                     # A pipeline product (JWST *_i2d, HST *_drz/_drc)
-                                     # needs image only: its SCI, ERR (else WHT)
-                                     # extensions are found; MJy/sr with PIXAR_SR
-                                     # becomes nJy per pixel; an exposure-time WHT
-                                     # is scaled to the image's sky noise (warning)
-    [arcs.L1.F200W]
-    image = "L1_F200W.fits"
-    [arcs.L1.cutout]                 # optional, per arc ("cutout" is no band name)
-    center = "110.8 -73.45"          # ICRS; plain numbers are degrees; also
-                                     # "07h23m12s -73d27m00s" or "07:23:12 -73:27:00"
-    size = "6 arcsec"                # or ["6 arcsec", "4 arcsec"] (ny, nx)
-    [arcs.L2.F150W]
-    image = "L2_F150W.fits"
-    [arcs.L2.F200W]
-    image = "L2_F200W.fits"
-
-    [catalogs]                       # optional: skip the detection, use these
-    L1 = "L1_sources.ecsv"           # ECSV: integer 'id' column and a SkyCoord column
-    L2 = "L2_sources.ecsv"           # 'sky' or 'ra', 'dec' columns (deg); both or neither
-
-    [pairing]
-    method = "auto"                  # "auto" (default) or "manual"
-    file = "pairs.ecsv"              # manual only (and then required): ECSV with
-                                     # integer columns id1, id2 (catalogue ids)
-
-    [parametric]                     # optional
-    lenstool = "best.par"            # optional Lenstool parameter file
-    fit = false                      # fit a lenstronomy model to the pairs
-    model = ["NFW_ELLIPSE_CSE", "SHEAR"]   # profiles of the fit (this is the default)
-    z_lens = 0.39                    # required with fit = true or lenstool
-    z_source = 2.2                   # required with fit = true or lenstool; > z_lens
-    sigma_pos = "0.01 arcsec"        # positional error of the fit (default 0.01 arcsec)
-    centre = "110.827 -73.4545"      # optional origin of the fit's frame (e.g. the BCG)
-    fix_centre = false               # hold the first profile's centre there (needs centre)
-
-A catalogue-only run (no images) replaces ``[bands]``, ``[arcs]``,
-``[catalogs]``, ``[pairing]`` and ``[parametric]`` by one ``[knots]`` table: the
-knots of a multiply-imaged galaxy in a published multiple-image catalogue,
-paired across its macro-images (:func:`lensdual.pairing.pairs_from_knots`) and
-compared with lens models (:func:`lensdual.parametric.compare_size_with_models`)::
-
-    [knots]
-    catalogue = "knots.mul"          # Lenstool catalogue, or ECSV with 'id' and 'sky'
-                                     # (or 'ra', 'dec' in deg)
-    macro_images = ["1.1", "1.2", "1.3"]   # at least 2 names
-    centres = "catalogue"            # optional: "catalogue" (commented lines of the
-                                     # catalogue, the default) or a table of "RA Dec"
-    systems = [1000, 2000]           # optional: knot systems with integer ids in
-                                     # [lo, hi), or a list of system names; default all
-    assign = "model"                 # optional: "centre", "mapping" or "model" (default:
-                                     # "mapping" with a mapping, "model" with models)
-    mapping = "mapping.ecsv"         # ECSV with columns id, macro (assign = "mapping")
-    models = ["best.par"]            # optional Lenstool models; the first assigns
-    z_source = 1.4888                # optional (default: the catalogue's redshift)
-    sigma_pos = "auto"               # "auto" (measured per pair of macro-images from the
-                                     # constellation's residuals) or an angle
-
-The output directory given to :func:`load_config` (``outdir=``, e.g. from
-the command line) replaces ``[output] outdir``; it is resolved against the
-current directory, the configuration value against the configuration file's
-directory.
+The keys, their defaults and bounds come from the schema (`._schema.FIELDS`);
+the validator reads each key with the getter of its type and keeps here only
+the rules that join several keys.
 """
 
-import difflib
 import math
-import os
-import re
-import tempfile
 import tomllib
-import warnings
-from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from astropy import units as u
 from astropy.coordinates import SkyCoord
-from astropy.io import fits
-from astropy.nddata import CCDData, Cutout2D, StdDevUncertainty
 from astropy.nddata.utils import NoOverlapError
 from astropy.table import Table
-from astropy.wcs import WCS, FITSFixedWarning
 
-from ..estimators import METHODS
+from . import _schema
+from ._fits import (
+    _cutout,
+    _grid_mismatch,
+    _HDUError,
+    _ImageInfo,
+    _inspect_fits,
+    _product_map,
+    _psf_oversampling,
+    _read_image,
+    _read_psf,
+)
+from ._schema import _ARCS, _CUTOUT, _IMAGE_TABLES, MIN_NULL_REALISATIONS
+from ._values import _describe, _parse_angle, _parse_center, _parse_unit, _suggest
+from ._writer import _sec, _toml_key
 
 __all__ = [
     "ConfigError",
@@ -141,42 +45,17 @@ __all__ = [
     "load_images",
     "band_psfs",
     "band_oversampling",
-    "format_config",
-    "write_config",
 ]
 
-_ARCS = ("L1", "L2")
-_CUTOUT = "cutout"
-_DEFAULT_OUTDIR = "lensdual-output"
-_DEFAULT_MODEL = ("NFW_ELLIPSE_CSE", "SHEAR")
-_PAIRING_METHODS = ("auto", "manual")
 _MIN_PAIRS = 3
-_MIN_PSF_SIZE = 5
-#: Bands of an arc share one pixel grid when their WCSs agree to this many pixels.
-_GRID_TOLERANCE = 0.01
-#: An error map disagreeing with the image's own sky noise by more than this
-#: factor (either way) draws a warning.
-_NOISE_FACTOR = 3.0
+#: The keys of every top-level table (none for [bands] and [arcs], whose tables are named
+#: by the user), from the schema.
+_KEYS = _schema.table_keys()
+_BAND_KEYS = _schema.keys("bands.<band>")
+_IMAGE_KEYS = _schema.keys("arcs.<arc>.<band>")
+_CUTOUT_KEYS = _schema.keys("arcs.<arc>.cutout")
 
-_KEYS = {
-    "output": ("outdir",),
-    "analysis": ("estimator", "sigma_pos", "n_bootstrap", "snr_threshold", "seed",
-                 "null_realisations"),
-    "bands": (),
-    "arcs": (),
-    "catalogs": _ARCS,
-    "pairing": ("method", "file"),
-    "parametric": ("lenstool", "fit", "model", "z_lens", "z_source", "sigma_pos", "centre",
-                   "fix_centre"),
-    "knots": ("catalogue", "macro_images", "centres", "systems", "assign", "mapping", "models",
-              "z_source", "sigma_pos"),
-}
-#: Tables a catalogue-only ([knots]) run does without.
-_IMAGE_TABLES = ("bands", "arcs", "catalogs", "pairing", "parametric")
-_ASSIGN = ("centre", "mapping", "model")
-_BAND_KEYS = ("psf", "psf_hdu", "psf_fwhm", "psf_oversampling")
-_IMAGE_KEYS = ("image", "hdu", "error", "error_hdu", "weight", "weight_hdu", "unit")
-_CUTOUT_KEYS = ("center", "size")
+_d = _schema.default  # the default of a key, for the specification classes
 
 _ABSENT = object()  # a key that is not in its table
 _BAD = object()  # a value that failed its checks (the problem is recorded)
@@ -266,12 +145,12 @@ class ImageSpec:
     """
 
     image: Path
-    hdu: int | str | None = None
-    error: Path | None = None
-    error_hdu: int | str | None = None
-    weight: Path | None = None
-    weight_hdu: int | str | None = None
-    unit: u.UnitBase | None = None
+    hdu: int | str | None = _d("arcs.<arc>.<band>", "hdu")
+    error: Path | None = _d("arcs.<arc>.<band>", "error")
+    error_hdu: int | str | None = _d("arcs.<arc>.<band>", "error_hdu")
+    weight: Path | None = _d("arcs.<arc>.<band>", "weight")
+    weight_hdu: int | str | None = _d("arcs.<arc>.<band>", "weight_hdu")
+    unit: u.UnitBase | None = _d("arcs.<arc>.<band>", "unit")
 
 
 @dataclass(frozen=True)
@@ -296,10 +175,10 @@ class BandSpec:
     """
 
     name: str
-    psf: Path | None = None
-    psf_hdu: int | str | None = None
-    psf_fwhm: u.Quantity | None = None
-    psf_oversampling: int | tuple | None = None
+    psf: Path | None = _d("bands.<band>", "psf")
+    psf_hdu: int | str | None = _d("bands.<band>", "psf_hdu")
+    psf_fwhm: u.Quantity | None = _d("bands.<band>", "psf_fwhm")
+    psf_oversampling: int | tuple | None = _d("bands.<band>", "psf_oversampling")
 
 
 @dataclass(frozen=True)
@@ -341,9 +220,10 @@ class ParametricSpec:
         Lens and source redshifts (given whenever ``fit`` is true or
         ``lenstool`` is set; ``0 < z_lens < z_source``).
     sigma_pos : `~astropy.units.Quantity`
-        Positional error of the fit's chi-square (default 0.01 arcsec: a
-        smooth parametric model is not expected to place images better than
-        that, whatever the astrometric errors).
+        Positional error of the fit's chi-square (its default, that of
+        ``[parametric] sigma_pos``, is coarse on purpose: a smooth parametric
+        model is not expected to place images to within the astrometric
+        errors).
     centre : `~astropy.coordinates.SkyCoord` or None
         Origin of the fit's frame, e.g. the brightest cluster galaxy; None:
         the Lenstool model's frame when one is given, else the pairs' frame.
@@ -352,14 +232,14 @@ class ParametricSpec:
         (``centre``, which is then required), e.g. on the BCG.
     """
 
-    lenstool: Path | None = None
-    fit: bool = False
-    model: tuple = _DEFAULT_MODEL
-    z_lens: float | None = None
-    z_source: float | None = None
-    sigma_pos: u.Quantity = 0.01 * u.arcsec
-    centre: SkyCoord | None = None
-    fix_centre: bool = False
+    lenstool: Path | None = _d("parametric", "lenstool")
+    fit: bool = _d("parametric", "fit")
+    model: tuple = _d("parametric", "model")
+    z_lens: float | None = _d("parametric", "z_lens")
+    z_source: float | None = _d("parametric", "z_source")
+    sigma_pos: u.Quantity = _d("parametric", "sigma_pos")
+    centre: SkyCoord | None = _d("parametric", "centre")
+    fix_centre: bool = _d("parametric", "fix_centre")
 
 
 @dataclass(frozen=True)
@@ -393,13 +273,13 @@ class KnotSpec:
 
     catalogue: Path
     macro_images: tuple
-    centres: dict | None = None
-    systems: tuple = ()
-    assign: str = "centre"
-    mapping: Path | None = None
-    models: tuple = ()
-    z_source: float | None = None
-    sigma_pos: u.Quantity | str = "auto"
+    centres: dict | None = _d("knots", "centres")
+    systems: tuple = _d("knots", "systems")
+    assign: str = _d("knots", "assign")
+    mapping: Path | None = _d("knots", "mapping")
+    models: tuple = _d("knots", "models")
+    z_source: float | None = _d("knots", "z_source")
+    sigma_pos: u.Quantity | str = _d("knots", "sigma_pos")
 
     def knot_filter(self):
         """The ``knots`` argument of :func:`~lensdual.pairing.pairs_from_knots`."""
@@ -467,254 +347,23 @@ class RunConfig:
     bands: dict
     arcs: dict
     catalogs: dict | None = None
-    pairing_method: str = "auto"
-    pairs_file: Path | None = None
-    estimator: str = "adaptive"
-    sigma_pos: u.Quantity | str = "auto"
-    n_bootstrap: int = 1000
-    snr_threshold: float = 3.0
-    seed: int = 0
-    null_realisations: int = 0
+    pairing_method: str = _d("pairing", "method")
+    pairs_file: Path | None = _d("pairing", "file")
+    estimator: str = _d("analysis", "estimator")
+    sigma_pos: u.Quantity | str = _d("analysis", "sigma_pos")
+    n_bootstrap: int = _d("analysis", "n_bootstrap")
+    snr_threshold: float = _d("analysis", "snr_threshold")
+    seed: int = _d("analysis", "seed")
+    null_realisations: int = _d("analysis", "null_realisations")
     parametric: ParametricSpec | None = None
     knots: KnotSpec | None = None
 
 
-# ---------------------------------------------------------------------------
-# small helpers
-# ---------------------------------------------------------------------------
-
-_BARE_KEY = re.compile(r"^[A-Za-z0-9_-]+$")
-_ESCAPES = {"\b": r"\b", "\t": r"\t", "\n": r"\n", "\f": r"\f", "\r": r"\r", '"': r"\"",
-            "\\": r"\\"}
-
-
-def _toml_string(text):
-    """``text`` as a TOML basic string."""
-    out = []
-    for ch in text:
-        if ch in _ESCAPES:
-            out.append(_ESCAPES[ch])
-        elif ord(ch) < 0x20 or ord(ch) == 0x7F:
-            out.append(f"\\u{ord(ch):04X}")
-        else:
-            out.append(ch)
-    return '"' + "".join(out) + '"'
-
-
-def _toml_key(key):
-    """``key`` as a TOML key: bare when it can be, else quoted."""
-    return key if _BARE_KEY.match(key) else _toml_string(key)
-
-
-def _sec(*parts):
-    """The TOML name of a table, e.g. ``arcs.L1.F150W``."""
-    return ".".join(_toml_key(str(p)) for p in parts)
-
-
-def _suggest(word, options, fmt="'{}'"):
-    """`` (did you mean 'x'?)`` for the option closest to ``word``, or ``""``."""
-    match = difflib.get_close_matches(str(word), [str(o) for o in options], n=1, cutoff=0.6)
-    return f" (did you mean {fmt.format(match[0])}?)" if match else ""
-
-
-def _describe(value):
-    """A short description of a TOML value for error messages."""
-    if isinstance(value, bool):
-        return f"a boolean ({str(value).lower()})"
-    if isinstance(value, int):
-        return f"an integer ({value})"
-    if isinstance(value, float):
-        return f"a float ({value!r})"
-    if isinstance(value, str):
-        return f"a string ({value!r})"
-    if isinstance(value, list):
-        return "an array"
-    if isinstance(value, dict):
-        return "a table"
-    return f"a {type(value).__name__} ({value})"
-
-
-def _parse_angle(value):
-    """``(Quantity, None)`` for an angle string, else ``(None, message)``."""
-    if not isinstance(value, str):
-        return None, f"expected an angle string such as \"0.01 arcsec\", got {_describe(value)}"
-    try:
-        q = u.Quantity(value)
-    except (TypeError, ValueError):
-        return None, (f"could not read {value!r} as an angle (a number and an angular unit, "
-                      "e.g. \"0.01 arcsec\" or \"10 mas\")")
-    if q.unit == u.dimensionless_unscaled:
-        return None, (f"{value!r} has no unit: give an angle with its unit, "
-                      f"like \"{value.strip()} arcsec\"")
-    if q.unit.physical_type != "angle":
-        return None, f"{value!r} is not an angle (its unit {q.unit} is a {q.unit.physical_type})"
-    if not q.isscalar:
-        return None, f"{value!r} is not a single angle"
-    if not np.isfinite(q.value):
-        return None, f"{value!r} is not finite"
-    return q, None
-
-
-_PLAIN_PAIR = re.compile(r"^\s*[-+]?[\d.]+(?:[eE][-+]?\d+)?[\s,]+[-+]?[\d.]+(?:[eE][-+]?\d+)?\s*$")
-
-
-def _parse_center(value):
-    """``(SkyCoord, None)`` for a sky position string, else ``(None, message)``."""
-    if not isinstance(value, str):
-        return None, (f"expected a sky position string such as \"110.8 -73.45\", "
-                      f"got {_describe(value)}")
-    if _PLAIN_PAIR.match(value):
-        units = u.deg
-    elif ":" in value:
-        units = (u.hourangle, u.deg)
-    else:
-        units = None
-    kwargs = {} if units is None else {"unit": units}
-    try:
-        return SkyCoord(value.replace(",", " ") if units is u.deg else value,
-                        frame="icrs", **kwargs), None
-    except (ValueError, TypeError, u.UnitsError):
-        return None, (f"could not read {value!r} as a sky position (ICRS \"RA Dec\": in "
-                      "degrees as \"110.8 -73.45\", or as \"07h23m12s -73d27m00s\" or "
-                      "\"07:23:12 -73:27:00\")")
-
-
-def _parse_unit(value):
-    """``(unit, None)`` or ``(None, message)``."""
-    try:
-        return u.Unit(value, parse_strict="raise"), None
-    except (ValueError, TypeError):
-        return None, f"{value!r} is not a valid astropy unit"
-
-
-def _hdu_label(hdu):
-    return f"HDU {hdu}" if isinstance(hdu, int) else f"HDU {hdu!r}"
-
-
-def _hdu_names(hdul):
-    return ", ".join(f"{i} {h.name!r}" if h.name else str(i) for i, h in enumerate(hdul))
-
-
-def _is_2d_image(hdu):
-    return bool(hdu.is_image) and len(hdu.shape) == 2
-
-
-class _HDUError(ValueError):
-    """A requested HDU does not exist or holds no 2-D image (``on_hdu_key``: blame the hdu key)."""
-
-    def __init__(self, message, on_hdu_key):
-        super().__init__(message)
-        self.on_hdu_key = on_hdu_key
-
-
-def _find_hdu(hdul, hdu, path):
-    """Index of the requested HDU of ``hdul`` (the first 2-D image for None)."""
-    if hdu is None:
-        for i, h in enumerate(hdul):
-            if _is_2d_image(h):
-                return i
-        raise _HDUError(f"{path} has no HDU with 2-D image data (HDUs: {_hdu_names(hdul)})"
-                        + _cube_hint(hdul), on_hdu_key=False)
-    if isinstance(hdu, int):
-        if hdu >= len(hdul):
-            n = len(hdul)
-            raise _HDUError(f"{_hdu_label(hdu)} does not exist in {path} "
-                            f"({n} HDU{'' if n == 1 else 's'}: {_hdu_names(hdul)})",
-                            on_hdu_key=True)
-        index = hdu
-    else:
-        try:
-            index = hdul.index_of(hdu)
-        except KeyError:
-            hint = _suggest(hdu.upper(), [h.name for h in hdul if h.name])
-            raise _HDUError(f"{_hdu_label(hdu)} does not exist in {path}{hint} "
-                            f"(HDUs: {_hdu_names(hdul)})", on_hdu_key=True) from None
-    h = hdul[index]
-    if not _is_2d_image(h):
-        if not h.is_image:
-            what = "a table"
-        else:
-            what = f"{len(h.shape)}-D data" if h.shape else "no data"
-        raise _HDUError(f"{_hdu_label(hdu)} of {path} has no 2-D image data (it has {what})"
-                        + _cube_hint(hdul), on_hdu_key=True)
-    return index
-
-
-def _cube_hint(hdul):
-    """Words on the image HDUs that are cubes (their shapes, and what to do)."""
-    cubes = [(i, h.shape) for i, h in enumerate(hdul) if h.is_image and len(h.shape or ()) > 2]
-    if not cubes:
-        return ""
-    listed = ", ".join(f"HDU {i} has shape {shape}" for i, shape in cubes)
-    single = any(all(n == 1 for n in shape[:-2]) for _, shape in cubes)
-    return (f"; {listed}" + (": a cube of one plane; write that plane as a 2-D image (e.g. "
-                            "data[0] with the celestial WCS, wcs.celestial)" if single else
-                            ": a cube; write the plane of the band as a 2-D image"))
-
-
-def _header_wcs(header, hdul):
-    """The WCS of ``header`` (lookup tables from ``hdul``), without FITSFixedWarning noise."""
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", FITSFixedWarning)
-        return WCS(header, hdul)
-
-
-def _cutout(shape, wcs, center, size):
-    """`~astropy.nddata.Cutout2D` of an array of ``shape`` (no data is read)."""
-    dummy = np.broadcast_to(np.int8(0), shape)
-    return Cutout2D(dummy, center, size, wcs=wcs, mode="trim", copy=False)
-
-
-def _psf_oversampling(path, hdu):
-    """The oversampling a PSF file declares (WebbPSF / STPSF ``OVERSAMP``; 1 for their
-    detector-sampled ``DET_SAMP`` extension), or None."""
-    try:
-        with fits.open(path) as hdul:
-            index = _find_hdu(hdul, hdu, path)
-            header = hdul[index].header
-            if str(header.get("EXTNAME", "")).upper().startswith("DET_"):
-                return None
-            value = header.get("OVERSAMP", hdul[0].header.get("OVERSAMP"))
-    except Exception:  # unreadable: reported elsewhere
-        return None
-    if isinstance(value, (int, float)) and not isinstance(value, bool) and value > 1 and \
-            float(value).is_integer():
-        return int(value)
-    return None
-
-
-def _read_psf(path, hdu):
-    """The PSF image, normalised to unit sum; ValueError if unusable."""
-    with fits.open(path, memmap=False) as hdul:
-        index = _find_hdu(hdul, hdu, path)
-        arr = np.array(hdul[index].data, dtype=np.float64)
-    ny, nx = arr.shape
-    if ny % 2 == 0 or nx % 2 == 0 or min(ny, nx) < _MIN_PSF_SIZE:
-        raise ValueError(f"the PSF image in {path} must have an odd shape of at least "
-                         f"{_MIN_PSF_SIZE}x{_MIN_PSF_SIZE} pixels (centred on its central "
-                         f"pixel), got {ny}x{nx}")
-    if not np.isfinite(arr).all():
-        raise ValueError(f"the PSF image in {path} contains NaN or infinite values")
-    total = arr.sum()
-    if not total > 0:
-        raise ValueError(f"the PSF image in {path} must have a positive sum, got {total}")
-    return arr / total
 
 
 # ---------------------------------------------------------------------------
 # validation
 # ---------------------------------------------------------------------------
-
-
-@dataclass
-class _ImageInfo:
-    """What the validation learnt about an image HDU."""
-
-    shape: tuple
-    wcs: WCS | None
-    bunit: str | None
-    unit: u.UnitBase | None = None
-    path: Path | None = None
 
 
 class _Validator:
@@ -751,6 +400,27 @@ class _Validator:
             self.add(f"[{name}]: expected a table, got {_describe(value)}")
             return None
         return value
+
+    def get(self, table, key, sec, where=None):
+        """``table[key]`` read by the getter of its type, with the default and bounds of the
+        schema (``where``: the key's table in the schema, e.g. ``"bands.<band>"``; default
+        ``sec``)."""
+        f = _schema.field(where or sec, key)
+        if f.type == "string":
+            return self.get_str(table, key, sec, f.default, choices=f.choices)
+        if f.type == "integer":
+            return self.get_int(table, key, sec, f.default, minimum=f.minimum)
+        if f.type == "real":
+            return self.get_real(table, key, sec, f.default, above=f.above)
+        if f.type == "boolean":
+            return self.get_bool(table, key, sec, f.default)
+        if f.type == "angle":
+            return self.get_angle(table, key, sec, f.default)
+        if f.type == "file":
+            return self.get_file(table, key, sec)
+        if f.type == "HDU":
+            return self.get_hdu(table, key, sec)
+        raise TypeError(f"{f.name}: no generic getter for a {f.type}")
 
     def get_str(self, table, key, sec, default=_ABSENT, choices=None):
         value = table.get(key, _ABSENT)
@@ -857,38 +527,10 @@ class _Validator:
     def inspect_fits(self, path, hdu, sec, file_key, hdu_key, *, celestial=False):
         """Open ``path`` lazily and check the HDU; an `_ImageInfo` or None."""
         try:
-            hdul = fits.open(path)
-        except Exception as exc:  # any failure means the file is unusable
-            self.add(f"[{sec}] {file_key}: {path} is not a readable FITS file ({exc})")
+            return _inspect_fits(path, hdu, celestial=celestial)
+        except _HDUError as exc:
+            self.add(f"[{sec}] {hdu_key if exc.on_hdu_key else file_key}: {exc}")
             return None
-        with hdul:
-            try:
-                index = _find_hdu(hdul, hdu, path)
-                header = hdul[index].header
-                shape = tuple(hdul[index].shape)
-            except _HDUError as exc:
-                self.add(f"[{sec}] {hdu_key if exc.on_hdu_key else file_key}: {exc}")
-                return None
-            except Exception as exc:
-                self.add(f"[{sec}] {file_key}: {path} is not a readable FITS file ({exc})")
-                return None
-            wcs = None
-            if celestial:
-                where = f"{_hdu_label(index)} of {path}"
-                try:
-                    wcs = _header_wcs(header, hdul)
-                except Exception as exc:
-                    self.add(f"[{sec}] {file_key}: the WCS in the header of {where} is "
-                             f"invalid ({exc})")
-                    return None
-                if not wcs.has_celestial:
-                    self.add(f"[{sec}] {file_key}: the header of {where} has no celestial "
-                             "WCS (RA/Dec axes), which is needed to pair the arcs on the sky")
-                    return None
-                wcs = wcs.celestial
-            bunit = header.get("BUNIT")
-            bunit = bunit.strip() if isinstance(bunit, str) else None
-        return _ImageInfo(shape=shape, wcs=wcs, bunit=bunit)
 
     # --- tables ---------------------------------------------------------
 
@@ -909,7 +551,7 @@ class _Validator:
     def output(self):
         table = self.section("output") or {}
         self.unknown_keys(table, _KEYS["output"], "output")
-        value = self.get_str(table, "outdir", "output", default=_DEFAULT_OUTDIR)
+        value = self.get_str(table, "outdir", "output", default=_schema.default("output", "outdir"))
         if value is not _BAD and not value.strip():
             self.add("[output] outdir: must not be empty")
             value = _BAD
@@ -929,9 +571,8 @@ class _Validator:
         table = self.section("analysis") or {}
         sec = "analysis"
         self.unknown_keys(table, _KEYS[sec], sec)
-        out = {"estimator": self.get_str(table, "estimator", sec, "adaptive",
-                                         choices=list(METHODS))}
-        sigma = table.get("sigma_pos", "auto")
+        out = {"estimator": self.get(table, "estimator", sec)}
+        sigma = table.get("sigma_pos", _schema.default(sec, "sigma_pos"))
         if not isinstance(sigma, str):
             self.add(f'[{sec}] sigma_pos: expected "auto" or an angle string such as '
                      f'"0.01 arcsec", got {_describe(sigma)}')
@@ -939,12 +580,12 @@ class _Validator:
         elif sigma != "auto":
             sigma = self.get_angle(table, "sigma_pos", sec, prefix='expected "auto" or an angle; ')
         out["sigma_pos"] = sigma
-        out["n_bootstrap"] = self.get_int(table, "n_bootstrap", sec, 1000, minimum=10)
-        out["snr_threshold"] = self.get_real(table, "snr_threshold", sec, 3.0, above=0)
-        out["seed"] = self.get_int(table, "seed", sec, 0, minimum=0)
-        null = self.get_int(table, "null_realisations", sec, 0, minimum=0)
-        if null is not _BAD and 0 < null < 100:
-            self.add(f"[{sec}] null_realisations: must be 0 (off) or >= 100, got {null}")
+        for key in ("n_bootstrap", "snr_threshold", "seed"):
+            out[key] = self.get(table, key, sec)
+        null = self.get(table, "null_realisations", sec)
+        if null is not _BAD and 0 < null < MIN_NULL_REALISATIONS:
+            self.add(f"[{sec}] null_realisations: must be 0 (off) or >= "
+                     f"{MIN_NULL_REALISATIONS}, got {null}")
             null = _BAD
         elif null is not _BAD and null and out["estimator"] not in ("adaptive", _BAD):
             self.add(f"[{sec}] null_realisations: the null calibration needs "
@@ -975,9 +616,8 @@ class _Validator:
                          f"got {_describe(spec)}")
                 continue
             self.unknown_keys(spec, _BAND_KEYS, sec)
-            psf = self.get_file(spec, "psf", sec)
-            psf_hdu = self.get_hdu(spec, "psf_hdu", sec)
-            fwhm = self.get_angle(spec, "psf_fwhm", sec, default=None)
+            psf, psf_hdu, fwhm = (self.get(spec, key, sec, "bands.<band>")
+                                  for key in ("psf", "psf_hdu", "psf_fwhm"))
             if "psf" in spec and "psf_fwhm" in spec:
                 self.add(f"[{sec}] psf_fwhm: give either psf (a PSF image) or psf_fwhm "
                          "(a Gaussian FWHM), not both")
@@ -1085,19 +725,10 @@ class _Validator:
         if len(given) < 2:
             return
         ref_band, ref = given[0]
-        ny, nx = ref.shape[-2:]
-        corners = np.array([[0, 0], [nx - 1, 0], [0, ny - 1], [nx - 1, ny - 1],
-                            [(nx - 1) / 2, (ny - 1) / 2]], dtype=float)
-        world = ref.wcs.pixel_to_world(corners[:, 0], corners[:, 1])
         for band, info in given[1:]:
-            if info.shape != ref.shape:
-                why = f"shape {info.shape} against {ref.shape}"
-            else:
-                px, py = info.wcs.world_to_pixel(world)
-                off = float(np.max(np.hypot(px - corners[:, 0], py - corners[:, 1])))
-                if not off > _GRID_TOLERANCE:
-                    continue
-                why = f"its WCS puts the same sky up to {off:.3g} pixels elsewhere"
+            why = _grid_mismatch(ref, info)
+            if why is None:
+                continue
             self.add(f"[{_sec('arcs', arc, band)}] image: its pixel grid differs from band "
                      f"{ref_band}'s ({why}). lensdual stacks the bands of an arc pixel by "
                      f"pixel, so they must share one grid: resample {info.path} onto the grid "
@@ -1158,12 +789,12 @@ class _Validator:
             self.add(f"[{sec}] image: missing (the FITS file of the image)")
             image = _BAD
         else:
-            image = self.get_file(table, "image", sec)
-        hdu = self.get_hdu(table, "hdu", sec)
+            image = self.get(table, "image", sec, "arcs.<arc>.<band>")
+        hdu = self.get(table, "hdu", sec, "arcs.<arc>.<band>")
         maps = {}
         for key in ("error", "weight"):
-            path = self.get_file(table, key, sec)
-            map_hdu = self.get_hdu(table, f"{key}_hdu", sec)
+            path = self.get(table, key, sec, "arcs.<arc>.<band>")
+            map_hdu = self.get(table, f"{key}_hdu", sec, "arcs.<arc>.<band>")
             if path is None and f"{key}_hdu" in table:
                 path = image  # an extension of the image's own file
             maps[key] = (path, map_hdu)
@@ -1269,7 +900,7 @@ class _Validator:
                      f"L2, or neither; only {given[0]} is given)")
         paths, ids = {}, {}
         for arc in given:
-            path = self.get_file(table, arc, "catalogs")
+            path = self.get(table, arc, "catalogs")
             paths[arc] = path
             if path is _BAD:
                 continue
@@ -1312,8 +943,8 @@ class _Validator:
         table = self.section("pairing") or {}
         sec = "pairing"
         self.unknown_keys(table, _KEYS[sec], sec)
-        method = self.get_str(table, "method", sec, "auto", choices=_PAIRING_METHODS)
-        path = self.get_file(table, "file", sec)
+        method = self.get(table, "method", sec)
+        path = self.get(table, "file", sec)
         if method == "manual" and "file" not in table:
             self.add('[pairing] file: required when method = "manual" (an ECSV table with '
                      "integer columns id1, id2)")
@@ -1357,11 +988,9 @@ class _Validator:
             return None
         sec = "parametric"
         self.unknown_keys(table, _KEYS[sec], sec)
-        lenstool = self.get_file(table, "lenstool", sec)
-        fit = self.get_bool(table, "fit", sec, False)
+        lenstool, fit = self.get(table, "lenstool", sec), self.get(table, "fit", sec)
         model = self.model(table.get("model", _ABSENT))
-        z_lens = self.get_real(table, "z_lens", sec, None, above=0)
-        z_source = self.get_real(table, "z_source", sec, None, above=0)
+        z_lens, z_source = self.get(table, "z_lens", sec), self.get(table, "z_source", sec)
         if fit is True or "lenstool" in table:
             why = "fit = true" if fit is True else "lenstool is given"
             for key, value in (("z_lens", z_lens), ("z_source", z_source)):
@@ -1370,13 +999,13 @@ class _Validator:
         if isinstance(z_lens, float) and isinstance(z_source, float) and z_source <= z_lens:
             self.add(f"[parametric] z_source: must be larger than z_lens ({z_lens:g}), "
                      f"got {z_source:g}")
-        sigma_pos = self.get_angle(table, "sigma_pos", sec, 0.01 * u.arcsec)
+        sigma_pos = self.get(table, "sigma_pos", sec)
         centre = None
         if "centre" in table:
             centre, message = _parse_center(table["centre"])
             if centre is None:
                 self.add(f"[parametric] centre: {message}")
-        fix_centre = self.get_bool(table, "fix_centre", sec, False)
+        fix_centre = self.get(table, "fix_centre", sec)
         if fix_centre is True and "centre" not in table:
             self.add("[parametric] fix_centre: needs centre (the sky position to hold the "
                      "first profile's centre at)")
@@ -1386,7 +1015,7 @@ class _Validator:
 
     def model(self, value):
         if value is _ABSENT:
-            return _DEFAULT_MODEL
+            return _schema.default("parametric", "model")
         if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
             self.add("[parametric] model: expected a list of lenstronomy profile names "
                      f'(e.g. ["NFW_ELLIPSE_CSE", "SHEAR"]), got {_describe(value)}')
@@ -1417,7 +1046,7 @@ class _Validator:
         if extra:
             self.add(f"[knots]: a knot run is catalogue-only; remove {', '.join(extra)} (or "
                      "[knots] for a run on images)")
-        catalogue = self.get_file(table, "catalogue", sec)
+        catalogue = self.get(table, "catalogue", sec)
         if "catalogue" not in table:
             self.add("[knots] catalogue: required (a Lenstool multiple-image catalogue or an "
                      "ECSV table)")
@@ -1433,20 +1062,13 @@ class _Validator:
         elif len(set(names)) != len(names):
             self.add(f"[knots] macro_images: repeated names in {names}")
             names = _BAD
-        centres = self.knot_centres(table.get("centres", "catalogue"), names)
+        centres = self.knot_centres(table.get("centres", _ABSENT), names)
         systems = self.knot_systems(table.get("systems", _ABSENT))
-        mapping = self.get_file(table, "mapping", sec)
-        models = table.get("models", [])
-        if isinstance(models, str):
-            models = [models]
-        if not isinstance(models, list) or not all(isinstance(m, str) for m in models):
-            self.add(f"[knots] models: expected a list of Lenstool files, got {_describe(models)}")
-            models = _BAD
-        else:
-            models = tuple(self.get_file({"models": m}, "models", sec) for m in models)
-            models = models if _valid(*models) else _BAD
-        default = "mapping" if "mapping" in table else "model" if models else "centre"
-        assign = self.get_str(table, "assign", sec, default, choices=list(_ASSIGN))
+        mapping = self.get(table, "mapping", sec)
+        models = self.knot_models(table.get("models", _ABSENT))
+        f = _schema.field(sec, "assign")
+        default = "mapping" if "mapping" in table else "model" if models else f.default
+        assign = self.get_str(table, "assign", sec, default, choices=f.choices)
         if assign == "mapping" and "mapping" not in table:
             self.add('[knots] mapping: required when assign = "mapping" (an ECSV table with '
                      "columns id, macro)")
@@ -1457,8 +1079,8 @@ class _Validator:
             if tab is not None and not {"id", "macro"} <= set(tab.colnames):
                 self.add(f"[knots] mapping: {mapping} needs columns 'id' and 'macro', has "
                          f"{tab.colnames}")
-        z_source = self.get_real(table, "z_source", sec, None, above=0)
-        sigma = table.get("sigma_pos", "auto")
+        z_source = self.get(table, "z_source", sec)
+        sigma = table.get("sigma_pos", _schema.default(sec, "sigma_pos"))
         if sigma != "auto":
             sigma = self.get_angle(table, "sigma_pos", sec,
                                    prefix='expected "auto" or an angle; ')
@@ -1469,9 +1091,20 @@ class _Validator:
                         systems=systems, assign=assign, mapping=mapping, models=models,
                         z_source=z_source, sigma_pos=sigma)
 
+    def knot_models(self, models):
+        if models is _ABSENT:
+            return _schema.default("knots", "models")
+        if isinstance(models, str):
+            models = [models]
+        if not isinstance(models, list) or not all(isinstance(m, str) for m in models):
+            self.add(f"[knots] models: expected a list of Lenstool files, got {_describe(models)}")
+            return _BAD
+        models = tuple(self.get_file({"models": m}, "models", "knots") for m in models)
+        return models if _valid(*models) else _BAD
+
     def knot_centres(self, value, names):
-        if value == "catalogue":
-            return None
+        if value is _ABSENT or value == "catalogue":
+            return _schema.default("knots", "centres")
         if not isinstance(value, dict):
             self.add('[knots] centres: expected "catalogue" or a table {name = "RA Dec"}, got '
                      f"{_describe(value)}")
@@ -1491,7 +1124,7 @@ class _Validator:
 
     def knot_systems(self, value):
         if value is _ABSENT:
-            return ()
+            return _schema.default("knots", "systems")
         if (isinstance(value, list) and len(value) == 2
                 and all(isinstance(v, int) and not isinstance(v, bool) for v in value)):
             if not value[0] < value[1]:
@@ -1577,176 +1210,6 @@ def load_config(path, *, outdir=None):
 # ---------------------------------------------------------------------------
 # reading the images
 # ---------------------------------------------------------------------------
-
-_STRUCTURAL = re.compile(
-    r"^(SIMPLE|XTENSION|BITPIX|NAXIS\d*|EXTEND|PCOUNT|GCOUNT|BZERO|BSCALE|BLANK|BUNIT|"
-    r"CHECKSUM|DATASUM|WCSAXES|(CTYPE|CRPIX|CRVAL|CDELT|CUNIT|CROTA)\d+|(CD|PC|PV|PS)\d+_\d+|"
-    r"(A|B|AP|BP)_(ORDER|DMAX|\d+_\d+)|LONPOLE|LATPOLE)$"
-)
-
-
-def _meta(header):
-    """The header without the keywords of the data layout, unit and WCS transformation.
-
-    Those are in the CCDData's attributes; kept in ``meta`` they would go stale
-    with a cutout (``CRPIX``) or clash with the WCS written by `CCDData.write`.
-    """
-    meta = header.copy()
-    for key in list(meta):
-        if key and _STRUCTURAL.match(key):
-            meta.remove(key, ignore_missing=True, remove_all=True)
-    return meta
-
-
-def _product_map(path):
-    """("error", "ERR") or ("weight", "WHT") when ``path`` is a pipeline product with
-    such an extension beside a SCI extension; else None."""
-    try:
-        with fits.open(path) as hdul:
-            names = {h.name.upper() for h in hdul}
-    except Exception:  # unreadable files are reported by inspect_fits
-        return None
-    if "SCI" not in names:
-        return None
-    if "ERR" in names:
-        return ("error", "ERR")
-    if "WHT" in names:
-        return ("weight", "WHT")
-    return None
-
-
-def _pixel_area(header, hdul):
-    """PIXAR_SR of a JWST product (the image's header, else the primary's), or None."""
-    for h in (header, hdul[0].header):
-        value = h.get("PIXAR_SR")
-        if isinstance(value, (int, float)) and value > 0:
-            return float(value)
-    return None
-
-
-def _exposure_weighted(spec):
-    """True when the weight map is a drizzled product's WHT made with exposure-time
-    (not inverse-variance) weights: HST's D###WTSC / FINAL_WHT keywords say 'EXP'."""
-    if str(spec.weight_hdu).upper() != "WHT":
-        return False
-    with fits.open(spec.weight) as hdul:
-        for h in hdul:
-            for key, value in h.header.items():
-                if (key.endswith("WTSC") or key in ("FINALWHT", "FINAL_WHT_TYPE")) and \
-                        isinstance(value, str) and value.strip().upper() == "EXP":
-                    return True
-    return False
-
-
-def _sky_noise(data, err, mask):
-    """``(scatter, quoted)``: the robust (3-sigma clipped) scatter of the image's sky
-    pixels and the median error the map quotes there (NaN without sky pixels)."""
-    from astropy.stats import sigma_clipped_stats
-
-    good = ~mask & np.isfinite(err)
-    _, median, std = sigma_clipped_stats(data[good], sigma=3.0, maxiters=5)
-    sky = good & (np.abs(data - median) < 3.0 * std)
-    return float(std), (float(np.median(err[sky])) if sky.any() else np.nan)
-
-
-def _sky_scale(data, err, mask, where):
-    """The factor that makes ``err`` match the image's own sky noise (with a warning)."""
-    from ..exceptions import LensdualWarning
-
-    std, quoted = _sky_noise(data, err, mask)
-    factor = std / quoted if np.isfinite(quoted) else 1.0
-    warnings.warn(f"{where}: an exposure-time weight (not inverse variance); errors are "
-                  f"1/sqrt(WHT) scaled by {factor:.3g} to the sky noise of the image",
-                  LensdualWarning, stacklevel=3)
-    return factor
-
-
-def _read_map(path, hdu, slices, unit=None):
-    """A map's pixels; with ``unit``, converted from the map's own BUNIT to it."""
-    with fits.open(path) as hdul:
-        index = _find_hdu(hdul, hdu, path)
-        data = np.array(hdul[index].section[slices], dtype=np.float64)
-        bunit = hdul[index].header.get("BUNIT")
-    if unit is not None and isinstance(bunit, str) and bunit.strip():
-        data *= u.Unit(bunit.strip(), parse_strict="raise").to(unit)
-    return data
-
-
-def _check_noise(data, err, mask, where):
-    """Warn when the error map disagrees with the image's own sky noise by > _NOISE_FACTOR."""
-    from ..exceptions import LensdualWarning
-
-    if np.count_nonzero(~mask & np.isfinite(err)) < 100:
-        return
-    std, quoted = _sky_noise(data, err, mask)
-    if not (np.isfinite(quoted) and std > 0 and quoted > 0):
-        return
-    ratio = quoted / std
-    if not 1.0 / _NOISE_FACTOR <= ratio <= _NOISE_FACTOR:
-        warnings.warn(
-            f"{where}: the error map quotes a median sky error of {quoted:.3g}, but the sky "
-            f"pixels of the image scatter by {std:.3g} (robust, 3-sigma clipped): "
-            f"{ratio:.3g} times the measured noise. Fluxes, positions and every SNR inherit "
-            "this error: check the error map's units and scaling", LensdualWarning,
-            stacklevel=3)
-
-
-def _read_image(spec, arc, psf):
-    """One CCDData; ValueError / OSError on unusable files."""
-    with fits.open(spec.image) as hdul:
-        index = _find_hdu(hdul, spec.hdu, spec.image)
-        hdu = hdul[index]
-        header = hdu.header.copy()
-        full_wcs = _header_wcs(header, hdul)
-        if not full_wcs.has_celestial:
-            raise ValueError(f"the header of {spec.image} has no celestial WCS")
-        wcs = full_wcs.celestial
-        shape = tuple(hdu.shape)
-        slices = (slice(None), slice(None))
-        if arc.cutout_center is not None:
-            try:
-                cut = _cutout(shape, wcs, arc.cutout_center, arc.cutout_size)
-            except NoOverlapError:
-                raise ValueError(f"the cutout of arc {arc.name} does not overlap "
-                                 f"{spec.image}") from None
-            slices, wcs = cut.slices_original, cut.wcs
-        data = np.array(hdu.section[slices], dtype=np.float64)
-        pixar = _pixel_area(header, hdul)
-    unit = spec.unit
-    if unit is None:
-        bunit = header.get("BUNIT")
-        bunit = bunit.strip() if isinstance(bunit, str) else ""
-        unit = u.Unit(bunit, parse_strict="raise") if bunit else u.dimensionless_unscaled
-    map_unit = unit
-    scale = 1.0
-    if pixar is not None and unit.is_equivalent(u.MJy / u.sr):
-        # surface brightness (JWST MJy/sr) to flux per pixel (nJy) with the pixel area
-        scale = (unit * u.sr).to(u.nJy) * pixar
-        unit = u.nJy
-        data *= scale
-    mask = ~np.isfinite(data)
-    uncertainty = None
-    where = f"arc {arc.name}, {spec.image.name}"
-    if spec.error is not None:
-        err = _read_map(spec.error, spec.error_hdu, slices, unit=map_unit) * scale
-        mask |= ~(np.isfinite(err) & (err > 0))
-        _check_noise(data, err, mask, f"{where} (error map {spec.error.name})")
-        uncertainty = StdDevUncertainty(err)
-    elif spec.weight is not None:
-        weight = _read_map(spec.weight, spec.weight_hdu, slices) / scale**2
-        good = np.isfinite(weight) & (weight > 0)
-        err = np.full(weight.shape, np.nan)
-        err[good] = 1.0 / np.sqrt(weight[good])
-        mask |= ~good
-        if _exposure_weighted(spec):  # scaled to the sky noise: nothing left to check
-            err *= _sky_scale(data, err, mask, f"{where} (weight map {spec.weight.name})")
-        else:
-            _check_noise(data, err, mask, f"{where} (weight map {spec.weight.name})")
-        uncertainty = StdDevUncertainty(err)
-    meta = _meta(header)
-    meta["FILENAME"] = str(spec.image)
-    return CCDData(data, unit=unit, wcs=wcs, uncertainty=uncertainty, mask=mask,
-                   meta=meta, psf=None if psf is None else psf.copy())
 
 
 def load_images(config):
@@ -1841,126 +1304,3 @@ def band_oversampling(config):
     """``{band: oversampling}`` of the bands whose PSF image is oversampled."""
     return {name: band.psf_oversampling for name, band in config.bands.items()
             if band.psf_oversampling is not None}
-
-
-# ---------------------------------------------------------------------------
-# writing TOML
-# ---------------------------------------------------------------------------
-
-
-def _toml_value(value, where):
-    if isinstance(value, (bool, np.bool_)):
-        return "true" if value else "false"
-    if isinstance(value, (int, np.integer)):
-        return str(int(value))
-    if isinstance(value, (float, np.floating)):
-        value = float(value)
-        if math.isnan(value):
-            return "nan"
-        if math.isinf(value):
-            return "inf" if value > 0 else "-inf"
-        return repr(value)
-    if isinstance(value, str):
-        return _toml_string(value)
-    if isinstance(value, (list, tuple)):
-        return "[" + ", ".join(_toml_value(v, f"{where}[{i}]") for i, v in enumerate(value)) + "]"
-    raise TypeError(f"format_config: {where} is a {type(value).__name__}, which cannot be "
-                    "written (use str, int, float, bool, lists of those, or dicts)")
-
-
-def _emit_table(table, path, lines):
-    for key in table:
-        if not isinstance(key, str):
-            where = f" in [{_sec(*path)}]" if path else ""
-            raise TypeError(f"format_config: the keys must be strings, got {key!r}{where}")
-    values = [(k, v) for k, v in table.items() if not isinstance(v, Mapping)]
-    tables = [(k, v) for k, v in table.items() if isinstance(v, Mapping)]
-    if path and (values or not tables):
-        if lines:
-            lines.append("")
-        lines.append(f"[{_sec(*path)}]")
-    for key, value in values:
-        where = ".".join((*path, key))
-        lines.append(f"{_toml_key(key)} = {_toml_value(value, where)}")
-    for key, sub in tables:
-        _emit_table(sub, (*path, key), lines)
-
-
-def format_config(data, header=None):
-    """Write a nested dictionary as TOML text.
-
-    Parameters
-    ----------
-    data : dict
-        String keys; values are str, int, float, bool, lists (or tuples) of
-        those, or nested dicts, which become tables (``[a.b.c]``). Keys that
-        are not bare TOML keys are quoted.
-    header : str, optional
-        A comment block to put first (each line prefixed with ``#``).
-
-    Returns
-    -------
-    str
-        The TOML text; ``tomllib.loads(format_config(d)) == d`` for such a
-        ``d`` without tuples or NaN.
-
-    Raises
-    ------
-    TypeError
-        A key is not a string or a value has another type.
-    """
-    if not isinstance(data, Mapping):
-        raise TypeError(f"format_config: data must be a dict, got {type(data).__name__}")
-    lines = []
-    _emit_table(data, (), lines)
-    head = []
-    if header:
-        head = [f"# {line}".rstrip() for line in header.splitlines()]
-        if lines:
-            head.append("")
-    return "\n".join(head + lines) + "\n"
-
-
-def _umask():
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
-def write_config(path, data, header=None):
-    """Write a nested dictionary as a TOML file, atomically.
-
-    The text of :func:`format_config` is written to a temporary file in the
-    same directory, which then replaces ``path`` (`os.replace`): readers
-    never see a partly written file.
-
-    Parameters
-    ----------
-    path : path-like
-        The file to write (replaced if it exists).
-    data : dict
-        See :func:`format_config`.
-    header : str, optional
-        A leading comment block.
-
-    Returns
-    -------
-    `~pathlib.Path`
-        ``path``.
-    """
-    path = Path(path)
-    text = format_config(data, header=header)
-    mode = path.stat().st_mode & 0o777 if path.exists() else 0o666 & ~_umask()
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="\n") as fh:
-            fh.write(text)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.chmod(tmp, mode)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path

@@ -1,0 +1,312 @@
+"""The schema of a ``lensdual run`` configuration: every table and key, declared once.
+
+`FIELDS` is the one declarative table of the TOML keys: for each, its table,
+type, default, bounds or choices and a one-line description. Everything else
+derives from it: the keys the validator accepts (`table_keys`), the defaults
+and bounds of the typed getters (:class:`lensdual.config._core._Validator`),
+the defaults of `~lensdual.config.RunConfig` and of the other specification
+classes (`default`), and the table of keys in the documentation
+(`schema_table`).
+
+Where a default is also the library's (the estimator), it is imported from
+the library rather than repeated.
+"""
+
+import tomllib
+from dataclasses import dataclass
+
+from astropy import units as u
+
+from ..estimators import DEFAULT_METHOD, METHODS
+from ._writer import _toml_string, _toml_value
+
+__all__ = ["Field", "FIELDS", "TABLES", "REQUIRED", "MIN_NULL_REALISATIONS", "table_keys",
+           "field", "default", "keys", "schema_table"]
+
+#: The arcs of a run, in order.
+_ARCS = ("L1", "L2")
+#: The table of an arc holding its cutout (so no band may be called this).
+_CUTOUT = "cutout"
+#: The fewest realisations of the null calibration (else 0: off).
+MIN_NULL_REALISATIONS = 100
+
+
+class _Required:
+    """The default of a key that must be given whenever its table is."""
+
+    def __repr__(self):
+        return "REQUIRED"
+
+
+#: The `Field.default` of a key that must be given whenever its table is.
+REQUIRED = _Required()
+
+
+@dataclass(frozen=True)
+class Field:
+    """One key of the configuration file.
+
+    Parameters
+    ----------
+    table : str
+        The TOML table holding the key, e.g. ``"analysis"``; tables named
+        by the user are written ``"bands.<band>"``, ``"arcs.<arc>.<band>"``
+        and ``"arcs.<arc>.cutout"``.
+    key : str
+        The key.
+    type : str
+        What the value is, in words (``"integer"``, ``"angle"``, ``"file"``...);
+        the validator reads ``"string"``, ``"integer"``, ``"real"``,
+        ``"boolean"``, ``"angle"``, ``"file"`` and ``"HDU"`` values with its
+        generic getters, the others with rules of their own.
+    default : object
+        The value a loaded configuration holds when the key is left out
+        (e.g. None, or an `~astropy.units.Quantity` for an angle), or
+        `REQUIRED`.
+    doc : str
+        One line: what the key means.
+    minimum : int, optional
+        Integers only: the smallest value accepted (``value >= minimum``).
+    above : float, optional
+        Reals only: the value must be larger (``value > above``).
+    choices : tuple of str, optional
+        Strings only: the values accepted.
+    shown : str, optional
+        The default as the documentation shows it, when it is not the TOML
+        spelling of ``default`` (e.g. a default that depends on other keys).
+    attr : str, optional
+        The attribute of the loaded specification that holds the value
+        (`~lensdual.config.RunConfig`, `~lensdual.config.BandSpec`...);
+        default ``key``.
+    """
+
+    table: str
+    key: str
+    type: str
+    default: object = None
+    doc: str = ""
+    minimum: int | None = None
+    above: float | None = None
+    choices: tuple | None = None
+    shown: str | None = None
+    attr: str | None = None
+
+    @property
+    def name(self):
+        """``"[table] key"``, as the error messages and the documentation name the key."""
+        return f"[{self.table}] {self.key}"
+
+    @property
+    def top(self):
+        """The top-level table of the key (``"bands"`` for ``"bands.<band>"``)."""
+        return self.table.split(".", 1)[0]
+
+    @property
+    def attribute(self):
+        """The attribute of the loaded specification that holds the value."""
+        return self.attr or self.key
+
+    @property
+    def required(self):
+        """Whether the key must be given whenever its table is."""
+        return self.default is REQUIRED
+
+    def bounds(self):
+        """The bounds or choices in words, e.g. ``">= 10"``, or ``""``."""
+        if self.minimum is not None:
+            return f">= {self.minimum}"
+        if self.above is not None:
+            return f"> {self.above:g}"
+        if self.choices is not None:
+            return ", ".join(_toml_string(c) for c in self.choices)
+        return ""
+
+    def shown_default(self):
+        """The default as the documentation shows it: in TOML spelling (e.g. ``"auto"``,
+        ``1000``), or in words (``required``, ``none``, or how it depends on other keys)."""
+        if self.shown is not None:
+            return self.shown
+        value = self.default
+        if value is REQUIRED:
+            return "required"
+        if value is None:
+            return "none"
+        if isinstance(value, u.Quantity):
+            return _toml_string(f"{value.value:g} {value.unit}")
+        return _toml_value(value, self.name)
+
+    def shown_is_toml(self):
+        """Whether `shown_default` is a TOML value (else words)."""
+        if self.shown is not None:
+            try:
+                tomllib.loads(f"value = {self.shown}")
+            except tomllib.TOMLDecodeError:
+                return False
+            return True
+        return self.default is not REQUIRED and self.default is not None
+
+
+_F = Field
+
+#: Every key of a configuration file, table by table, in the order of the documentation.
+FIELDS = (
+    _F("output", "outdir", "directory", "lensdual-output",
+       "the output directory (relative to the configuration file's directory)"),
+
+    _F("analysis", "estimator", "string", DEFAULT_METHOD,
+       "the size-magnification estimator (lensdual.estimators.METHODS)",
+       choices=tuple(METHODS)),
+    _F("analysis", "sigma_pos", '"auto" or angle', "auto",
+       'positional error of the sources: "auto" (errors of the PSF fits) or an angle > 0'),
+    _F("analysis", "n_bootstrap", "integer", 1000, "number of bootstrap resamplings",
+       minimum=10),
+    _F("analysis", "snr_threshold", "real", 3.0,
+       "significance threshold of a duality violation", above=0),
+    _F("analysis", "seed", "integer", 0, "seed of the random numbers", minimum=0),
+    _F("analysis", "null_realisations", "integer", 0,
+       f"realisations of the null calibration: 0 (off) or >= {MIN_NULL_REALISATIONS}; "
+       'needs estimator "adaptive"',
+       minimum=0),
+
+    _F("bands.<band>", "psf", "file", None,
+       "a PSF image (FITS, odd shape, the pixel scale of the images)"),
+    _F("bands.<band>", "psf_hdu", "HDU", None,
+       "the HDU of the PSF image (index or EXTNAME); needs psf", shown="the first 2-D image"),
+    _F("bands.<band>", "psf_fwhm", "angle", None,
+       "the FWHM of a Gaussian PSF (not with psf); neither: the FWHM is fitted",
+       shown="none (fitted)"),
+    _F("bands.<band>", "psf_oversampling", "integer or [oy, ox]", None,
+       "the oversampling of the PSF image (>= 1); needs psf",
+       shown="the file's OVERSAMP, else 1"),
+
+    _F("arcs.<arc>.<band>", "image", "file", REQUIRED,
+       "the image (FITS with a celestial WCS); arcs L1 and L2 each need every band"),
+    _F("arcs.<arc>.<band>", "hdu", "HDU", None, "the HDU of the image (index or EXTNAME)",
+       shown="the first 2-D image"),
+    _F("arcs.<arc>.<band>", "error", "file", None,
+       "a 1-sigma error map of the image's shape (not with weight)",
+       shown="none (a pipeline product's ERR)"),
+    _F("arcs.<arc>.<band>", "error_hdu", "HDU", None,
+       "the HDU of the error map; without error: of the image's file",
+       shown="the first 2-D image"),
+    _F("arcs.<arc>.<band>", "weight", "file", None,
+       "an inverse-variance weight map of the image's shape (not with error)",
+       shown="none (a pipeline product's WHT)"),
+    _F("arcs.<arc>.<band>", "weight_hdu", "HDU", None,
+       "the HDU of the weight map; without weight: of the image's file",
+       shown="the first 2-D image"),
+    _F("arcs.<arc>.<band>", "unit", "unit", None,
+       "the unit of the image and its error map (an astropy unit)",
+       shown="BUNIT, else dimensionless"),
+
+    _F("arcs.<arc>.cutout", "center", "sky position", REQUIRED,
+       'the centre of the cutout (ICRS "RA Dec"; plain numbers are degrees)',
+       attr="cutout_center"),
+    _F("arcs.<arc>.cutout", "size", "angle or [ny, nx]", REQUIRED,
+       "the size of the cutout: one angle (a square) or two", attr="cutout_size"),
+
+    _F("catalogs", "L1", "file", None,
+       "the sources of arc L1 (ECSV: integer 'id', SkyCoord 'sky' or 'ra', 'dec' in deg); "
+       "both arcs or neither"),
+    _F("catalogs", "L2", "file", None, "the sources of arc L2, as L1"),
+
+    _F("pairing", "method", "string", "auto", "how the sources of the arcs are paired",
+       choices=("auto", "manual"), attr="pairing_method"),
+    _F("pairing", "file", "file", None,
+       'the pairs (ECSV: integer columns id1, id2); method = "manual" only, and required',
+       attr="pairs_file"),
+
+    _F("parametric", "lenstool", "file", None, "a Lenstool parameter file to compare with"),
+    _F("parametric", "fit", "boolean", False, "fit a lenstronomy model to the pairs"),
+    _F("parametric", "model", "list of strings", ("NFW_ELLIPSE_CSE", "SHEAR"),
+       "the lenstronomy profiles of the fit"),
+    _F("parametric", "z_lens", "real", None,
+       "the lens redshift; required with fit = true or lenstool", above=0),
+    _F("parametric", "z_source", "real", None,
+       "the source redshift, > z_lens; required with fit = true or lenstool", above=0),
+    _F("parametric", "sigma_pos", "angle", 0.01 * u.arcsec,
+       "the positional error of the fit's chi-square"),
+    _F("parametric", "centre", "sky position", None,
+       "the origin of the fit's frame (e.g. the BCG)",
+       shown="the Lenstool model's frame, else the pairs'"),
+    _F("parametric", "fix_centre", "boolean", False,
+       "hold the first profile's centre at centre (which it needs)"),
+
+    _F("knots", "catalogue", "file", REQUIRED,
+       "a multiple-image catalogue: Lenstool, or ECSV with 'id' and 'sky' (or 'ra', 'dec')"),
+    _F("knots", "macro_images", "list of strings", REQUIRED,
+       "the names of the macro-images, at least 2"),
+    _F("knots", "centres", '"catalogue" or table', None,
+       'the macro-images\' centres: read from the catalogue\'s comments, or {name = "RA Dec"}',
+       shown='"catalogue"'),
+    _F("knots", "systems", "[lo, hi] or list of names", (),
+       "the knot systems: integer ids in [lo, hi), or names", shown="all"),
+    _F("knots", "assign", "string", "centre", "how knots are assigned to macro-images",
+       choices=("centre", "mapping", "model"),
+       shown='"mapping" with mapping, "model" with models, else "centre"'),
+    _F("knots", "mapping", "file", None, "ECSV with columns id, macro (assign = \"mapping\")"),
+    _F("knots", "models", "list of files", (),
+       "Lenstool models to compare with (the first assigns with assign = \"model\")",
+       shown="[]"),
+    _F("knots", "z_source", "real", None, "the redshift of the knots", above=0,
+       shown="the catalogue's"),
+    _F("knots", "sigma_pos", '"auto" or angle', "auto",
+       'the position error: "auto" (per pair of macro-images, from the residuals) or an angle'),
+)
+
+del _F
+
+#: The top-level tables, in order.
+TABLES = ("output", "analysis", "bands", "arcs", "catalogs", "pairing", "parametric", "knots")
+
+#: Tables a catalogue-only ([knots]) run does without.
+_IMAGE_TABLES = ("bands", "arcs", "catalogs", "pairing", "parametric")
+
+_BY_NAME = {(f.table, f.key): f for f in FIELDS}
+
+
+def field(table, key):
+    """The `Field` of ``key`` in ``table`` (e.g. ``field("analysis", "seed")``)."""
+    return _BY_NAME[(table, key)]
+
+
+def default(table, key):
+    """The default of ``key`` in ``table``: the value a loaded configuration holds."""
+    return _BY_NAME[(table, key)].default
+
+
+def keys(table):
+    """The keys of ``table`` (e.g. ``"bands.<band>"``), in order."""
+    return tuple(f.key for f in FIELDS if f.table == table)
+
+
+def table_keys():
+    """``{top-level table: its keys}``; the tables of user-named tables (``[bands]``,
+    ``[arcs]``) hold no keys of their own."""
+    return {t: keys(t) for t in TABLES}
+
+
+def _cell(text):
+    """``text`` as a cell of an rst list-table (one line)."""
+    return text.replace("*", r"\*").replace("|", r"\|")
+
+
+def schema_table():
+    """The keys of the configuration as a reStructuredText table, from `FIELDS`.
+
+    Returns
+    -------
+    str
+        A ``list-table`` with one row per key: the table and key, its type
+        and bounds, its default (in TOML spelling) and what it means.
+    """
+    lines = [".. list-table::", "   :header-rows: 1", "   :widths: 28 20 20 32", "",
+             "   * - Key", "     - Type", "     - Default", "     - Meaning"]
+    for f in FIELDS:
+        bounds = f.bounds()
+        kind = f"{f.type} {bounds}" if f.minimum is not None or f.above is not None else f.type
+        meaning = f"{f.doc}; one of {bounds}" if f.choices else f.doc
+        shown = f"``{f.shown_default()}``" if f.shown_is_toml() else _cell(f.shown_default())
+        lines += [f"   * - ``{f.name}``", f"     - {_cell(kind)}", f"     - {shown}",
+                  f"     - {_cell(meaning)}"]
+    return "\n".join(lines) + "\n"
