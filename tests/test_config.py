@@ -1,7 +1,9 @@
 """Tests of lensdual.config: the TOML configuration of ``lensdual run``."""
 
 import copy
+import dataclasses
 import pickle
+import re
 import tomllib
 
 import numpy as np
@@ -14,10 +16,12 @@ from astropy.table import QTable, Table
 from astropy.wcs import WCS
 
 from lensdual.config import (
+    FIELDS,
     ArcSpec,
     BandSpec,
     ConfigError,
     ImageSpec,
+    KnotSpec,
     ParametricSpec,
     RunConfig,
     band_psfs,
@@ -26,6 +30,7 @@ from lensdual.config import (
     load_images,
     write_config,
 )
+from lensdual.config import _schema as schema
 
 SHAPE = (40, 40)
 PIXEL = 0.04  # arcsec
@@ -523,3 +528,247 @@ def test_format_config_round_trip(tmp_path):
     data2["arcs"]["L1"]["F150W"]["hdu"] = {1, 2}
     with pytest.raises(TypeError, match="set"):
         format_config(data2)
+
+
+# ---------------------------------------------------------------------------
+# the schema: every key declared once (lensdual.config.FIELDS)
+# ---------------------------------------------------------------------------
+
+
+def knots_config():
+    """A minimal catalogue-only configuration (the catalogue is only checked to exist)."""
+    return {"knots": {"catalogue": "best.par", "macro_images": ["1.1", "1.2"]}}
+
+
+def _loaded(cfg, field):
+    """The loaded value of ``field`` in the RunConfig ``cfg``."""
+    holder = {
+        "output": cfg, "analysis": cfg, "pairing": cfg, "parametric": cfg.parametric,
+        "knots": cfg.knots, "bands.<band>": cfg.bands.get("F150W"),
+        "arcs.<arc>.<band>": cfg.arcs.get("L1") and cfg.arcs["L1"].images["F150W"],
+        "arcs.<arc>.cutout": cfg.arcs.get("L1"),
+    }[field.table]
+    return getattr(holder, field.attribute)
+
+
+def _same(a, b):
+    if isinstance(a, u.Quantity) or isinstance(b, u.Quantity):
+        return isinstance(a, u.Quantity) and isinstance(b, u.Quantity) and a == b
+    return a == b and type(a) is type(b)
+
+
+OPTIONAL = [f for f in FIELDS if not f.required and f.table != "catalogs"]
+
+
+@pytest.mark.parametrize("field", OPTIONAL, ids=[f.name for f in OPTIONAL])
+def test_schema_default_is_what_a_minimal_config_loads(data_dir, field):
+    if field.table == "knots":
+        cfg = knots_config()
+    else:
+        cfg = minimal_config() | {"pairing": {}, "parametric": {}}
+    loaded = load_config(write(data_dir, "schema_defaults", cfg))
+    if field.name == "[output] outdir":
+        assert loaded.outdir == data_dir.resolve() / field.default
+    else:
+        assert _same(_loaded(loaded, field), field.default)
+
+
+def test_schema_defaults_are_those_of_the_specification_classes():
+    holders = {"output": RunConfig, "analysis": RunConfig, "pairing": RunConfig,
+               "parametric": ParametricSpec, "knots": KnotSpec, "bands.<band>": BandSpec,
+               "arcs.<arc>.<band>": ImageSpec, "arcs.<arc>.cutout": ArcSpec}
+    checked = 0
+    for field in FIELDS:
+        if field.table not in holders or field.name == "[output] outdir":
+            continue
+        spec = {f.name: f for f in dataclasses.fields(holders[field.table])}[field.attribute]
+        if field.required:
+            assert spec.default in (dataclasses.MISSING, None), field.name
+        else:
+            assert _same(spec.default, field.default), field.name
+            checked += 1
+    assert checked >= 30
+
+
+def test_schema_defaults_agree_with_the_library():
+    """Defaults the run shares with the Python functions it calls (the library has no
+    named constant for them, so a test keeps the two in step)."""
+    import inspect
+
+    from lensdual.estimators import DEFAULT_METHOD, METHODS
+    from lensdual.parametric.comparison import parametric_comparison
+    from lensdual.pipeline import analyse
+
+    params = inspect.signature(analyse).parameters
+    for key in ("estimator", "sigma_pos", "n_bootstrap", "snr_threshold", "seed",
+                "null_realisations"):
+        assert _same(schema.default("analysis", key), params[key].default), key
+    assert schema.default("analysis", "estimator") is DEFAULT_METHOD
+    assert schema.field("analysis", "estimator").choices == tuple(METHODS)
+    assert (schema.default("parametric", "model")
+            == inspect.signature(parametric_comparison).parameters["model"].default)
+
+
+REQUIRED_KEYS = [
+    ("[arcs.<arc>.<band>] image", _set("arcs", "L1", "F150W", "image", None),
+     "[arcs.L1.F150W] image: missing"),
+    ("[arcs.<arc>.cutout] center", _set("arcs", "L1", "cutout", "center", None),
+     "[arcs.L1.cutout] center: missing"),
+    ("[arcs.<arc>.cutout] size", _set("arcs", "L1", "cutout", "size", None),
+     "[arcs.L1.cutout] size: missing"),
+    ("[knots] catalogue", _set("knots", "catalogue", None), "[knots] catalogue: required"),
+    ("[knots] macro_images", _set("knots", "macro_images", None),
+     "[knots] macro_images: required"),
+]
+
+
+def test_required_keys_are_those_of_the_schema():
+    assert {name for name, *_ in REQUIRED_KEYS} == {f.name for f in FIELDS if f.required}
+
+
+@pytest.mark.parametrize(("mutate", "fragment"), [r[1:] for r in REQUIRED_KEYS],
+                         ids=[r[0] for r in REQUIRED_KEYS])
+def test_required_key_missing(data_dir, mutate, fragment):
+    cfg = knots_config() if "knots" in fragment else full_config()
+    mutate(cfg)
+    with pytest.raises(ConfigError) as info:
+        load_config(write(data_dir, "required", cfg))
+    assert [p for p in info.value.problems if p.startswith(fragment)], info.value.problems
+
+
+def _key_tables():
+    """(schema table, concrete table path, base config) of every table with fixed keys."""
+    out = []
+    for table in dict.fromkeys(f.table for f in FIELDS):
+        path = {"bands.<band>": ("bands", "F150W"), "arcs.<arc>.<band>": ("arcs", "L1", "F150W"),
+                "arcs.<arc>.cutout": ("arcs", "L1", "cutout")}.get(table, (table,))
+        out.append((table, path))
+    return out
+
+
+@pytest.mark.parametrize(("table", "path"), _key_tables(), ids=[t for t, _ in _key_tables()])
+def test_unknown_key_rejected(data_dir, table, path):
+    cfg = knots_config() if table == "knots" else full_config()
+    _set(*path, "zzz_unknown", 1)(cfg)
+    with pytest.raises(ConfigError) as info:
+        load_config(write(data_dir, "unknown_key", cfg))
+    sec = ".".join(path)
+    known = ", ".join(schema.keys(table))
+    assert info.value.problems == [f"[{sec}] zzz_unknown: unknown key (known keys: {known})"]
+
+
+BOUNDED = [f for f in FIELDS
+           if f.minimum is not None or f.above is not None or f.choices is not None]
+
+
+def _bounded_config(field):
+    cfg = knots_config() if field.table == "knots" else minimal_config()
+    cfg.setdefault(field.table, {})
+    return cfg
+
+
+@pytest.mark.parametrize("field", BOUNDED, ids=[f.name for f in BOUNDED])
+def test_bounds_from_the_schema(data_dir, field):
+    assert len(BOUNDED) >= 9
+    cfg = _bounded_config(field)
+    if field.minimum is not None:
+        bad, ok = field.minimum - 1, field.minimum
+        message = f"{field.name}: must be >= {field.minimum}, got {bad}"
+    elif field.above is not None:
+        bad, ok = field.above, field.above + 1.5
+        message = f"{field.name}: must be > {field.above:g}, got {bad:g}"
+    else:
+        bad, ok = "zzz", field.default
+        listed = ", ".join(f"'{c}'" for c in field.choices)
+        message = f"{field.name}: 'zzz' is not one of {listed}"
+    cfg[field.table][field.key] = bad
+    with pytest.raises(ConfigError) as info:
+        load_config(write(data_dir, "bounds", cfg))
+    assert info.value.problems == [message]
+    cfg[field.table][field.key] = ok  # the bound itself (or the default) is accepted
+    loaded = load_config(write(data_dir, "bounds", cfg))
+    assert _loaded(loaded, field) == ok
+
+
+def _doc_table(doc):
+    """{key name: (type, default)} of the list-table of keys in ``doc``."""
+    block = doc[doc.index(".. list-table::"):]
+    rows = re.findall(r"^   \* - (.*)\n     - (.*)\n     - (.*)\n     - (.*)$", block, re.M)
+    return {name: (kind, shown) for name, kind, shown, _ in rows[1:]}
+
+
+def test_documentation_table_agrees_with_the_schema():
+    import lensdual.config
+
+    table = _doc_table(lensdual.config.__doc__)
+    assert list(table) == [f"``{f.name}``" for f in FIELDS]
+    for f in FIELDS:
+        kind, shown = table[f"``{f.name}``"]
+        assert shown.strip("`") == f.shown_default(), f.name
+        if f.minimum is not None:
+            assert kind.endswith(f">= {f.minimum}"), f.name
+        if f.above is not None:
+            assert kind.endswith(f"> {f.above:g}"), f.name
+        if not f.required and f.shown is None and f.default is not None:
+            # a TOML default reads back as the default
+            value = tomllib.loads(f"v = {f.shown_default()}")["v"]
+            expected = f.default
+            if isinstance(expected, u.Quantity):
+                value = u.Quantity(value)
+            elif isinstance(expected, tuple):
+                value = tuple(value)
+            assert _same(value, expected), f.name
+
+
+def _example_tables(doc):
+    """The annotated example configurations of ``doc`` (the [output] ... and the [knots]
+    blocks that ``lensdual run --help`` prints), parsed."""
+    import textwrap
+
+    blocks = []
+    knots = doc.index("::\n\n", doc.index("[knots]"))
+    for start, last in ((doc.index("::\n\n"), "z_source"), (knots, "sigma_pos")):
+        end = doc.index("\n\n", doc.index(last, start))
+        text = textwrap.dedent(doc[start + 4:end])
+        # the example shows alternatives (psf and psf_fwhm, error and weight): keep them
+        # apart by reading every [table] on its own
+        for part in re.split(r"^(?=\[)", text, flags=re.M):
+            if part.strip():
+                blocks.append(tomllib.loads(part))
+    return blocks
+
+
+def _schema_table(path):
+    """The schema's table of a concrete table path, e.g. arcs.L1.F150W."""
+    if path[0] == "bands" and len(path) == 2:
+        return "bands.<band>"
+    if path[0] == "arcs" and len(path) == 3:
+        return "arcs.<arc>.cutout" if path[2] == "cutout" else "arcs.<arc>.<band>"
+    return ".".join(path)
+
+
+def test_annotated_example_agrees_with_the_schema():
+    import lensdual.config
+
+    # the example shows the default of these keys (for [output] and [analysis]: of all)
+    shows_default = {("pairing", "method"), ("parametric", "fit"), ("parametric", "model"),
+                     ("parametric", "sigma_pos"), ("parametric", "fix_centre"),
+                     ("knots", "centres"), ("knots", "sigma_pos")}
+    seen = set()
+
+    def walk(table, path):
+        for key, value in table.items():
+            if isinstance(value, dict) and (len(path) < 3 or path[0] != "knots"):
+                walk(value, (*path, key))
+                continue
+            f = schema.field(_schema_table(path), key)
+            seen.add(f.name)
+            if f.table in ("output", "analysis") or (f.table, f.key) in shows_default:
+                assert tomllib.loads(f"v = {f.shown_default()}")["v"] == value, f.name
+
+    for block in _example_tables(lensdual.config.__doc__):
+        walk(block, ())
+    # every key is in the example, but for weight maps: its comments name them
+    assert {f.name for f in FIELDS} - seen == {"[arcs.<arc>.<band>] weight",
+                                               "[arcs.<arc>.<band>] weight_hdu"}
+    assert 'weight = "..." / weight_hdu' in lensdual.config.__doc__
