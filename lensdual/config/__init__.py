@@ -22,15 +22,10 @@ file. Angles are strings of a number and an angular unit (``"0.066 arcsec"``,
 ``"10 mas"``, ``"1.2e-5 deg"``). ::
 
     [output]
-    outdir = "lensdual-output"       # optional; default "lensdual-output"
+@output@
 
     [analysis]                       # optional, as is every key in it
-    estimator = "adaptive"           # "adaptive" (default), "2v", "quad" or "quad2"
-    sigma_pos = "auto"               # "auto" (errors of the PSF fits) or an angle > 0
-    n_bootstrap = 1000               # integer >= 10
-    snr_threshold = 3.0              # real > 0
-    seed = 0                         # integer >= 0
-    null_realisations = 0            # 0 (off) or >= 100: null calibration (estimator "adaptive")
+@analysis@
 
     [bands.F150W]                    # one table per band, at least one band
     psf = "psf_F150W.fits"           # a PSF image (FITS, odd shape, same pixel scale
@@ -119,6 +114,7 @@ table is.
 
 """
 
+from . import _schema
 from ._core import *  # noqa: F403
 from ._core import __all__ as _core_all
 from ._schema import FIELDS, Field, schema_table
@@ -136,4 +132,7 @@ from ._writer import format_config, write_config
 
 __all__ = [*_core_all, "format_config", "write_config", "Field", "FIELDS", "schema_table"]
 
-__doc__ += schema_table()
+# The keys of [output] and [analysis] in the example, and the table of keys, come from
+# the schema (lensdual run --help prints the example).
+__doc__ = (__doc__.replace("@output@", _schema.example("output"))
+           .replace("@analysis@", _schema.example("analysis")) + schema_table())

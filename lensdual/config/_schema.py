@@ -21,7 +21,7 @@ from ..estimators import DEFAULT_METHOD, METHODS
 from ._writer import _toml_string, _toml_value
 
 __all__ = ["Field", "FIELDS", "TABLES", "REQUIRED", "MIN_NULL_REALISATIONS", "table_keys",
-           "field", "default", "keys", "schema_table"]
+           "field", "default", "keys", "example", "schema_table"]
 
 #: The arcs of a run, in order.
 _ARCS = ("L1", "L2")
@@ -74,6 +74,9 @@ class Field:
     shown : str, optional
         The default as the documentation shows it, when it is not the TOML
         spelling of ``default`` (e.g. a default that depends on other keys).
+    note : str, optional
+        The comment of the key in the annotated example of the
+        documentation, when the type and bounds do not say it.
     attr : str, optional
         The attribute of the loaded specification that holds the value
         (`~lensdual.config.RunConfig`, `~lensdual.config.BandSpec`...);
@@ -89,6 +92,7 @@ class Field:
     above: float | None = None
     choices: tuple | None = None
     shown: str | None = None
+    note: str | None = None
     attr: str | None = None
 
     @property
@@ -112,7 +116,13 @@ class Field:
         return self.default is REQUIRED
 
     def bounds(self):
-        """The bounds or choices in words, e.g. ``">= 10"``, or ``""``."""
+        """The bounds or choices of the value in words.
+
+        Returns
+        -------
+        str
+            E.g. ``">= 10"``, ``"> 0"``, ``'"auto", "manual"'``, or ``""``.
+        """
         if self.minimum is not None:
             return f">= {self.minimum}"
         if self.above is not None:
@@ -122,8 +132,14 @@ class Field:
         return ""
 
     def shown_default(self):
-        """The default as the documentation shows it: in TOML spelling (e.g. ``"auto"``,
-        ``1000``), or in words (``required``, ``none``, or how it depends on other keys)."""
+        """The default as the documentation shows it.
+
+        Returns
+        -------
+        str
+            The default in TOML spelling (e.g. ``"auto"``, ``1000``), or in
+            words (``required``, ``none``, or how it depends on other keys).
+        """
         if self.shown is not None:
             return self.shown
         value = self.default
@@ -135,8 +151,33 @@ class Field:
             return _toml_string(f"{value.value:g} {value.unit}")
         return _toml_value(value, self.name)
 
+    def example_line(self):
+        """The key's line in the annotated example of the documentation.
+
+        Returns
+        -------
+        str
+            ``key = default`` and a comment: the `note`, else the type and
+            bounds or choices, e.g. ``n_bootstrap = 1000  # integer >= 10``.
+        """
+        if self.note is not None:
+            comment = self.note.format(default=self.shown_default())
+        elif self.choices is not None:
+            rest = [_toml_string(c) for c in self.choices if c != self.default]
+            comment = (f"{self.shown_default()} (default), {', '.join(rest[:-1])} or "
+                       f"{rest[-1]}")
+        else:
+            comment = f"{self.type} {self.bounds()}".strip()
+        return f"{self.key} = {self.shown_default()}".ljust(33) + f"# {comment}"
+
     def shown_is_toml(self):
-        """Whether `shown_default` is a TOML value (else words)."""
+        """Whether `shown_default` is a TOML value.
+
+        Returns
+        -------
+        bool
+            True for a TOML value, False for words.
+        """
         if self.shown is not None:
             try:
                 tomllib.loads(f"value = {self.shown}")
@@ -151,13 +192,15 @@ _F = Field
 #: Every key of a configuration file, table by table, in the order of the documentation.
 FIELDS = (
     _F("output", "outdir", "directory", "lensdual-output",
-       "the output directory (relative to the configuration file's directory)"),
+       "the output directory (relative to the configuration file's directory)",
+       note="optional; default {default}"),
 
     _F("analysis", "estimator", "string", DEFAULT_METHOD,
        "the size-magnification estimator (lensdual.estimators.METHODS)",
        choices=tuple(METHODS)),
     _F("analysis", "sigma_pos", '"auto" or angle', "auto",
-       'positional error of the sources: "auto" (errors of the PSF fits) or an angle > 0'),
+       'positional error of the sources: "auto" (errors of the PSF fits) or an angle > 0',
+       note='"auto" (errors of the PSF fits) or an angle > 0'),
     _F("analysis", "n_bootstrap", "integer", 1000, "number of bootstrap resamplings",
        minimum=10),
     _F("analysis", "snr_threshold", "real", 3.0,
@@ -166,7 +209,8 @@ FIELDS = (
     _F("analysis", "null_realisations", "integer", 0,
        f"realisations of the null calibration: 0 (off) or >= {MIN_NULL_REALISATIONS}; "
        'needs estimator "adaptive"',
-       minimum=0),
+       minimum=0, note=f"0 (off) or >= {MIN_NULL_REALISATIONS}: null calibration "
+                       '(estimator "adaptive")'),
 
     _F("bands.<band>", "psf", "file", None,
        "a PSF image (FITS, odd shape, the pixel scale of the images)"),
@@ -284,6 +328,22 @@ def table_keys():
     """``{top-level table: its keys}``; the tables of user-named tables (``[bands]``,
     ``[arcs]``) hold no keys of their own."""
     return {t: keys(t) for t in TABLES}
+
+
+def example(table):
+    """The lines of ``table``'s keys in the annotated example, each with its default.
+
+    Parameters
+    ----------
+    table : str
+        A table of the schema, e.g. ``"analysis"``.
+
+    Returns
+    -------
+    str
+        One `Field.example_line` per key, indented by four spaces.
+    """
+    return "\n".join(f"    {f.example_line()}" for f in FIELDS if f.table == table)
 
 
 def _cell(text):
