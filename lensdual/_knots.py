@@ -27,6 +27,7 @@ from astropy.coordinates import SkyCoord
 from astropy.table import QTable, Table
 
 from ._frames import mean_direction, tangent_xy
+from ._pairs_table import ID_COLUMNS, PAIR_ID, SKY_COLUMNS, flux_col, flux_err_col, xy_cols
 from ._validation import as_angle_scalar, as_int, as_real
 
 __all__ = ["KnotPairs", "pairs_from_knots", "read_macro_images"]
@@ -547,19 +548,19 @@ def pairs_from_knots(images, macro_images, *, knots=None, assign=None, mapping=N
         i = np.array([np.flatnonzero(used & (macro == a) & (system == k))[0] for k in common])
         j = np.array([np.flatnonzero(used & (macro == b) & (system == k))[0] for k in common])
         out = QTable()
-        out["pair_id"] = np.arange(1, len(common) + 1)
+        out[PAIR_ID] = np.arange(1, len(common) + 1)
         out["knot"] = np.array(common)
-        out["id1"], out["id2"] = ids[i], ids[j]
-        out["x1"], out["y1"] = xy[i, 0] * u.arcsec, xy[i, 1] * u.arcsec
-        out["x2"], out["y2"] = xy[j, 0] * u.arcsec, xy[j, 1] * u.arcsec
-        out["sky1"], out["sky2"] = sky[i], sky[j]
+        out[ID_COLUMNS[0]], out[ID_COLUMNS[1]] = ids[i], ids[j]
+        for (x, y), rows in ((xy_cols(1), i), (xy_cols(2), j)):
+            out[x], out[y] = xy[rows, 0] * u.arcsec, xy[rows, 1] * u.arcsec
+        out[SKY_COLUMNS[0]], out[SKY_COLUMNS[1]] = sky[i], sky[j]
         for band in ([] if bands is None else [bands] if isinstance(bands, str) else bands):
             fcol, ecol = flux_columns.format(band=band), flux_err_columns.format(band=band)
             if fcol not in tab.colnames:
                 raise ValueError(f"images has no flux column {fcol!r} of band {band!r}")
-            out[f"flux1_{band}"], out[f"flux2_{band}"] = tab[fcol][i], tab[fcol][j]
+            out[flux_col(1, band)], out[flux_col(2, band)] = tab[fcol][i], tab[fcol][j]
             if ecol in tab.colnames:
-                out[f"flux_err1_{band}"], out[f"flux_err2_{band}"] = tab[ecol][i], tab[ecol][j]
+                out[flux_err_col(1, band)], out[flux_err_col(2, band)] = tab[ecol][i], tab[ecol][j]
         out.meta.update(bands=[] if bands is None else list(np.atleast_1d(bands)),
                         reference=reference, macro1=names[a], macro2=names[b],
                         z_source=z_source, assign=assign)

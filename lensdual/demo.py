@@ -90,6 +90,7 @@ def simulate_demo(*, subhalo="overconcentrated", n_sources=12, seed=0, subhalo_s
     """
     import astropy.units as u
 
+    from ._pairs_table import arc_xy
     from .simulation import SUBHALOES, smacs0723_analog, tnfw_halo
     from .simulation.scenarios import SMACS0723
 
@@ -112,7 +113,7 @@ def simulate_demo(*, subhalo="overconcentrated", n_sources=12, seed=0, subhalo_s
     system = base
     if subhalo != "none":
         mass, conc = SUBHALOES[subhalo]
-        host = np.array([macro["x2"][k].to_value(u.arcsec), macro["y2"][k].to_value(u.arcsec)])
+        host = arc_xy(macro, 2)[k]
         sub = tnfw_halo(mass, conc, (host + [0.002, 0.0]) * u.arcsec,
                         z_lens=SMACS0723["z_lens"], z_source=SMACS0723["z_source"],
                         label=f"{subhalo} sub-halo")
@@ -210,16 +211,13 @@ def compare_with_truth(result, truth, sky_center, *, max_separation=0.1):
     import astropy.units as u
     from astropy.table import QTable
 
+    from ._pairs_table import arc_xy, sky_col
     from .simulation import lens_to_sky
 
-    true_sky1 = lens_to_sky(np.column_stack([truth["x1"].to_value(u.arcsec),
-                                             truth["y1"].to_value(u.arcsec)]) * u.arcsec,
-                            sky_center)
-    true_sky2 = lens_to_sky(np.column_stack([truth["x2"].to_value(u.arcsec),
-                                             truth["y2"].to_value(u.arcsec)]) * u.arcsec,
-                            sky_center)
-    idx2, sep2, _ = result["sky2"].match_to_catalog_sky(true_sky2)
-    sep1 = result["sky1"].separation(true_sky1[idx2])
+    true_sky1 = lens_to_sky(arc_xy(truth, 1) * u.arcsec, sky_center)
+    true_sky2 = lens_to_sky(arc_xy(truth, 2) * u.arcsec, sky_center)
+    idx2, sep2, _ = result[sky_col(2)].match_to_catalog_sky(true_sky2)
+    sep1 = result[sky_col(1)].separation(true_sky1[idx2])
     ok = (sep2.to_value(u.arcsec) < max_separation) & (sep1.to_value(u.arcsec) < max_separation)
     source = np.where(ok, idx2, -1)
     n = len(result)

@@ -15,6 +15,10 @@ from astropy.table import QTable, Table
 from scipy import stats
 from scipy.special import chdtrc, erfc
 
+from . import _pairs_table
+from ._pairs_table import band_fluxes as _band_fluxes
+from ._pairs_table import pair_bands
+from ._pairs_table import positions as _positions
 from ._parallel import check_client, run_tasks
 from ._validation import as_int, as_real
 from .estimators import DEFAULT_METHOD, TESTABLE_STATUS, size_magnification
@@ -25,12 +29,10 @@ __all__ = ["POSITION_COLUMNS", "SNR_DEFINITIONS", "check_duality", "pair_bands",
            "holm_adjust", "null_calibration", "gaussian_p_value", "duality_significance"]
 
 #: Position columns every pairs table needs (arcsec or any angle unit).
-POSITION_COLUMNS = ("x1", "y1", "x2", "y2")
+POSITION_COLUMNS = _pairs_table.POSITION_COLUMNS
 
 #: Definitions of the duality signal-to-noise ratio, see :func:`check_duality`.
 SNR_DEFINITIONS = ("log", "paper")
-
-_FLUX_KINDS = ("flux1", "flux2", "flux_err1", "flux_err2")
 
 
 def _as_qtable(pairs):
@@ -40,94 +42,6 @@ def _as_qtable(pairs):
             f"{type(pairs).__name__}"
         )
     return QTable(pairs, copy=True)
-
-
-def pair_bands(pairs):
-    """Bands of a pairs table: ``meta['bands']``, else those with ``flux1_<band>`` columns.
-
-    Parameters
-    ----------
-    pairs : `~astropy.table.Table`
-        A pairs table (see :ref:`pairs-table` in the docs).
-
-    Returns
-    -------
-    bands : list of str
-    """
-    bands = pairs.meta.get("bands")
-    if bands is None:
-        bands = [name[len("flux1_"):] for name in pairs.colnames if name.startswith("flux1_")]
-    elif isinstance(bands, str):
-        bands = [bands]
-    bands = list(bands)
-    if not bands:
-        raise ValueError(
-            "the pairs table names no bands: set meta['bands'] or add flux1_<band>, "
-            "flux2_<band>, flux_err1_<band> and flux_err2_<band> columns"
-        )
-    return bands
-
-
-def _positions(tab):
-    missing = [c for c in POSITION_COLUMNS if c not in tab.colnames]
-    if missing:
-        raise ValueError(f"pairs table lacks the position column(s) {missing}")
-    out = []
-    for c in POSITION_COLUMNS:
-        col = tab[c]
-        if not isinstance(col, u.Quantity) or col.unit.physical_type != "angle":
-            unit = getattr(col, "unit", None)
-            raise TypeError(f"pairs column {c!r} must have angular units (e.g. arcsec), got {unit}")
-        out.append(col.to(u.arcsec))
-    theta1 = np.column_stack([out[0].value, out[1].value]) * u.arcsec
-    theta2 = np.column_stack([out[2].value, out[3].value]) * u.arcsec
-    return theta1, theta2
-
-
-def _band_fluxes(tab, band):
-    """Return flux1, flux2, err1, err2 of one band as float arrays in one unit."""
-    names = [f"{kind}_{band}" for kind in _FLUX_KINDS]
-    missing = [n for n in names if n not in tab.colnames]
-    if missing:
-        raise ValueError(f"pairs table lacks the column(s) {missing} of band {band!r}")
-    cols = [tab[n] for n in names]
-    units = [c.unit if isinstance(c, u.Quantity) else None for c in cols]
-    ref = units[0]
-    values = []
-    for name, col, unit in zip(names, cols, units, strict=True):
-        if (unit is None) != (ref is None):
-            raise ValueError(
-                f"flux units of band {band!r} do not match: {names[0]} has unit {ref}, "
-                f"{name} has unit {unit}"
-            )
-        if unit is None:
-            values.append(np.asarray(col, dtype=np.float64))
-        else:
-            try:
-                values.append(np.asarray(col.to_value(ref), dtype=np.float64))
-            except u.UnitConversionError as exc:
-                raise ValueError(
-                    f"flux units of band {band!r} do not match: {names[0]} has unit {ref}, "
-                    f"{name} has unit {unit}"
-                ) from exc
-    f1, f2, e1, e2 = values
-    for name, f in zip(names[:2], (f1, f2), strict=True):
-        bad = np.isfinite(f) & (f <= 0)
-        if bad.any():
-            raise ValueError(
-                f"{name} must be positive for a flux ratio; non-positive at row(s) "
-                f"{np.flatnonzero(bad).tolist()}"
-            )
-    for name, f, e in zip(names[2:], (f1, f2), (e1, e2), strict=True):
-        # a NaN flux means "not measured": its error may be NaN too
-        bad = np.isfinite(f) & ~(np.isfinite(e) & (e > 0))
-        if bad.any():
-            raise ValueError(
-                f"{name} must be finite and positive; bad at row(s) "
-                f"{np.flatnonzero(bad).tolist()} (a NaN flux, not measured, may have a NaN "
-                "error)"
-            )
-    return f1, f2, e1, e2
 
 
 def flux_ratios(pairs):
@@ -164,8 +78,8 @@ def flux_ratios(pairs):
         f1, f2, e1, e2 = _band_fluxes(tab, band)
         mu = f1 / f2
         s = np.hypot(e1 / f1, e2 / f2)
-        out[f"mu_flux_{band}"] = mu
-        out[f"mu_flux_err_{band}"] = mu * s
+        out[_pairs_table.mu_flux_col(band)] = mu
+        out[_pairs_table.mu_flux_err_col(band)] = mu * s
         ln_mu[i] = np.log(mu)
         ln_err[i] = s
     valid = np.isfinite(ln_mu)

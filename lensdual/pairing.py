@@ -29,6 +29,15 @@ from scipy.special import fdtri
 
 from ._frames import mean_direction, tangent_xy
 from ._knots import KnotPairs, pairs_from_knots, read_macro_images
+from ._pairs_table import (
+    ID_COLUMNS,
+    PAIR_ID,
+    SKY_COLUMNS,
+    flux_col,
+    flux_err_col,
+    positions,
+    xy_cols,
+)
 from ._validation import as_angle_scalar, as_positions, as_real, check_unique_rows
 
 __all__ = ["KnotPairs", "pair_constellations", "pairs_from_ids", "pairs_from_knots",
@@ -233,19 +242,15 @@ def _pairs_positions(pairs):
     """(x1, x2): the (N, 2) arcsec positions of a pairs table."""
     if not isinstance(pairs, Table):
         raise TypeError(f"pairs must be an astropy Table or QTable, got {type(pairs).__name__}")
-    cols = []
-    for c in ("x1", "y1", "x2", "y2"):
-        if c not in pairs.colnames:
-            raise ValueError(f"pairs lacks the position column {c!r}")
-        cols.append(_column_quantity(pairs, c, "pairs").to_value(u.arcsec))
-    return np.column_stack(cols[:2]), np.column_stack(cols[2:])
+    theta1, theta2 = positions(pairs)
+    return theta1.to_value(u.arcsec), theta2.to_value(u.arcsec)
 
 
 def _id_pairs(id_pairs, name):
     """(M,) id1 and id2 arrays from a table with id1/id2 columns or an (M, 2) array."""
     if isinstance(id_pairs, Table):
-        if "id1" in id_pairs.colnames and "id2" in id_pairs.colnames:
-            id1, id2 = np.asarray(id_pairs["id1"]), np.asarray(id_pairs["id2"])
+        if all(c in id_pairs.colnames for c in ID_COLUMNS):
+            id1, id2 = (np.asarray(id_pairs[c]) for c in ID_COLUMNS)
         elif len(id_pairs.colnames) == 2:
             id1 = np.asarray(id_pairs[id_pairs.colnames[0]])
             id2 = np.asarray(id_pairs[id_pairs.colnames[1]])
@@ -815,19 +820,18 @@ def _pairs_table(id_pairs, ids1, ids2, p, q, sky1, sky2, i, j):
     otherwise it counts from 1.
     """
     out = QTable()
-    if isinstance(id_pairs, Table) and "pair_id" in id_pairs.colnames:
-        out["pair_id"] = np.asarray(id_pairs["pair_id"])
+    if isinstance(id_pairs, Table) and PAIR_ID in id_pairs.colnames:
+        out[PAIR_ID] = np.asarray(id_pairs[PAIR_ID])
     else:
-        out["pair_id"] = np.arange(1, len(i) + 1)
-    out["id1"] = ids1[i]
-    out["id2"] = ids2[j]
-    out["x1"] = p[i, 0] * u.arcsec
-    out["y1"] = p[i, 1] * u.arcsec
-    out["x2"] = q[j, 0] * u.arcsec
-    out["y2"] = q[j, 1] * u.arcsec
+        out[PAIR_ID] = np.arange(1, len(i) + 1)
+    out[ID_COLUMNS[0]] = ids1[i]
+    out[ID_COLUMNS[1]] = ids2[j]
+    for (x, y), xy in ((xy_cols(1), p[i]), (xy_cols(2), q[j])):
+        out[x] = xy[:, 0] * u.arcsec
+        out[y] = xy[:, 1] * u.arcsec
     if sky1 is not None:
-        out["sky1"] = sky1[i]
-        out["sky2"] = sky2[j]
+        out[SKY_COLUMNS[0]] = sky1[i]
+        out[SKY_COLUMNS[1]] = sky2[j]
     return out
 
 
@@ -1231,11 +1235,11 @@ def pairs_from_ids(
         for cat, name in ((catalog1, "catalog1"), (catalog2, "catalog2")):
             if fcol not in cat.colnames:
                 raise ValueError(f"{name} has no flux column {fcol!r} of band {band!r}")
-        out[f"flux1_{band}"] = catalog1[fcol][i]
-        out[f"flux2_{band}"] = catalog2[fcol][j]
+        out[flux_col(1, band)] = catalog1[fcol][i]
+        out[flux_col(2, band)] = catalog2[fcol][j]
         if ecol in catalog1.colnames and ecol in catalog2.colnames:
-            out[f"flux_err1_{band}"] = catalog1[ecol][i]
-            out[f"flux_err2_{band}"] = catalog2[ecol][j]
+            out[flux_err_col(1, band)] = catalog1[ecol][i]
+            out[flux_err_col(2, band)] = catalog2[ecol][j]
     out.meta["bands"] = bands
     out.meta["position_columns"] = (
         position_columns if isinstance(position_columns, str) else list(position_columns))

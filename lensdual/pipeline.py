@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 from astropy import units as u
 
+from ._pairs_table import ARCS, POS_ERR_COLUMNS, arc_xy, flux_col, flux_err_col
 from ._validation import as_angle_scalar, as_real
 from .estimators import DEFAULT_METHOD, estimate_sigma_pos
 
@@ -231,8 +232,8 @@ def analyse(images, *, psf=None, estimator="adaptive", sigma_pos="auto", n_boots
                 else f"mu_size ({estimator}, {n_bootstrap} bootstraps)")
         with progress.step(step):
             if isinstance(sigma_pos, str):
-                sigma = np.vstack([measured["pos_err1"].to_value(u.arcsec),
-                                   measured["pos_err2"].to_value(u.arcsec)]) * u.arcsec
+                sigma = np.vstack([measured[c].to_value(u.arcsec)
+                                   for c in POS_ERR_COLUMNS]) * u.arcsec
             else:
                 sigma = sigma_pos
             result = check_duality(measured, estimator, sigma_pos=sigma,
@@ -370,8 +371,8 @@ def _drop_non_positive(measured, bands, doubt):
     """A non-positive PSF flux (blank sky, a spurious candidate) is no flux: NaN in that
     band, and the pair is doubtful (in place)."""
     for band in bands:
-        for arc in ("1", "2"):
-            flux = measured[f"flux{arc}_{band}"]
+        for arc in ARCS:
+            flux = measured[flux_col(arc, band)]
             values = np.asarray(getattr(flux, "value", flux), dtype=float)
             with np.errstate(invalid="ignore"):
                 bad = np.isfinite(values) & (values <= 0)
@@ -380,7 +381,7 @@ def _drop_non_positive(measured, bands, doubt):
                     doubt[k] = (f"non-positive flux on L{arc} in {band} ({values[k]:.3g}): "
                                 "blank sky or a spurious detection")
             if bad.any():
-                for col in (f"flux{arc}_{band}", f"flux_err{arc}_{band}"):
+                for col in (flux_col(arc, band), flux_err_col(arc, band)):
                     measured[col][bad] = np.nan * getattr(measured[col], "unit", 1)
 
 
@@ -734,8 +735,7 @@ def analyse_knots(catalogue, macro_images, *, knots=None, assign=None, mapping=N
         as_angle_scalar(sigma_pos, "sigma_pos", allow_zero=False) * u.arcsec)
     tables, sigmas, degrees = {}, {}, {}
     for key, tab in kp.pairs.items():
-        t1 = np.column_stack([tab["x1"].to_value(u.arcsec), tab["y1"].to_value(u.arcsec)])
-        t2 = np.column_stack([tab["x2"].to_value(u.arcsec), tab["y2"].to_value(u.arcsec)])
+        t1, t2 = arc_xy(tab, 1), arc_xy(tab, 2)
         if fixed is None:
             sigma, degree, _ = estimate_sigma_pos(t1 * u.arcsec, t2 * u.arcsec, full_output=True)
         else:

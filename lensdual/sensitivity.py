@@ -48,6 +48,7 @@ from astropy import units as u
 from astropy.table import QTable
 
 from . import _sensitivity_kernels as _k
+from ._pairs_table import positions
 from ._parallel import check_client, run_tasks
 from ._validation import as_int, as_real
 
@@ -618,8 +619,7 @@ def smacs0723_reference(*, seed=0, source=0, image=2, sigma_pos=0.06 * u.arcsec,
     rows = np.flatnonzero(np.asarray(p["source"]) == k)
     if rows.size == 0:
         raise ValueError(f"source {k} has no image pair in the SMACS0723 analogue")
-    t1 = u.Quantity([p["x1"], p["y1"]]).T
-    t2 = u.Quantity([p["x2"], p["y2"]]).T
+    t1, t2 = positions(p)
     pos = (t1 if img == 1 else t2)[rows[0]][None, :]
     jac = system.jacobian(pos)[0]
     size = size_magnification(t1, t2, method, sigma_pos=sigma_pos, n_bootstrap=n_bootstrap,

@@ -246,6 +246,8 @@ def plot_duality(result, *, bands=None, ax=None, annotate=True, title=None):
     -------
     ax : `matplotlib.axes.Axes`
     """
+    from ._pairs_table import mu_flux_col, mu_flux_err_col
+
     missing = [c for c in ("mu_size", "mu_size_err", "pair_id") if c not in result.colnames]
     if missing:
         raise ValueError(f"result lacks the columns {missing}: pass the output of "
@@ -256,8 +258,8 @@ def plot_duality(result, *, bands=None, ax=None, annotate=True, title=None):
             if c.startswith("mu_flux_") and not c.startswith("mu_flux_err")]
     bands = list(bands)
     for band in bands:
-        if f"mu_flux_{band}" not in result.colnames:
-            raise ValueError(f"result has no column 'mu_flux_{band}'")
+        if mu_flux_col(band) not in result.colnames:
+            raise ValueError(f"result has no column {mu_flux_col(band)!r}")
     if ax is None:
         ax = _plt().subplots(figsize=(5.5, 5))[1]
     size = np.asarray(result["mu_size"], dtype=float)
@@ -271,9 +273,9 @@ def plot_duality(result, *, bands=None, ax=None, annotate=True, title=None):
     ids = np.asarray(result["pair_id"])
     values = [size]
     for k, band in enumerate(bands):
-        flux = np.asarray(result[f"mu_flux_{band}"], dtype=float)
-        ferr = (np.asarray(result[f"mu_flux_err_{band}"], dtype=float)
-                if f"mu_flux_err_{band}" in result.colnames else np.zeros_like(flux))
+        flux = np.asarray(result[mu_flux_col(band)], dtype=float)
+        ferr = (np.asarray(result[mu_flux_err_col(band)], dtype=float)
+                if mu_flux_err_col(band) in result.colnames else np.zeros_like(flux))
         values.append(flux)
         marker = _BAND_MARKERS[k % len(_BAND_MARKERS)]
         for sel, colour, label in ((~flagged, f"C{k}", band),
@@ -351,9 +353,11 @@ def ds9_regions(pairs, catalogs=None, *, radius=0.15):
     from astropy.table import Table
     from regions import CircleSkyRegion, LineSkyRegion, Regions
 
+    from ._pairs_table import SKY_COLUMNS, sky_col
+
     if not isinstance(pairs, Table):
         raise TypeError(f"pairs must be an astropy Table, got {type(pairs).__name__}")
-    for col in ("sky1", "sky2"):
+    for col in SKY_COLUMNS:
         if col not in pairs.colnames or not isinstance(pairs[col], SkyCoord):
             raise ValueError(f"pairs needs a SkyCoord column {col!r} (sky positions of the "
                              "pairs); measure_pairs gives it on images with a WCS")
@@ -370,7 +374,7 @@ def ds9_regions(pairs, catalogs=None, *, radius=0.15):
             colour = "yellow"
         for arc in ("1", "2"):
             meta = {"text": f"{pid}"}
-            out.append(CircleSkyRegion(pairs[f"sky{arc}"][k], r, meta=meta,
+            out.append(CircleSkyRegion(pairs[sky_col(arc)][k], r, meta=meta,
                                        visual={"color": colour}))
         out.append(LineSkyRegion(pairs["sky1"][k], pairs["sky2"][k],
                                  visual={"color": colour, "dash": 1}))
@@ -456,8 +460,10 @@ def plot_arc_images(images, result, *, band=None, fig=None, margin=0.4, scale_ba
     from astropy.nddata import Cutout2D
     from astropy.visualization import AsinhStretch, ImageNormalize, PercentileInterval
 
+    from ._pairs_table import SKY_COLUMNS, sky_col
+
     plt = _plt()
-    for col in ("sky1", "sky2"):
+    for col in SKY_COLUMNS:
         if col not in result.colnames or not isinstance(result[col], SkyCoord):
             raise ValueError(f"result needs a SkyCoord column {col!r}")
     n_panels = 3 if mapped else 2
@@ -474,7 +480,7 @@ def plot_arc_images(images, result, *, band=None, fig=None, margin=0.4, scale_ba
         if isinstance(img, dict):
             img = img[band if band is not None else next(iter(img))]
         data, wcs, north = _north_up(img)
-        sky = result[f"sky{arc[-1]}"]
+        sky = result[sky_col(arc)]
         px, py = wcs.world_to_pixel(sky)
         finite = np.isfinite(px) & np.isfinite(py)
         if not finite.any():

@@ -15,13 +15,14 @@ from astropy.coordinates import SkyCoord
 from astropy.table import QTable, Table
 
 from .._frames import tangent_to_sky, tangent_xy
+from .._pairs_table import POS_ERR_COLUMNS, POSITION_COLUMNS
 from .._validation import as_real
 from .fitting import compare_with_parametric, fit_parametric_lens, plot_parametric_comparison
 from .lenstool import LenstoolModel, read_lenstool
 
 __all__ = ["parametric_comparison"]
 
-_POSITIONS = ("x1", "y1", "x2", "y2")
+_POSITIONS = POSITION_COLUMNS
 
 
 def _sky_positions(tab, reference):
@@ -203,10 +204,9 @@ def parametric_comparison(pairs, *, lenstool=None, fit=False,
         used = duality.get("sigma_pos") if isinstance(duality, dict) else None
         if isinstance(used, u.Quantity) and used.isscalar:
             kwargs["sigma_pos"] = used
-        elif "pos_err1" in tab.colnames and "pos_err2" in tab.colnames:
+        elif all(c in tab.colnames for c in POS_ERR_COLUMNS):
             # per-source errors (e.g. from the PSF fits): their median, as one scalar
-            errs = np.concatenate([u.Quantity(tab["pos_err1"], u.arcsec).value,
-                                   u.Quantity(tab["pos_err2"], u.arcsec).value])
+            errs = np.concatenate([u.Quantity(tab[c], u.arcsec).value for c in POS_ERR_COLUMNS])
             errs = errs[np.isfinite(errs) & (errs > 0)]
             if errs.size:
                 kwargs["sigma_pos"] = float(np.median(errs)) * u.arcsec

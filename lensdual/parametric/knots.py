@@ -23,6 +23,7 @@ import numpy as np
 from astropy import units as u
 from astropy.table import QTable, Table
 
+from .._pairs_table import arc_xy
 from .._validation import as_angle_scalar, as_real
 
 __all__ = ["compare_size_with_models", "plot_size_vs_model"]
@@ -73,8 +74,7 @@ def _model_ratio(model, tab, z_source, sigma):
     from .fitting import ParametricFit
 
     if isinstance(model, ParametricFit):
-        t1 = np.column_stack([tab["x1"].to_value(u.arcsec), tab["y1"].to_value(u.arcsec)])
-        t2 = np.column_stack([tab["x2"].to_value(u.arcsec), tab["y2"].to_value(u.arcsec)])
+        t1, t2 = arc_xy(tab, 1), arc_xy(tab, 2)
         pred = model.magnification_ratio(t1 * u.arcsec, t2 * u.arcsec)
         lens = _KwargsModel(model.lens_model, model.kwargs_lens)
         with np.errstate(all="ignore"):
@@ -153,7 +153,7 @@ def compare_size_with_models(pairs, models, *, sigma_pos, z_source=None, method=
     See the MACS J1149 worked example in the documentation ("Knot
     constellations of real clusters").
     """
-    from ..duality import _positions
+    from .._pairs_table import positions as _positions
     from ..estimators import TESTABLE_STATUS, size_magnification
 
     if not isinstance(pairs, Table):

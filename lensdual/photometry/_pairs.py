@@ -10,6 +10,22 @@ from astropy.nddata import NDData
 from astropy.table import QTable, Table
 
 from .._frames import mean_direction, tangent_to_sky
+from .._pairs_table import (
+    ARCS,
+    PAIR_ID,
+    POSITION_COLUMNS,
+    SKY_COLUMNS,
+    flags_col,
+    flux_col,
+    flux_err_col,
+    id_col,
+    pos_err_col,
+    positions,
+    sky_col,
+    x_col,
+    xy_cols,
+    y_col,
+)
 from .._validation import as_positions
 from ..exceptions import LensdualWarning
 from ._background import _DEFAULT_BACKGROUND
@@ -61,29 +77,20 @@ def _check_images(images, name):
 def _initial_sky(pairs, reference):
     """Initial SkyCoord positions on both arcs from a pairs table."""
     cols = pairs.colnames
-    if "sky1" in cols and "sky2" in cols:
-        sky1, sky2 = pairs["sky1"], pairs["sky2"]
+    if all(c in cols for c in SKY_COLUMNS):
+        sky1, sky2 = (pairs[c] for c in SKY_COLUMNS)
         if not isinstance(sky1, SkyCoord) or not isinstance(sky2, SkyCoord):
             raise TypeError("pairs['sky1'] and pairs['sky2'] must be SkyCoord columns")
         return sky1, sky2
-    if all(c in cols for c in ("x1", "y1", "x2", "y2")):
+    if all(c in cols for c in POSITION_COLUMNS):
         if reference is None:
             raise ValueError(
                 "pairs gives x1, y1, x2, y2: pass reference, the SkyCoord of the origin of "
                 "their tangent-plane frame (x towards the west, y towards the north)"
             )
         out = []
-        for arc in ("1", "2"):
-            cols_xy = []
-            for name in (f"x{arc}", f"y{arc}"):
-                col = pairs[name]
-                if getattr(col, "unit", None) is None or col.unit.physical_type != "angle":
-                    raise TypeError(
-                        f"pairs[{name!r}] must have angular units (e.g. arcsec), got "
-                        f"{getattr(col, 'unit', None)}"
-                    )
-                cols_xy.append(u.Quantity(col).to_value(u.arcsec))
-            p = as_positions(np.column_stack(cols_xy) * u.arcsec, f"pairs x{arc}, y{arc}")
+        for arc, theta in zip(ARCS, positions(pairs), strict=True):
+            p = as_positions(theta, "pairs {}, {}".format(*xy_cols(arc)))
             out.append(tangent_to_sky(p[:, 0], p[:, 1], reference))
         return tuple(out)
     raise ValueError(
@@ -274,9 +281,9 @@ def measure_pairs(
 
     n = len(pairs)
     out = QTable(pairs, copy=True)
-    if "pair_id" not in out.colnames:
-        out.add_column(np.arange(1, n + 1), name="pair_id", index=0)
-    ids = np.asarray(out["pair_id"])
+    if PAIR_ID not in out.colnames:
+        out.add_column(np.arange(1, n + 1), name=PAIR_ID, index=0)
+    ids = np.asarray(out[PAIR_ID])
 
     per_arc = {}
     flagged = []  # per arc and band: the pairs with an unusable fit
@@ -287,7 +294,7 @@ def measure_pairs(
         sum_x = np.zeros(n)
         sum_y = np.zeros(n)
         fluxes = {}
-        src_ids = np.asarray(out[f"id{arc}"]) if f"id{arc}" in out.colnames else None
+        src_ids = np.asarray(out[id_col(arc)]) if id_col(arc) in out.colnames else None
         for band in bands:
             img = images[band]
             wcs = _as_wcs(img.wcs, f"images_l{arc}[{band!r}].wcs")
@@ -336,23 +343,23 @@ def measure_pairs(
             notes[i].append(f"pair {ids[i]}: no band measured its L{arc} position (NaN)")
         per_arc[arc] = (xm, ym, err, fluxes)
 
-    for arc in ("1", "2"):
+    for arc in ARCS:
         xm, ym, err, _ = per_arc[arc]
-        out[f"x{arc}"] = xm * u.arcsec
-        out[f"y{arc}"] = ym * u.arcsec
-        out[f"pos_err{arc}"] = err * u.arcsec
-        out[f"sky{arc}"] = tangent_to_sky(xm, ym, reference)
+        out[x_col(arc)] = xm * u.arcsec
+        out[y_col(arc)] = ym * u.arcsec
+        out[pos_err_col(arc)] = err * u.arcsec
+        out[sky_col(arc)] = tangent_to_sky(xm, ym, reference)
     for band in bands:
         f1, e1, g1 = per_arc["1"][3][band]
         f2, e2, g2 = per_arc["2"][3][band]
         if isinstance(f1, u.Quantity):
             f2, e2 = f2.to(f1.unit), e2.to(f1.unit)
-        out[f"flux1_{band}"] = f1
-        out[f"flux2_{band}"] = f2
-        out[f"flux_err1_{band}"] = e1
-        out[f"flux_err2_{band}"] = e2
-        out[f"flags1_{band}"] = g1
-        out[f"flags2_{band}"] = g2
+        out[flux_col(1, band)] = f1
+        out[flux_col(2, band)] = f2
+        out[flux_err_col(1, band)] = e1
+        out[flux_err_col(2, band)] = e2
+        out[flags_col(1, band)] = g1
+        out[flags_col(2, band)] = g2
     positions_ok = np.ones(n, bool)
     for arc in ("1", "2"):
         positions_ok &= np.isfinite(per_arc[arc][0]) & np.isfinite(per_arc[arc][1])

@@ -82,6 +82,7 @@ from pathlib import Path
 import numpy as np
 from astropy import units as u
 
+from .._pairs_table import arc_xy
 from .._validation import as_angle_scalar, as_int
 from ..exceptions import LensdualWarning
 from .halos import elliptical_nfw_halo, tnfw_halo
@@ -642,8 +643,7 @@ def _final_table(system, info, beta, x1, x2, link, rng, bands, flux_rel_err):
                                          link_length=link * u.arcsec, **_solve_kwargs(info))
     except LensdualWarning:
         return None
-    got1 = np.column_stack([pairs["x1"].to_value(u.arcsec), pairs["y1"].to_value(u.arcsec)])
-    got2 = np.column_stack([pairs["x2"].to_value(u.arcsec), pairs["y2"].to_value(u.arcsec)])
+    got1, got2 = arc_xy(pairs, 1), arc_xy(pairs, 2)
     if (len(pairs) != n or np.any(pairs["n_images1"] != 1) or np.any(pairs["n_images2"] != 1)
             or not np.allclose(got1, x1, atol=1e-6) or not np.allclose(got2, x2, atol=1e-6)):
         return None

@@ -6,6 +6,7 @@ import numpy as np
 from astropy import units as u
 from astropy.table import QTable
 
+from .._pairs_table import ARCS, PAIR_ID, flux_col, flux_err_col, xy_cols
 from .._validation import as_cosmology, as_positions, as_real, as_redshifts
 from ..exceptions import LensdualWarning
 from .halos import LensComponent
@@ -368,10 +369,10 @@ class LensSystem:
         r1 = np.array([rows[arc1][s] for s in common])
         r2 = np.array([rows[arc2][s] for s in common])
         pairs = QTable()
-        pairs["pair_id"] = np.arange(1, len(common) + 1)
+        pairs[PAIR_ID] = np.arange(1, len(common) + 1)
         pairs["source"] = np.array(common)
-        pairs["x1"], pairs["y1"] = r1[:, 0] * u.arcsec, r1[:, 1] * u.arcsec
-        pairs["x2"], pairs["y2"] = r2[:, 0] * u.arcsec, r2[:, 1] * u.arcsec
+        for (x, y), r in ((xy_cols(1), r1), (xy_cols(2), r2)):
+            pairs[x], pairs[y] = r[:, 0] * u.arcsec, r[:, 1] * u.arcsec
         pairs["beta_x"] = b[common, 0] * u.arcsec
         pairs["beta_y"] = b[common, 1] * u.arcsec
         mu1, mu2 = r1[:, 2], r2[:, 2]
@@ -384,13 +385,13 @@ class LensSystem:
             f0 = np.asarray(intrinsic_flux[band], dtype=float)
             if f0.shape != (m,) or not (np.isfinite(f0).all() and (f0 > 0).all()):
                 raise ValueError(f"intrinsic_flux[{band!r}] must hold {m} positive fluxes")
-            for arc, mu in (("1", mu1), ("2", mu2)):
+            for arc, mu in zip(ARCS, (mu1, mu2), strict=True):
                 flux = np.abs(mu) * f0[common]
                 err = rel * flux
                 if add_flux_noise:
                     flux = flux + err * rng.standard_normal(flux.size)
-                pairs[f"flux{arc}_{band}"] = flux * flux_unit
-                pairs[f"flux_err{arc}_{band}"] = err * flux_unit
+                pairs[flux_col(arc, band)] = flux * flux_unit
+                pairs[flux_err_col(arc, band)] = err * flux_unit
         pairs.meta["bands"] = bands
         pairs.meta["frame"] = "lens-centred image plane, arcsec (lenstronomy x, y)"
         pairs.meta["arcs"] = {"L1": int(arc1), "L2": int(arc2)}

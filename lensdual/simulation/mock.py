@@ -22,6 +22,7 @@ from astropy.table import QTable
 from astropy.wcs import WCS
 from scipy.special import erf
 
+from .._pairs_table import POSITION_COLUMNS, arc_xy, flux_col
 from .._validation import as_angle_scalar, as_int, as_positions, as_real
 from .lens_system import LensSystem
 
@@ -74,7 +75,6 @@ _AB_NJY = 3631e9
 _GAUSS_FWHM = 2.0 * math.sqrt(2.0 * math.log(2.0))
 _IMAGE_UNIT = u.nJy
 _ARCS = ("L1", "L2")
-_ARC_COLUMNS = {"L1": ("x1", "y1", "1"), "L2": ("x2", "y2", "2")}
 _TRUTH_FILE = "truth_pairs.ecsv"
 
 
@@ -174,10 +174,7 @@ class MockImages(Mapping):
         if self.pairs is None:
             raise ValueError("no truth table: these images carry no pairs")
         image = next(iter(self.arc(arc).values()))
-        xcol, ycol, _ = _ARC_COLUMNS[arc]
-        sky = lens_to_sky(np.column_stack([self.pairs[xcol].to_value(u.arcsec),
-                                           self.pairs[ycol].to_value(u.arcsec)]) * u.arcsec,
-                          _sky_center_of(image))
+        sky = lens_to_sky(arc_xy(self.pairs, arc) * u.arcsec, _sky_center_of(image))
         px, py = image.wcs.world_to_pixel(sky)
         return np.column_stack([px, py])
 
@@ -328,11 +325,11 @@ def _check_pairs(pairs, bands):
                         f"LensSystem.constellation), got {type(pairs).__name__}")
     if len(pairs) == 0:
         raise ValueError("pairs is empty")
-    needed = ["x1", "y1", "x2", "y2"] + [f"flux{k}_{b}" for b in bands for k in "12"]
+    needed = list(POSITION_COLUMNS) + [flux_col(k, b) for b in bands for k in "12"]
     missing = [c for c in needed if c not in pairs.colnames]
     if missing:
         raise ValueError(f"pairs lacks column(s) {missing}")
-    for c in ("x1", "y1", "x2", "y2"):
+    for c in POSITION_COLUMNS:
         col = pairs[c]
         if not isinstance(col, u.Quantity) or col.unit.physical_type != "angle":
             raise ValueError(f"pairs[{c!r}] must be an angle column (arcsec)")
@@ -340,16 +337,17 @@ def _check_pairs(pairs, bands):
             raise ValueError(f"pairs[{c!r}] contains NaN or infinite values")
     for b in bands:
         for k in "12":
-            col = pairs[f"flux{k}_{b}"]
+            name = flux_col(k, b)
+            col = pairs[name]
             if not isinstance(col, u.Quantity):
-                raise ValueError(f"pairs['flux{k}_{b}'] must be a Quantity column (e.g. nJy)")
+                raise ValueError(f"pairs[{name!r}] must be a Quantity column (e.g. nJy)")
             try:
                 v = col.to_value(_IMAGE_UNIT)
             except u.UnitsError:
-                raise ValueError(f"pairs['flux{k}_{b}'] must be a flux density (e.g. nJy), "
+                raise ValueError(f"pairs[{name!r}] must be a flux density (e.g. nJy), "
                                  f"got unit {col.unit!s}") from None
             if not (np.isfinite(v).all() and (v >= 0).all()):
-                raise ValueError(f"pairs['flux{k}_{b}'] must be finite and >= 0")
+                raise ValueError(f"pairs[{name!r}] must be finite and >= 0")
 
 
 def _host_params(host, bands):
@@ -639,10 +637,8 @@ def render_mock_images(system, *, bands=("F150W", "F200W"), pixel_scale=0.04 * u
         _check_pairs(pairs, bands)
     truth = QTable(pairs, copy=True)
 
-    pos = {arc: np.column_stack([truth[_ARC_COLUMNS[arc][0]].to_value(u.arcsec),
-                                 truth[_ARC_COLUMNS[arc][1]].to_value(u.arcsec)])
-           for arc in _ARCS}
-    flux = {(arc, b): truth[f"flux{_ARC_COLUMNS[arc][2]}_{b}"].to_value(_IMAGE_UNIT)
+    pos = {arc: arc_xy(truth, arc) for arc in _ARCS}
+    flux = {(arc, b): truth[flux_col(arc, b)].to_value(_IMAGE_UNIT)
             for arc in _ARCS for b in bands}
     all_xy = np.vstack([pos[a] for a in _ARCS])
 

@@ -3,6 +3,7 @@
 import numpy as np
 from astropy import units as u
 
+from .._pairs_table import arc_xy
 from .._validation import as_int
 from .halos import elliptical_nfw_halo, tnfw_halo
 from .lens_system import LensComponent, LensSystem
@@ -116,8 +117,7 @@ def smacs0723_analog(*, perturbers=False, subhalo=None, n_sources=16, seed=None,
     row = np.flatnonzero(np.asarray(pairs["source"]) == k)
     if row.size == 0:
         raise ValueError(f"source {k} has no image on both arcs; choose another subhalo_source")
-    host = np.array([pairs["x2"][row[0]].to_value(u.arcsec),
-                     pairs["y2"][row[0]].to_value(u.arcsec)])
+    host = arc_xy(pairs, 2)[row[0]]
     offset = u.Quantity(subhalo_offset, u.arcsec).value
     mass, conc = SUBHALOES[subhalo]
     sub = tnfw_halo(mass, conc, (host + offset) * u.arcsec, z_lens=zl, z_source=zs,

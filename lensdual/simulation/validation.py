@@ -12,6 +12,7 @@ import numpy as np
 from astropy import units as u
 from astropy.table import QTable, vstack
 
+from .._pairs_table import arc_xy
 from .._validation import as_int
 from ..estimators import METHODS, relative_jacobian
 from ..exceptions import EstimatorWarning
@@ -69,8 +70,7 @@ def estimator_errors(pairs, methods=DEFAULT_METHODS, *, position_noise=0 * u.arc
         raise ValueError("pairs must have the truth column 'mu_true' (a simulated table)")
     rng = np.random.default_rng(seed)
     sig = u.Quantity(position_noise, u.arcsec).value
-    t1 = np.column_stack([pairs["x1"].to_value(u.arcsec), pairs["y1"].to_value(u.arcsec)])
-    t2 = np.column_stack([pairs["x2"].to_value(u.arcsec), pairs["y2"].to_value(u.arcsec)])
+    t1, t2 = arc_xy(pairs, 1), arc_xy(pairs, 2)
     t1 = t1 + sig * rng.standard_normal(t1.shape)
     t2 = t2 + sig * rng.standard_normal(t2.shape)
     out = QTable()
