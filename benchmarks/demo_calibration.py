@@ -51,6 +51,8 @@ def one(seed, subhalo):
             "false": int((flagged & ~sub).sum()),
             "sub_flagged": bool((flagged & sub).any()) if sub.any() else None,
             "sub_snr": float(np.asarray(res["snr"])[sub][0]) if sub.any() else np.nan,
+            "sub_sig": (float(np.asarray(res["significance"])[sub][0]) if sub.any()
+                        else np.nan),
         }
     return rows
 
@@ -58,14 +60,16 @@ def one(seed, subhalo):
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=30)
+    parser.add_argument("--first-seed", type=int, default=0)
     args = parser.parse_args(argv)
     totals = {}
-    print("seed subhalo method n tested false_flags subhalo_flagged subhalo_snr")
-    for seed in range(args.seeds):
+    print("seed subhalo method n tested false_flags subhalo_flagged subhalo_snr "
+          "subhalo_significance")
+    for seed in range(args.first_seed, args.first_seed + args.seeds):
         for subhalo in ("none", "overconcentrated"):
             for method, r in one(seed, subhalo).items():
                 print(f"{seed} {subhalo} {method} {r['n']} {r['tested']} {r['false']} "
-                      f"{r['sub_flagged']} {r['sub_snr']:.1f}", flush=True)
+                      f"{r['sub_flagged']} {r['sub_snr']:.1f} {r['sub_sig']:.1f}", flush=True)
                 t = totals.setdefault((subhalo, method), {"clean": 0, "false": 0, "hit": 0,
                                                           "runs": 0})
                 t["clean"] += r["clean_tested"]
