@@ -164,7 +164,7 @@ def duality_significance(snr, dof=np.inf):
     >>> float(duality_significance(3.0))
     3.0
     >>> round(float(duality_significance(3.0, dof=4)), 2)
-    1.95
+    2.05
     """
     snr = np.asarray(snr, dtype=float)
     dof = np.asarray(dof, dtype=float)

@@ -10,6 +10,8 @@ magnification ``mu_size`` and the flux ratio ``mu_flux`` of
 draws the three ratios. See :doc:`/parametric_fits` for the method.
 """
 
+from dataclasses import dataclass
+
 import numpy as np
 from astropy import units as u
 from astropy.table import QTable, Table
@@ -75,7 +77,7 @@ def _scaled(value, scale):
 
 
 def _pair_positions(pairs):
-    from ..duality import _positions
+    from .._pairs_table import positions as _positions
 
     if not isinstance(pairs, Table):
         raise TypeError("pairs must be an astropy Table or QTable (the pairs table), got "
@@ -307,10 +309,13 @@ def _residuals(lens_model, kwargs, theta, sigma, kind):
 # ---------------------------------------------------------------------- result
 
 
+@dataclass(kw_only=True, eq=False, repr=False)
 class ParametricFit:
-    """The result of :func:`fit_parametric_lens`.
+    """The result of :func:`fit_parametric_lens` (made by it, not by hand).
 
-    Attributes
+    Every parameter is also an attribute of the same name.
+
+    Parameters
     ----------
     model : list of str
         The fitted lenstronomy profiles (the fixed ones follow them in
@@ -333,6 +338,22 @@ class ParametricFit:
     chi2, dof, reduced_chi2 : float, int, float
         Best-fit chi-square (of kind ``chi2_kind``), ``2 * n_pairs - n_free``
         and their ratio.
+    chi2_kind : str
+        The chi-square that was minimised (``chi2`` of
+        :func:`fit_parametric_lens`).
+    success : bool
+        Whether the least-squares optimiser reported convergence.
+    z_lens, z_source : float
+        Redshifts of the fit.
+    cosmology : `~astropy.cosmology.Cosmology`
+        Its cosmology.
+    sigma_pos : `~astropy.units.Quantity`
+        The position error of the fit.
+    fixed_profiles : list of str
+        The fixed profiles that follow the fitted ones in ``lens_model``.
+    _param, _p_best, _fixed_kwargs
+        The fit's internals (private): the parameter map, the best fit in
+        the fitted space and the fixed profiles' keyword arguments.
     samples : ndarray or None
         Posterior sample of the free parameters (fitted space), shape
         (n, n_free): emcee's flattened chain after burn-in, when
@@ -361,8 +382,32 @@ class ParametricFit:
         model image found by Newton's method from the measured one).
     """
 
-    def __init__(self, **attrs):
-        self.__dict__.update(attrs)
+    model: list
+    kwargs_fitted: list
+    kwargs_lens: list
+    lens_model: object
+    param_names: list
+    best_params: dict
+    covariance: np.ndarray
+    chi2: float
+    dof: int
+    reduced_chi2: float
+    chi2_kind: str
+    samples: np.ndarray | None
+    acceptance: float | None
+    autocorr_time: np.ndarray | None
+    mcmc_info: dict | None
+    success: bool
+    z_lens: float
+    z_source: float
+    cosmology: object
+    sigma_pos: u.Quantity
+    fixed_profiles: list
+    predictions: QTable | None
+    # the fit's internals, for predictions from the parameter sample
+    _param: object
+    _p_best: np.ndarray
+    _fixed_kwargs: list
 
     def __repr__(self):
         return (f"<ParametricFit model={self.model} chi2={self.chi2:.3g} dof={self.dof} "
@@ -970,8 +1015,8 @@ def compare_with_parametric(duality_table, fit, *, z_source=None, snr_threshold=
         Lenstool model has no uncertainty here (``mu_model_err = 0``): its
         SNR counts the flux error only.
     """
+    from .._pairs_table import positions as _positions
     from .._validation import as_positions
-    from ..duality import _positions
     from .lenstool import LenstoolModel
 
     if not isinstance(duality_table, Table):
