@@ -62,7 +62,9 @@ _CONSISTENCY = 5.0
 class KnotPairs:
     """The constellations of a knot catalogue (made by :func:`pairs_from_knots`).
 
-    Attributes
+    Every parameter is also an attribute of the same name.
+
+    Parameters
     ----------
     pairs : dict
         ``(macro1, macro2) -> pairs table`` (`~astropy.table.QTable`, see
@@ -81,6 +83,9 @@ class KnotPairs:
         How images were assigned: ``"centre"``, ``"mapping"`` or ``"model"``.
     z_source : float
         Redshift of the knots (NaN when unknown and not needed).
+    skipped : dict
+        ``(macro1, macro2) -> reason`` for the pairs of macro-images that
+        give no pairs table (too few common knots).
     """
 
     pairs: dict
@@ -443,6 +448,9 @@ def pairs_from_knots(images, macro_images, *, knots=None, assign=None, mapping=N
         Bands whose fluxes are copied into the pairs tables (columns
         ``flux_columns`` and, when present, ``flux_err_columns`` formatted
         with ``band``). Default: none (position-only pairs tables).
+    flux_columns, flux_err_columns : str
+        Catalogue column names of the flux and its error, with a ``{band}``
+        field (default ``"flux_{band}"`` and ``"flux_err_{band}"``).
 
     Returns
     -------

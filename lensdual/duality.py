@@ -115,6 +115,16 @@ def gaussian_p_value(snr):
     Under the null (duality holds, errors Gaussian in ``ln``), the SNR of
     :func:`check_duality` is ``|Z|`` with ``Z`` standard normal; SNR 3 gives
     0.27 %.
+
+    Parameters
+    ----------
+    snr : array_like
+        Non-negative SNRs (or significances).
+
+    Returns
+    -------
+    p_value : `~numpy.ndarray`
+        ``P(|Z| >= snr)``, same shape as ``snr``.
     """
     snr = np.asarray(snr, dtype=float)
     return erfc(snr / np.sqrt(2.0))
@@ -346,13 +356,6 @@ def check_duality(
         blend, or differential extinction, and never evidence of a sub-halo.
         0 turns the check off.
 
-    Doubtful pairs (a non-empty ``doubt`` column in ``pairs``, e.g. a pairing
-    whose position is off the arc-to-arc map, plus the chromatic check above)
-    are left out of the size-magnification estimate of the other pairs, so a
-    mis-pair cannot distort the Jacobians of its neighbours, and are not
-    tested: their ``mu_size`` is NaN, ``mu_size_status`` is ``"excluded"``
-    and ``doubt`` says why.
-
     Returns
     -------
     result : `~astropy.table.QTable`
@@ -399,6 +402,15 @@ def check_duality(
         Missing columns, non-positive fluxes or flux errors, mismatched flux
         units, and the bad inputs listed in
         :func:`~lensdual.estimators.relative_jacobian`.
+
+    Notes
+    -----
+    Doubtful pairs (a non-empty ``doubt`` column in ``pairs``, e.g. a pairing
+    whose position is off the arc-to-arc map, plus the chromatic check above)
+    are left out of the size-magnification estimate of the other pairs, so a
+    mis-pair cannot distort the Jacobians of its neighbours, and are not
+    tested: their ``mu_size`` is NaN, ``mu_size_status`` is ``"excluded"``
+    and ``doubt`` says why.
     """
     tab = _as_qtable(pairs)
     if not isinstance(snr_definition, str) or snr_definition not in SNR_DEFINITIONS:

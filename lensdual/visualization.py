@@ -109,6 +109,18 @@ def plot_estimator_grid(table, methods=None, *, fig=None):
 def plot_error_histograms(table, methods=None, *, ax=None, limit=0.3):
     """Distribution of fractional errors over all panels (paper Fig. 11).
 
+    Parameters
+    ----------
+    table : `~astropy.table.Table`
+        A table with ``frac_err_<method>`` columns, e.g. from
+        :func:`lensdual.simulation.validation.appendix_b_grid`.
+    methods : sequence of str, optional
+        Estimators to draw (default ``table.meta["methods"]``).
+    ax : `matplotlib.axes.Axes`, optional
+        Axes to draw on (default: a new figure).
+    limit : float
+        The errors are clipped to ``[-limit, limit]`` (default 0.3).
+
     Returns
     -------
     ax : `matplotlib.axes.Axes`
