@@ -5,8 +5,8 @@ import pytest
 from astropy import units as u
 from scipy import ndimage
 
-from lensdual import _sensitivity_kernels as K
 from lensdual.abundance import einstein_radius
+from lensdual.sensitivity import _kernels as K
 from lensdual.sensitivity import (
     detection_snr_map,
     effective_radius,

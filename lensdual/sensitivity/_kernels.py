@@ -22,7 +22,7 @@ from numba import njit
 
 __all__ = []
 
-from ._numba import JIT_OPTIONS  # noqa: F401  (the package-wide options)
+from .._numba import JIT_OPTIONS  # noqa: F401  (the package-wide options)
 
 PROFILE_TNFW = 0
 PROFILE_POINT = 1

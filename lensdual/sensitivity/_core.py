@@ -1,45 +1,4 @@
-"""Sub-halo sensitivity: flux excess of a macro image perturbed by a sub-halo (paper Sect. 5.2.3).
-
-Local model: a point source whose macro image sits at ``theta0`` where the
-macro lens is locally linear, ``beta - beta0 = A0 (theta - theta0)`` with
-``A0 = d beta / d theta`` (valid because a sub-halo's Einstein radius,
-0.005-0.05 arcsec, is tiny compared with the scale on which the macro field
-varies). A circular sub-halo at image-plane offset ``d`` from the macro
-image adds ``alpha_sub(theta - theta0 - d)``; the images of the source solve
-
-    0 = A0 (theta - theta0) - alpha_sub(theta - theta0 - d).
-
-Definitions
------------
-``r_eff`` (``definition="paper"``, the default)
-    The paper's Fig. 7 and 9: the sub-halo's isolated (point-mass)
-    Einstein ring of radius ``theta_E``, mapped to the source plane by the
-    macro deformation tensor ``A0``, is the *unit ellipse*; a source at
-    source-plane offset ``b`` from the sub-halo (mapped by the macro
-    model) has ``r_eff = |A0^-1 b| / theta_E``. Since ``b = -A0 d``, this is
-    the image-plane separation of sub-halo and macro image in Einstein
-    radii, ``r_eff = |d| / theta_E`` (Fig. 9's "distance in the image plane
-    normalised to the Einstein radius"; also the paper's ``zeta theta_E``
-    of Sect. 5.4).
-``r_eff`` (``definition="caustic"``)
-    An alternative scaled to the point-mass caustic: with ``lambda_i, e_i``
-    the eigenvalues and eigenvectors of (the symmetric part of) ``A0``,
-    ``r_eff = sqrt(sum_i |lambda_i| (d . e_i)^2) / (2 theta_E)``; the unit
-    ellipse has image-plane semi-axes ``2 theta_E / sqrt(|lambda_i|)``
-    (twice the Einstein radius enlarged by the macro field, where a point
-    mass's shear ``theta_E^2 / r^2`` equals ``|lambda_i|``). At a saddle
-    the point-mass caustic has its cusps on the axis of the negative
-    eigenvalue exactly at ``r_eff = 1`` (at ``r_eff = 2 / sqrt(|lambda_-|)``
-    in the paper's units).
-Flux excess
-    ``f = sum_i |mu_i| / |mu_0|`` over all micro-images, ``mu_0 = 1 / det A0``;
-    1 without sub-halo.
-Detection SNR
-    ``|mu_flux / mu_size - 1| / sigma_rel`` with ``mu_flux / mu_size = f``
-    (the sub-halo on the image in the numerator of the flux ratio) and
-    ``sigma_rel`` the relative error of ``mu_size``; alternatives
-    ``|ln f|`` and ``|1 / f - 1|`` (see :func:`detection_snr_map`).
-"""
+"""The implementation of :mod:`lensdual.sensitivity` (see the package docstring)."""
 
 import math
 
@@ -47,10 +6,10 @@ import numpy as np
 from astropy import units as u
 from astropy.table import QTable
 
-from . import _sensitivity_kernels as _k
-from ._pairs_table import positions
-from ._parallel import check_client, run_tasks
-from ._validation import as_int, as_real
+from .._pairs_table import positions
+from .._parallel import check_client, run_tasks
+from .._validation import as_int, as_real
+from . import _kernels as _k
 
 __all__ = [
     "effective_radius_ellipse",
@@ -152,7 +111,7 @@ def _as_r_eff(r_eff, name="r_eff"):
 
 def _as_subhalo(subhalo):
     """-> (profile code, p0, p1, p2) from a LensComponent or lenstronomy kwargs."""
-    from .simulation.halos import LensComponent
+    from ..simulation.halos import LensComponent
 
     profile = None
     if isinstance(subhalo, LensComponent):
@@ -607,8 +566,8 @@ def smacs0723_reference(*, seed=0, source=0, image=2, sigma_pos=0.06 * u.arcsec,
     recovery of ``mu_size`` to about 10 % for its analogue and
     ``1.04 +- 0.09`` for the real pair 1 at 0.06 arcsec.
     """
-    from .estimators import size_magnification
-    from .simulation.scenarios import smacs0723_analog
+    from ..estimators import size_magnification
+    from ..simulation.scenarios import smacs0723_analog
 
     k = as_int(source, "source", minimum=0)
     img = as_int(image, "image", minimum=1)
@@ -649,8 +608,8 @@ def _snr_chunk(task):
     """
     (index, masses, conc, a, r, n_ang, sigma, q, signal, definition, seed, zl, zs, cosmology,
      box, n) = task
-    from .abundance import einstein_radius
-    from .simulation.halos import mass_concentration, tnfw_halo
+    from ..abundance import einstein_radius
+    from ..simulation.halos import mass_concentration, tnfw_halo
 
     k = np.arange(n_ang)
     out = []
@@ -776,7 +735,7 @@ def detection_snr_map(masses, r_eff, *, jacobian=None, sigma_rel=None, sigma_pos
     >>> print(np.round(t["snr_p95"], 1))
     [24.4  4.8]
     """
-    from ._validation import as_angle_scalar, as_cosmology, as_mass, as_redshifts
+    from .._validation import as_angle_scalar, as_cosmology, as_mass, as_redshifts
 
     m = np.atleast_1d(as_mass(masses, "masses").value)
     if m.ndim != 1 or m.size == 0:
