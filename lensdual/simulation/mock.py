@@ -11,6 +11,7 @@ files.
 
 import math
 from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -425,6 +426,302 @@ class _LensAdapter:
 # ---------------------------------------------------------------------------
 
 
+@dataclass(frozen=True)
+class _BandPSF:
+    """One band's PSF: the kernel lenstronomy convolves with, and how it is described."""
+
+    kernel: np.ndarray  # the kernel given to lenstronomy, sampled at scale / supersampling
+    supersampling: int  # the sub-pixels per pixel side of ``kernel``
+    pixel_kernel: np.ndarray  # the kernel at the pixel scale (the cutout's ``psf``)
+    fwhm: float  # Gaussian-equivalent FWHM [arcsec]
+    kind: str  # "GAUSSIAN" (band default) or "USER"
+
+
+@dataclass(frozen=True)
+class _RenderSettings:
+    """The checked settings of :func:`render_mock_images` that all cutouts share."""
+
+    bands: list  # band names
+    scale: float  # pixel scale [arcsec]
+    n: int  # pixels per cutout side (odd, >= 15)
+    supersampling: int  # sub-pixels per pixel side (odd)
+    noise: bool  # add noise
+    sky_center: SkyCoord  # the lens centre (ICRS)
+    exposure_time: float  # [s]
+    sky_background: dict  # per band [MJy/sr]
+    read_noise: dict  # per band [electron]
+    zero_point: dict  # per band [AB mag of 1 electron/s]
+    psfs: dict  # per band, a _BandPSF
+
+    @property
+    def half(self):
+        """Pixels from the central pixel to the edge of a cutout."""
+        return (self.n - 1) / 2.0
+
+
+@dataclass(frozen=True)
+class _Scene:
+    """What every cutout shows: the truth's point sources and the host, in the lens frame."""
+
+    system: LensSystem
+    lens: "_LensAdapter"  # shared by all cutouts (it caches the ray shooting)
+    source_model: object  # lenstronomy LightModel of the host
+    pos: dict  # per arc, (N, 2) lens-frame positions [arcsec]
+    flux: dict  # per (arc, band), (N,) point-source fluxes [nJy]
+    all_xy: np.ndarray  # the positions of both arcs, stacked
+    kwargs_host: dict | None  # lenstronomy Sérsic parameters without "amp"; None: no host
+    host_amp: dict  # per band, the host's lenstronomy amplitude
+
+
+def _check_bands(bands):
+    """The band names as a list: non-empty strings, no duplicates."""
+    bands = [bands] if isinstance(bands, str) else list(bands)
+    if not bands or not all(isinstance(b, str) and b for b in bands):
+        raise ValueError(f"bands must be a non-empty sequence of band names, got {bands!r}")
+    if len(set(bands)) != len(bands):
+        raise ValueError(f"bands contains duplicates: {bands}")
+    return bands
+
+
+def _cutout_pixels(cutout_size, scale):
+    """Pixels per cutout side from ``cutout_size``: odd and at least 15."""
+    if isinstance(cutout_size, u.Quantity):
+        n = math.ceil(as_angle_scalar(cutout_size, "cutout_size", allow_zero=False) / scale
+                      - 1e-9)
+    elif isinstance(cutout_size, (int, np.integer)) and not isinstance(cutout_size, bool):
+        n = as_int(cutout_size, "cutout_size", minimum=1)
+    else:
+        raise TypeError(f"cutout_size must be an angle Quantity or a number of pixels, got "
+                        f"{cutout_size!r}")
+    return max(15, n + (1 - n % 2))
+
+
+def _band_psfs(psf, bands, scale, ss):
+    """Each band's `_BandPSF`: the default Gaussian of :data:`PSF_FWHM`, or the user's kernel."""
+    psfs = {}
+    for b in bands:
+        user = psf[b] if isinstance(psf, Mapping) and b in psf else (
+            None if isinstance(psf, Mapping) else psf)
+        if user is None:
+            if b not in PSF_FWHM:
+                raise ValueError(f"band {b!r} has no default PSF (known bands: "
+                                 f"{sorted(PSF_FWHM)}); pass psf= for it")
+            fwhm = PSF_FWHM[b].to_value(u.arcsec)
+            kernel = _gaussian_kernel(fwhm, scale, ss)
+            pixel_kernel = _gaussian_kernel(fwhm, scale, 1)
+            psfs[b] = _BandPSF(kernel, ss, pixel_kernel, fwhm, "GAUSSIAN")
+        else:
+            name = f"psf[{b!r}]" if isinstance(psf, Mapping) else "psf"
+            kernel = _check_kernel(user, name)
+            psfs[b] = _BandPSF(kernel, 1, kernel, _moment_fwhm(kernel) * scale, "USER")
+    return psfs
+
+
+def _check_render_settings(*, bands, pixel_scale, cutout_size, psf, exposure_time,
+                           sky_background, read_noise, zero_point, noise, supersampling,
+                           sky_center):
+    """The checked `_RenderSettings` of :func:`render_mock_images`'s arguments."""
+    bands = _check_bands(bands)
+    scale = as_angle_scalar(pixel_scale, "pixel_scale", allow_zero=False)
+    n = _cutout_pixels(cutout_size, scale)
+    ss = as_int(supersampling, "supersampling", minimum=1)
+    if ss % 2 == 0:
+        raise ValueError(f"supersampling must be odd, got {ss}")
+    if not isinstance(noise, (bool, np.bool_)):
+        raise TypeError(f"noise must be True or False, got {noise!r}")
+    if not isinstance(sky_center, SkyCoord) or not sky_center.isscalar:
+        raise TypeError(f"sky_center must be a scalar SkyCoord, got {sky_center!r}")
+    t = _as_quantity_scalar(exposure_time, "exposure_time", u.s, allow_zero=False)
+    sky_sb = _per_band(sky_background, bands, "sky_background",
+                       lambda v, nm: _as_quantity_scalar(v, nm, u.MJy / u.sr))
+    rn = _per_band(read_noise, bands, "read_noise",
+                   lambda v, nm: _as_quantity_scalar(v, nm, u.electron))
+    zp = _per_band(zero_point, bands, "zero_point",
+                   lambda v, nm: as_real(v, nm, minimum=0.0, maximum=40.0))
+    return _RenderSettings(bands=bands, scale=scale, n=n, supersampling=ss, noise=noise,
+                           sky_center=sky_center.icrs, exposure_time=t, sky_background=sky_sb,
+                           read_noise=rn, zero_point=zp,
+                           psfs=_band_psfs(psf, bands, scale, ss))
+
+
+def _truth_table(system, bands, pairs, intrinsic_flux, rng):
+    """A copy of the checked ``pairs``, or the constellation of ``system`` when None."""
+    if pairs is None:
+        if intrinsic_flux is None:
+            if system.sources is None:
+                raise ValueError("system has no sources: pass pairs=..., or build the system "
+                                 "with sources=...")
+            n_src = len(system.sources)
+            base = 10 ** rng.uniform(np.log10(3.0), 1.0, n_src)
+            colour = 10 ** rng.uniform(-0.1, 0.1, (len(bands), n_src))
+            intrinsic_flux = {b: base * colour[k] for k, b in enumerate(bands)}
+        pairs = system.constellation(bands=bands, intrinsic_flux=intrinsic_flux,
+                                     flux_unit=_IMAGE_UNIT, seed=rng)
+    else:
+        _check_pairs(pairs, bands)
+    return QTable(pairs, copy=True)
+
+
+def _host_kwargs(host_p, truth, system, xy_l1):
+    """lenstronomy's Sérsic parameters of the host (no ``amp``), centred by default on the
+    sources."""
+    centre = host_p["center"]
+    if centre is None:
+        if "beta_x" in truth.colnames and "beta_y" in truth.colnames:
+            centre = np.array([np.mean(truth["beta_x"].to_value(u.arcsec)),
+                               np.mean(truth["beta_y"].to_value(u.arcsec))])
+        else:
+            centre = system.ray_shoot(xy_l1 * u.arcsec).to_value(u.arcsec).mean(axis=0)
+    return {"R_sersic": host_p["R_sersic"], "n_sersic": host_p["n_sersic"],
+            "e1": host_p["e1"], "e2": host_p["e2"],
+            "center_x": float(centre[0]), "center_y": float(centre[1])}
+
+
+def _make_scene(system, truth, bands, host_p):
+    """The `_Scene` of the truth table and the host parameters (None: no host)."""
+    from lenstronomy.LightModel.light_model import LightModel
+
+    pos = {arc: arc_xy(truth, arc) for arc in _ARCS}
+    flux = {(arc, b): truth[flux_col(arc, b)].to_value(_IMAGE_UNIT)
+            for arc in _ARCS for b in bands}
+    source_model = LightModel(["SERSIC_ELLIPSE"])
+    kwargs_host, host_amp = None, {}
+    if host_p is not None:
+        kwargs_host = _host_kwargs(host_p, truth, system, pos["L1"])
+        unit_flux = source_model.total_flux([{**kwargs_host, "amp": 1.0}])[0]
+        host_amp = {b: host_p["flux"][b] / unit_flux for b in bands}
+    return _Scene(system=system, lens=_LensAdapter(system.lens_model, system.kwargs_lens),
+                  source_model=source_model, pos=pos, flux=flux,
+                  all_xy=np.vstack([pos[a] for a in _ARCS]), kwargs_host=kwargs_host,
+                  host_amp=host_amp)
+
+
+def _arc_grid(settings, xy):
+    """The pixel grid of an arc's cutouts: ``(PixelGrid, centre [arcsec], TAN WCS)``."""
+    from lenstronomy.Data.pixel_grid import PixelGrid
+
+    scale, n = settings.scale, settings.n
+    centre_pix = np.round(xy.mean(axis=0) / scale)
+    cen = centre_pix * scale
+    origin = cen - settings.half * scale  # lens frame of pixel (0, 0)
+    grid = PixelGrid(nx=n, ny=n, transform_pix2angle=np.diag([scale, scale]),
+                     ra_at_xy_0=float(origin[0]), dec_at_xy_0=float(origin[1]))
+    return grid, cen, _tan_wcs(settings.sky_center, scale, origin)
+
+
+def _image_model(grid, band_psf, scene, ss):
+    """lenstronomy's ImageModel of one cutout and band."""
+    from lenstronomy.Data.psf import PSF
+    from lenstronomy.ImSim.image_model import ImageModel
+    from lenstronomy.PointSource.point_source import PointSource
+
+    kernel, k_ss = band_psf.kernel, band_psf.supersampling
+    lpsf = PSF(psf_type="PIXEL", kernel_point_source=kernel,
+               point_source_supersampling_factor=k_ss)
+    kwargs_numerics = {"supersampling_factor": ss,
+                       "supersampling_convolution": k_ss > 1,
+                       "point_source_supersampling_factor": k_ss,
+                       # scipy's fftconvolve: lenstronomy's "fft_static" calls
+                       # numpy.fft.rfftn in a way numpy 2 deprecates
+                       "convolution_type": "fft"}
+    if k_ss > 1:
+        kwargs_numerics["supersampling_kernel_size"] = kernel.shape[0] // k_ss
+    return ImageModel(grid, lpsf, lens_model_class=scene.lens,
+                      source_model_class=scene.source_model,
+                      point_source_class=PointSource(["LENSED_POSITION"],
+                                                     fixed_magnification_list=[False]),
+                      kwargs_numerics=kwargs_numerics)
+
+
+def _host_image(model, scene, band, n):
+    """The lensed, PSF-convolved host on one cutout (nJy per pixel; zeros without host)."""
+    if scene.kwargs_host is None:
+        return np.zeros((n, n))
+    amp = scene.host_amp[band]
+    return np.asarray(model.source_surface_brightness(
+        [{**scene.kwargs_host, "amp": amp}], scene.system.kwargs_lens), dtype=np.float64)
+
+
+def _point_source_image(model, scene, settings, band, cen):
+    """The point sources of both arcs that can touch one cutout, PSF-convolved (nJy/pixel)."""
+    n, scale = settings.n, settings.scale
+    band_psf = settings.psfs[band]
+    reach = (settings.half + band_psf.kernel.shape[0] / band_psf.supersampling) * scale
+    fl = np.concatenate([scene.flux[(a, band)] for a in _ARCS])
+    all_xy = scene.all_xy
+    near = (np.abs(all_xy - cen) <= reach).all(axis=1) & (fl > 0)
+    ps_img = np.zeros((n, n))
+    if near.any():
+        ps_img = np.asarray(model.point_source(
+            [{"ra_image": all_xy[near, 0], "dec_image": all_xy[near, 1],
+              "point_amp": fl[near]}], scene.system.kwargs_lens), dtype=np.float64)
+    return ps_img
+
+
+def _add_noise(clean, settings, band, rng):
+    """``(data, sigma)`` of a noiseless cutout: sky, Poisson and read noise, sky subtracted."""
+    t, n, rn = settings.exposure_time, settings.n, settings.read_noise[band]
+    f_e = _AB_NJY * 10 ** (-0.4 * settings.zero_point[band])  # nJy per (e-/s)
+    sky_pix = (settings.sky_background[band] * u.MJy / u.sr
+               * (settings.scale * u.arcsec) ** 2).to_value(u.nJy)
+    electrons = (clean + sky_pix) / f_e * t
+    sigma = np.sqrt(electrons + rn ** 2) * f_e / t
+    if settings.noise:
+        counts = rng.poisson(electrons) + rn * rng.standard_normal((n, n))
+        data = counts * f_e / t - sky_pix
+    else:
+        data = clean.copy()
+    return data, sigma
+
+
+def _optimal_snr(model, scene, settings, arc, band, cen, sigma):
+    """The PSF-weighted SNR of each of the arc's images on its cutout (NaN when outside)."""
+    snr = np.full(len(scene.pos[arc]), np.nan)
+    pos, fcol = scene.pos[arc], scene.flux[(arc, band)]
+    inside = (np.abs(pos - cen) <= settings.half * settings.scale).all(axis=1) & (fcol > 0)
+    for r in np.flatnonzero(inside):
+        one = np.asarray(model.point_source(
+            [{"ra_image": pos[r:r + 1, 0], "dec_image": pos[r:r + 1, 1],
+              "point_amp": fcol[r:r + 1]}], scene.system.kwargs_lens))
+        snr[r] = math.sqrt(float(np.sum((one / sigma) ** 2)))
+    return snr
+
+
+def _cutout_header(settings, arc, band, cen):
+    """The FITS header (``meta``) of one cutout."""
+    band_psf = settings.psfs[band]
+    meta = fits.Header()
+    meta["BAND"] = (band, "band")
+    meta["ARC"] = (arc, "arc of the fold pair")
+    meta["PIXSCALE"] = (settings.scale, "pixel scale [arcsec]")
+    meta["PSFFWHM"] = (band_psf.fwhm, "PSF FWHM (Gaussian-equivalent) [arcsec]")
+    meta["PSFTYPE"] = (band_psf.kind, "GAUSSIAN (band default) or USER")
+    meta["EXPTIME"] = (settings.exposure_time, "exposure time [s]")
+    meta["SKYBKG"] = (settings.sky_background[band], "sky background [MJy/sr], subtracted")
+    meta["RDNOISE"] = (settings.read_noise[band], "read noise per pixel [electron]")
+    meta["ZEROPT"] = (settings.zero_point[band], "AB magnitude of 1 electron/s")
+    meta["NOISE"] = (bool(settings.noise), "noise added")
+    meta["CENX"] = (float(cen[0]), "lens-frame x of the central pixel [arcsec]")
+    meta["CENY"] = (float(cen[1]), "lens-frame y of the central pixel [arcsec]")
+    meta["LENSRA"] = (settings.sky_center.ra.deg, "RA of the lens centre [deg]")
+    meta["LENSDEC"] = (settings.sky_center.dec.deg, "Dec of the lens centre [deg]")
+    return meta
+
+
+def _render_cutout(settings, scene, arc, band, grid, cen, wcs, rng):
+    """One arc's cutout in one band: ``(CCDData, host model, point-source model, SNRs)``."""
+    model = _image_model(grid, settings.psfs[band], scene, settings.supersampling)
+    host_img = _host_image(model, scene, band, settings.n)
+    ps_img = _point_source_image(model, scene, settings, band, cen)
+    clean = np.clip(host_img + ps_img, 0.0, None)
+    data, sigma = _add_noise(clean, settings, band, rng)
+    snr = _optimal_snr(model, scene, settings, arc, band, cen, sigma)
+    image = CCDData(data, unit=_IMAGE_UNIT, uncertainty=StdDevUncertainty(sigma),
+                    wcs=wcs.deepcopy(), meta=_cutout_header(settings, arc, band, cen),
+                    psf=settings.psfs[band].pixel_kernel.copy())
+    return image, host_img, ps_img, snr
+
+
 def render_mock_images(system, *, bands=("F150W", "F200W"), pixel_scale=0.04 * u.arcsec,
                        cutout_size=5.0 * u.arcsec, psf=None, host=True,
                        exposure_time=10.0 * u.ks, sky_background=0.2 * u.MJy / u.sr,
@@ -563,187 +860,28 @@ def render_mock_images(system, *, bands=("F150W", "F200W"), pixel_scale=0.04 * u
     (other images of the constellation, e.g. near the tangential critical
     curve, are far outside the cutouts) and there is no lens light.
     """
-    from lenstronomy.Data.pixel_grid import PixelGrid
-    from lenstronomy.Data.psf import PSF
-    from lenstronomy.ImSim.image_model import ImageModel
-    from lenstronomy.LightModel.light_model import LightModel
-    from lenstronomy.PointSource.point_source import PointSource
-
     if not isinstance(system, LensSystem):
         raise TypeError(f"system must be a LensSystem, got {type(system).__name__}")
-    bands = [bands] if isinstance(bands, str) else list(bands)
-    if not bands or not all(isinstance(b, str) and b for b in bands):
-        raise ValueError(f"bands must be a non-empty sequence of band names, got {bands!r}")
-    if len(set(bands)) != len(bands):
-        raise ValueError(f"bands contains duplicates: {bands}")
-    scale = as_angle_scalar(pixel_scale, "pixel_scale", allow_zero=False)
-    if isinstance(cutout_size, u.Quantity):
-        n = math.ceil(as_angle_scalar(cutout_size, "cutout_size", allow_zero=False) / scale
-                      - 1e-9)
-    elif isinstance(cutout_size, (int, np.integer)) and not isinstance(cutout_size, bool):
-        n = as_int(cutout_size, "cutout_size", minimum=1)
-    else:
-        raise TypeError(f"cutout_size must be an angle Quantity or a number of pixels, got "
-                        f"{cutout_size!r}")
-    n = max(15, n + (1 - n % 2))
-    ss = as_int(supersampling, "supersampling", minimum=1)
-    if ss % 2 == 0:
-        raise ValueError(f"supersampling must be odd, got {ss}")
-    if not isinstance(noise, (bool, np.bool_)):
-        raise TypeError(f"noise must be True or False, got {noise!r}")
-    if not isinstance(sky_center, SkyCoord) or not sky_center.isscalar:
-        raise TypeError(f"sky_center must be a scalar SkyCoord, got {sky_center!r}")
-    sky_center = sky_center.icrs
-    t = _as_quantity_scalar(exposure_time, "exposure_time", u.s, allow_zero=False)
-    sky_sb = _per_band(sky_background, bands, "sky_background",
-                       lambda v, nm: _as_quantity_scalar(v, nm, u.MJy / u.sr))
-    rn = _per_band(read_noise, bands, "read_noise",
-                   lambda v, nm: _as_quantity_scalar(v, nm, u.electron))
-    zp = _per_band(zero_point, bands, "zero_point",
-                   lambda v, nm: as_real(v, nm, minimum=0.0, maximum=40.0))
-
-    # PSFs: (kernel used by lenstronomy, its supersampling, pixel-scale kernel, FWHM, type)
-    psfs = {}
-    for b in bands:
-        user = psf[b] if isinstance(psf, Mapping) and b in psf else (
-            None if isinstance(psf, Mapping) else psf)
-        if user is None:
-            if b not in PSF_FWHM:
-                raise ValueError(f"band {b!r} has no default PSF (known bands: "
-                                 f"{sorted(PSF_FWHM)}); pass psf= for it")
-            fwhm = PSF_FWHM[b].to_value(u.arcsec)
-            kernel = _gaussian_kernel(fwhm, scale, ss)
-            pixel_kernel = _gaussian_kernel(fwhm, scale, 1)
-            psfs[b] = (kernel, ss, pixel_kernel, fwhm, "GAUSSIAN")
-        else:
-            name = f"psf[{b!r}]" if isinstance(psf, Mapping) else "psf"
-            kernel = _check_kernel(user, name)
-            psfs[b] = (kernel, 1, kernel, _moment_fwhm(kernel) * scale, "USER")
-
+    settings = _check_render_settings(
+        bands=bands, pixel_scale=pixel_scale, cutout_size=cutout_size, psf=psf,
+        exposure_time=exposure_time, sky_background=sky_background, read_noise=read_noise,
+        zero_point=zero_point, noise=noise, supersampling=supersampling, sky_center=sky_center)
     rng = np.random.default_rng(seed)
-    host_p = _host_params(host, bands)
-    if pairs is None:
-        if intrinsic_flux is None:
-            if system.sources is None:
-                raise ValueError("system has no sources: pass pairs=..., or build the system "
-                                 "with sources=...")
-            n_src = len(system.sources)
-            base = 10 ** rng.uniform(np.log10(3.0), 1.0, n_src)
-            colour = 10 ** rng.uniform(-0.1, 0.1, (len(bands), n_src))
-            intrinsic_flux = {b: base * colour[k] for k, b in enumerate(bands)}
-        pairs = system.constellation(bands=bands, intrinsic_flux=intrinsic_flux,
-                                     flux_unit=_IMAGE_UNIT, seed=rng)
-    else:
-        _check_pairs(pairs, bands)
-    truth = QTable(pairs, copy=True)
+    host_p = _host_params(host, settings.bands)
+    truth = _truth_table(system, settings.bands, pairs, intrinsic_flux, rng)
+    scene = _make_scene(system, truth, settings.bands, host_p)
 
-    pos = {arc: arc_xy(truth, arc) for arc in _ARCS}
-    flux = {(arc, b): truth[flux_col(arc, b)].to_value(_IMAGE_UNIT)
-            for arc in _ARCS for b in bands}
-    all_xy = np.vstack([pos[a] for a in _ARCS])
-
-    source_model = LightModel(["SERSIC_ELLIPSE"])
-    kwargs_host = None
-    if host_p is not None:
-        centre = host_p["center"]
-        if centre is None:
-            if "beta_x" in truth.colnames and "beta_y" in truth.colnames:
-                centre = np.array([np.mean(truth["beta_x"].to_value(u.arcsec)),
-                                   np.mean(truth["beta_y"].to_value(u.arcsec))])
-            else:
-                centre = system.ray_shoot(pos["L1"] * u.arcsec).to_value(u.arcsec).mean(axis=0)
-        kwargs_host = {"R_sersic": host_p["R_sersic"], "n_sersic": host_p["n_sersic"],
-                       "e1": host_p["e1"], "e2": host_p["e2"],
-                       "center_x": float(centre[0]), "center_y": float(centre[1])}
-        unit_flux = source_model.total_flux([{**kwargs_host, "amp": 1.0}])[0]
-    lens = _LensAdapter(system.lens_model, system.kwargs_lens)
-    half = (n - 1) / 2.0
-
-    images, host_models, ps_models = {}, {}, {}
-    snr = {(arc, b): np.full(len(truth), np.nan) for arc in _ARCS for b in bands}
+    images, host_models, ps_models, snr = {}, {}, {}, {}
     for arc in _ARCS:
-        centre_pix = np.round(pos[arc].mean(axis=0) / scale)
-        cen = centre_pix * scale
-        origin = cen - half * scale  # lens frame of pixel (0, 0)
-        grid = PixelGrid(nx=n, ny=n, transform_pix2angle=np.diag([scale, scale]),
-                         ra_at_xy_0=float(origin[0]), dec_at_xy_0=float(origin[1]))
-        wcs = _tan_wcs(sky_center, scale, origin)
-        for b in bands:
-            kernel, k_ss, pixel_kernel, fwhm, ptype = psfs[b]
-            lpsf = PSF(psf_type="PIXEL", kernel_point_source=kernel,
-                       point_source_supersampling_factor=k_ss)
-            kwargs_numerics = {"supersampling_factor": ss,
-                               "supersampling_convolution": k_ss > 1,
-                               "point_source_supersampling_factor": k_ss,
-                               # scipy's fftconvolve: lenstronomy's "fft_static" calls
-                               # numpy.fft.rfftn in a way numpy 2 deprecates
-                               "convolution_type": "fft"}
-            if k_ss > 1:
-                kwargs_numerics["supersampling_kernel_size"] = kernel.shape[0] // k_ss
-            model = ImageModel(grid, lpsf, lens_model_class=lens,
-                               source_model_class=source_model,
-                               point_source_class=PointSource(["LENSED_POSITION"],
-                                                              fixed_magnification_list=[False]),
-                               kwargs_numerics=kwargs_numerics)
-            # host
-            if kwargs_host is None:
-                host_img = np.zeros((n, n))
-            else:
-                amp = host_p["flux"][b] / unit_flux
-                host_img = np.asarray(model.source_surface_brightness(
-                    [{**kwargs_host, "amp": amp}], system.kwargs_lens), dtype=np.float64)
-            # point sources of both arcs that can touch this cutout
-            reach = (half + kernel.shape[0] / k_ss) * scale
-            fl = np.concatenate([flux[(a, b)] for a in _ARCS])
-            near = (np.abs(all_xy - cen) <= reach).all(axis=1) & (fl > 0)
-            ps_img = np.zeros((n, n))
-            if near.any():
-                ps_img = np.asarray(model.point_source(
-                    [{"ra_image": all_xy[near, 0], "dec_image": all_xy[near, 1],
-                      "point_amp": fl[near]}], system.kwargs_lens), dtype=np.float64)
-            clean = np.clip(host_img + ps_img, 0.0, None)
+        grid, cen, wcs = _arc_grid(settings, scene.pos[arc])
+        for b in settings.bands:
+            key = (arc, b)
+            images[key], host_img, ps_img, snr[key] = _render_cutout(
+                settings, scene, arc, b, grid, cen, wcs, rng)
+            host_models[key] = host_img * _IMAGE_UNIT
+            ps_models[key] = ps_img * _IMAGE_UNIT
 
-            f_e = _AB_NJY * 10 ** (-0.4 * zp[b])  # nJy per (e-/s)
-            sky_pix = (sky_sb[b] * u.MJy / u.sr * (scale * u.arcsec) ** 2).to_value(u.nJy)
-            electrons = (clean + sky_pix) / f_e * t
-            sigma = np.sqrt(electrons + rn[b] ** 2) * f_e / t
-            if noise:
-                counts = rng.poisson(electrons) + rn[b] * rng.standard_normal((n, n))
-                data = counts * f_e / t - sky_pix
-            else:
-                data = clean.copy()
-
-            # optimal SNR of this arc's images
-            fcol = flux[(arc, b)]
-            inside = (np.abs(pos[arc] - cen) <= half * scale).all(axis=1) & (fcol > 0)
-            for r in np.flatnonzero(inside):
-                one = np.asarray(model.point_source(
-                    [{"ra_image": pos[arc][r:r + 1, 0], "dec_image": pos[arc][r:r + 1, 1],
-                      "point_amp": fcol[r:r + 1]}], system.kwargs_lens))
-                snr[(arc, b)][r] = math.sqrt(float(np.sum((one / sigma) ** 2)))
-
-            meta = fits.Header()
-            meta["BAND"] = (b, "band")
-            meta["ARC"] = (arc, "arc of the fold pair")
-            meta["PIXSCALE"] = (scale, "pixel scale [arcsec]")
-            meta["PSFFWHM"] = (fwhm, "PSF FWHM (Gaussian-equivalent) [arcsec]")
-            meta["PSFTYPE"] = (ptype, "GAUSSIAN (band default) or USER")
-            meta["EXPTIME"] = (t, "exposure time [s]")
-            meta["SKYBKG"] = (sky_sb[b], "sky background [MJy/sr], subtracted")
-            meta["RDNOISE"] = (rn[b], "read noise per pixel [electron]")
-            meta["ZEROPT"] = (zp[b], "AB magnitude of 1 electron/s")
-            meta["NOISE"] = (bool(noise), "noise added")
-            meta["CENX"] = (float(cen[0]), "lens-frame x of the central pixel [arcsec]")
-            meta["CENY"] = (float(cen[1]), "lens-frame y of the central pixel [arcsec]")
-            meta["LENSRA"] = (sky_center.ra.deg, "RA of the lens centre [deg]")
-            meta["LENSDEC"] = (sky_center.dec.deg, "Dec of the lens centre [deg]")
-            images[(arc, b)] = CCDData(
-                data, unit=_IMAGE_UNIT, uncertainty=StdDevUncertainty(sigma),
-                wcs=wcs.deepcopy(), meta=meta, psf=pixel_kernel.copy())
-            host_models[(arc, b)] = host_img * _IMAGE_UNIT
-            ps_models[(arc, b)] = ps_img * _IMAGE_UNIT
-
-    for b in bands:
+    for b in settings.bands:
         truth[f"snr1_{b}"] = snr[("L1", b)]
         truth[f"snr2_{b}"] = snr[("L2", b)]
     return MockImages(images, pairs=truth, host_model=host_models,
