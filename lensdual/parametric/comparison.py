@@ -47,6 +47,139 @@ def _with_positions(tab, xy1, xy2):
     return out
 
 
+def _check_options(pairs, *, fit, lenstool, z_source, reference, centre, fit_kwargs):
+    """Check the types of :func:`parametric_comparison`'s options; return ``z_source``."""
+    if not isinstance(pairs, Table):
+        raise TypeError("pairs must be an astropy Table (check_duality output), got "
+                        f"{type(pairs).__name__}")
+    if not isinstance(fit, bool):
+        raise TypeError(f"fit must be True or False, got {fit!r}")
+    if lenstool is None and not fit:
+        raise ValueError("nothing to compare: give lenstool=... (a Lenstool best.par) and/or "
+                         "fit=True (a lenstronomy fit)")
+    if z_source is None:
+        raise ValueError("z_source is required")
+    zs = as_real(z_source, "z_source")
+    for name, value in (("reference", reference), ("centre", centre)):
+        if value is not None and not (isinstance(value, SkyCoord) and value.isscalar):
+            raise TypeError(f"{name} must be a scalar SkyCoord or None, got {value!r}")
+    if fit_kwargs is not None and not isinstance(fit_kwargs, dict):
+        raise TypeError(f"fit_kwargs must be a dict or None, got {type(fit_kwargs).__name__}")
+    return zs
+
+
+def _duality_table(pairs):
+    """``pairs`` as a QTable (no copy), checked for the columns of check_duality."""
+    tab = QTable(pairs, copy=False)
+    missing = [c for c in ("mu_flux", "mu_flux_err", "mu_size", "mu_size_err")
+               if c not in tab.colnames]
+    if missing:
+        raise ValueError(f"pairs lacks the column(s) {missing}: pass the output of "
+                         "check_duality")
+    return tab
+
+
+def _frame_reference(tab, reference):
+    """The origin of the pairs' frame: ``reference``, else ``meta['reference']`` (or None)."""
+    if reference is None:
+        reference = tab.meta.get("reference")
+        if reference is not None and not (isinstance(reference, SkyCoord)
+                                          and reference.isscalar):
+            raise TypeError("pairs.meta['reference'] must be a scalar SkyCoord, got "
+                            f"{reference!r}")
+    return reference
+
+
+def _lenstool_model(lenstool, zs):
+    """The LenstoolModel of ``lenstool`` (read from a path), checked for ``zs``; or None."""
+    if lenstool is None:
+        return None
+    if isinstance(lenstool, LenstoolModel):
+        lt_model = lenstool
+    elif isinstance(lenstool, (str, os.PathLike)):
+        lt_model = read_lenstool(lenstool)
+    else:
+        raise TypeError("lenstool must be a path or a LenstoolModel, got "
+                        f"{type(lenstool).__name__}")
+    lt_model.dls_ds(zs)  # z_source > z_lens, checked before any fitting
+    return lt_model
+
+
+def _needed_sky(tab, reference, *, lt_model, fit, centre):
+    """The pairs' ``(sky1, sky2)`` when the Lenstool model or the fit about ``centre`` need
+    them, else None."""
+    need_sky = lt_model is not None or (fit and centre is not None)
+    sky = _sky_positions(tab, reference) if need_sky else None
+    if need_sky and sky is None:
+        what = "the Lenstool model's frame" if lt_model is not None else "the frame of centre"
+        raise ValueError(f"cannot place the pairs in {what}: the table has no sky1, sky2 "
+                         "columns and no reference (pass reference=..., or keep "
+                         "meta['reference'] of measure_pairs)")
+    return sky
+
+
+def _in_lenstool_frame(tab, lt_model, sky):
+    """A copy of ``tab`` with the positions in the Lenstool model's frame."""
+    xy1 = lt_model.to_model_frame(sky[0]).to_value(u.arcsec).T
+    xy2 = lt_model.to_model_frame(sky[1]).to_value(u.arcsec).T
+    return _with_positions(tab, xy1, xy2)
+
+
+def _fit_frame(tab, sky, centre, lt_tab):
+    """``(table, description)``: the pairs in the frame of the fit."""
+    if centre is not None:
+        frame_tab = _with_positions(tab, tangent_xy(sky[0], centre),
+                                    tangent_xy(sky[1], centre))
+        return frame_tab, (f"tangent plane about RA={centre.icrs.ra.deg:.7f} "
+                           f"Dec={centre.icrs.dec.deg:.7f} deg (centre)")
+    if lt_tab is not None:
+        return lt_tab, "Lenstool model frame"
+    return tab, "pairs frame"
+
+
+def _default_sigma_pos(tab):
+    """The fit's default ``sigma_pos``: the duality test's, else the median per-source
+    error; None when neither is known."""
+    duality = tab.meta.get("duality")
+    used = duality.get("sigma_pos") if isinstance(duality, dict) else None
+    if isinstance(used, u.Quantity) and used.isscalar:
+        return used
+    if all(c in tab.colnames for c in POS_ERR_COLUMNS):
+        # per-source errors (e.g. from the PSF fits): their median, as one scalar
+        errs = np.concatenate([u.Quantity(tab[c], u.arcsec).value for c in POS_ERR_COLUMNS])
+        errs = errs[np.isfinite(errs) & (errs > 0)]
+        if errs.size:
+            return float(np.median(errs)) * u.arcsec
+    return None
+
+
+def _fit_and_compare(tab, frame_tab, *, model, z_lens, zs, fit_kwargs, snr_threshold,
+                     n_samples, seed):
+    """Fit the lenstronomy model in ``frame_tab``'s frame: ``(comparison table, meta)``."""
+    kwargs = {"seed": seed}
+    sigma_pos = _default_sigma_pos(tab)
+    if sigma_pos is not None:
+        kwargs["sigma_pos"] = sigma_pos
+    kwargs.update(fit_kwargs or {})
+    fitted = fit_parametric_lens(frame_tab, model=model, z_lens=z_lens, z_source=zs,
+                                 **kwargs)
+    parametric = compare_with_parametric(frame_tab, fitted, snr_threshold=snr_threshold,
+                                         n_samples=n_samples, seed=seed)
+    meta = {"fit_model": list(fitted.model),
+            "sigma_pos": float(fitted.sigma_pos.to_value(u.arcsec)), "chi2": float(fitted.chi2),
+            "dof": int(fitted.dof),
+            "best_params": {k: float(v) for k, v in fitted.best_params.items()}}
+    return parametric, meta
+
+
+def _add_lenstool_columns(parametric, lt_table):
+    """Add the Lenstool model's ``*_model`` columns to the fit's table as ``*_lenstool``."""
+    for name in ("mu", "ratio", "snr", "anomalous"):
+        src = "mu_model" if name == "mu" else f"{name}_model"
+        parametric[f"{name}_lenstool"] = lt_table[src]
+    return parametric
+
+
 def parametric_comparison(pairs, *, lenstool=None, fit=False,
                           model=("NFW_ELLIPSE_CSE", "SHEAR"), z_lens=None, z_source=None,
                           reference=None, centre=None, fit_kwargs=None, snr_threshold=3.0,
@@ -125,109 +258,33 @@ def parametric_comparison(pairs, *, lenstool=None, fit=False,
         :func:`~lensdual.parametric.fit_parametric_lens` -- all before any
         fitting starts.
     """
-    if not isinstance(pairs, Table):
-        raise TypeError("pairs must be an astropy Table (check_duality output), got "
-                        f"{type(pairs).__name__}")
-    if not isinstance(fit, bool):
-        raise TypeError(f"fit must be True or False, got {fit!r}")
-    if lenstool is None and not fit:
-        raise ValueError("nothing to compare: give lenstool=... (a Lenstool best.par) and/or "
-                         "fit=True (a lenstronomy fit)")
-    if z_source is None:
-        raise ValueError("z_source is required")
-    zs = as_real(z_source, "z_source")
-    for name, value in (("reference", reference), ("centre", centre)):
-        if value is not None and not (isinstance(value, SkyCoord) and value.isscalar):
-            raise TypeError(f"{name} must be a scalar SkyCoord or None, got {value!r}")
-    if fit_kwargs is not None and not isinstance(fit_kwargs, dict):
-        raise TypeError(f"fit_kwargs must be a dict or None, got {type(fit_kwargs).__name__}")
-    tab = QTable(pairs, copy=False)
-    missing = [c for c in ("mu_flux", "mu_flux_err", "mu_size", "mu_size_err")
-               if c not in tab.colnames]
-    if missing:
-        raise ValueError(f"pairs lacks the column(s) {missing}: pass the output of "
-                         "check_duality")
-    if reference is None:
-        reference = tab.meta.get("reference")
-        if reference is not None and not (isinstance(reference, SkyCoord)
-                                          and reference.isscalar):
-            raise TypeError("pairs.meta['reference'] must be a scalar SkyCoord, got "
-                            f"{reference!r}")
-
-    lt_model = None
-    if lenstool is not None:
-        if isinstance(lenstool, LenstoolModel):
-            lt_model = lenstool
-        elif isinstance(lenstool, (str, os.PathLike)):
-            lt_model = read_lenstool(lenstool)
-        else:
-            raise TypeError("lenstool must be a path or a LenstoolModel, got "
-                            f"{type(lenstool).__name__}")
-        lt_model.dls_ds(zs)  # z_source > z_lens, checked before any fitting
+    zs = _check_options(pairs, fit=fit, lenstool=lenstool, z_source=z_source,
+                        reference=reference, centre=centre, fit_kwargs=fit_kwargs)
+    tab = _duality_table(pairs)
+    reference = _frame_reference(tab, reference)
+    lt_model = _lenstool_model(lenstool, zs)
     if fit and z_lens is None:
         if lt_model is None:
             raise ValueError("z_lens is required for the fit (or give a Lenstool model)")
         z_lens = lt_model.z_lens
+    sky = _needed_sky(tab, reference, lt_model=lt_model, fit=fit, centre=centre)
+    lt_tab = None if lt_model is None else _in_lenstool_frame(tab, lt_model, sky)
 
-    need_sky = lt_model is not None or (fit and centre is not None)
-    sky = _sky_positions(tab, reference) if need_sky else None
-    if need_sky and sky is None:
-        what = "the Lenstool model's frame" if lt_model is not None else "the frame of centre"
-        raise ValueError(f"cannot place the pairs in {what}: the table has no sky1, sky2 "
-                         "columns and no reference (pass reference=..., or keep "
-                         "meta['reference'] of measure_pairs)")
-
-    lt_tab = None
-    if lt_model is not None:
-        xy1 = lt_model.to_model_frame(sky[0]).to_value(u.arcsec).T
-        xy2 = lt_model.to_model_frame(sky[1]).to_value(u.arcsec).T
-        lt_tab = _with_positions(tab, xy1, xy2)
-
-    parametric = fitted = None
+    parametric = None
     meta = {"lenstool": None if lt_model is None else str(lt_model.path),
             "fit_model": None, "z_lens": None if z_lens is None else float(z_lens),
             "z_source": zs, "fit_frame": None}
     if fit:
-        if centre is not None:
-            frame_tab = _with_positions(tab, tangent_xy(sky[0], centre),
-                                        tangent_xy(sky[1], centre))
-            meta["fit_frame"] = (f"tangent plane about RA={centre.icrs.ra.deg:.7f} "
-                                 f"Dec={centre.icrs.dec.deg:.7f} deg (centre)")
-        elif lt_tab is not None:
-            frame_tab = lt_tab
-            meta["fit_frame"] = "Lenstool model frame"
-        else:
-            frame_tab = tab
-            meta["fit_frame"] = "pairs frame"
-        kwargs = {"seed": seed}
-        duality = tab.meta.get("duality")
-        used = duality.get("sigma_pos") if isinstance(duality, dict) else None
-        if isinstance(used, u.Quantity) and used.isscalar:
-            kwargs["sigma_pos"] = used
-        elif all(c in tab.colnames for c in POS_ERR_COLUMNS):
-            # per-source errors (e.g. from the PSF fits): their median, as one scalar
-            errs = np.concatenate([u.Quantity(tab[c], u.arcsec).value for c in POS_ERR_COLUMNS])
-            errs = errs[np.isfinite(errs) & (errs > 0)]
-            if errs.size:
-                kwargs["sigma_pos"] = float(np.median(errs)) * u.arcsec
-        kwargs.update(fit_kwargs or {})
-        fitted = fit_parametric_lens(frame_tab, model=model, z_lens=z_lens, z_source=zs,
-                                     **kwargs)
-        parametric = compare_with_parametric(frame_tab, fitted, snr_threshold=snr_threshold,
-                                             n_samples=n_samples, seed=seed)
-        meta.update(fit_model=list(fitted.model),
-                    sigma_pos=float(fitted.sigma_pos.to_value(u.arcsec)), chi2=float(fitted.chi2),
-                    dof=int(fitted.dof),
-                    best_params={k: float(v) for k, v in fitted.best_params.items()})
+        frame_tab, meta["fit_frame"] = _fit_frame(tab, sky, centre, lt_tab)
+        parametric, fit_meta = _fit_and_compare(
+            tab, frame_tab, model=model, z_lens=z_lens, zs=zs, fit_kwargs=fit_kwargs,
+            snr_threshold=snr_threshold, n_samples=n_samples, seed=seed)
+        meta.update(fit_meta)
     if lt_tab is not None:
         lt_table = compare_with_parametric(lt_tab, lt_model, z_source=zs,
                                            snr_threshold=snr_threshold)
-        if parametric is None:
-            parametric = lt_table
-        else:
-            for name in ("mu", "ratio", "snr", "anomalous"):
-                src = "mu_model" if name == "mu" else f"{name}_model"
-                parametric[f"{name}_lenstool"] = lt_table[src]
+        parametric = (lt_table if parametric is None
+                      else _add_lenstool_columns(parametric, lt_table))
     parametric.meta["parametric"] = meta
     ax = plot_parametric_comparison(parametric)
     return parametric, ax.figure
