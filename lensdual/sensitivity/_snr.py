@@ -6,6 +6,7 @@ seed only, so the map is the same wherever the chunks run.
 """
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from astropy import units as u
@@ -23,6 +24,41 @@ __all__ = ["detection_snr_map"]
 _SIGNALS = ("ratio", "log", "inverse")
 
 
+class _SNRTask(NamedTuple):
+    """One chunk of :func:`detection_snr_map`: its masses and the map's settings.
+
+    Module level, so that it pickles for dask and process pools.
+    """
+
+    index: np.ndarray  # positions of the chunk's masses in the whole grid (seed their angles)
+    masses: np.ndarray  # M200, Msun
+    concentration: object  # "mcr", or a factor multiplying the mass-concentration relation
+    jacobian: np.ndarray  # (2, 2) macro d beta / d theta at the image
+    r_eff: np.ndarray
+    n_angles: int
+    sigma_rel: float
+    percentiles: np.ndarray
+    signal: str
+    definition: str
+    seed: object  # int or None
+    z_lens: float
+    z_source: float
+    cosmology: object
+    box: float
+    n_grid: int
+
+
+class _SNRRow(NamedTuple):
+    """The statistics over angles of one mass, one entry per ``r_eff``."""
+
+    theta_e: float  # point-mass Einstein radius of M200, arcsec
+    concentration: float
+    snr_mean: np.ndarray  # (n_r_eff,)
+    snr_percentiles: np.ndarray  # (n_r_eff, n_percentiles)
+    flux_excess_median: np.ndarray  # (n_r_eff,)
+    max_images: np.ndarray  # (n_r_eff,) most micro-images over the angles
+
+
 def _signal(fe, signal):
     if signal == "ratio":
         return np.abs(fe - 1.0)
@@ -37,17 +73,26 @@ def _snr_chunk(task):
     The angles of mass number ``i`` (its index in the whole grid) depend on
     ``(seed, i)`` only, so a chunk gives the same numbers whatever the
     chunking and wherever it runs.
+
+    Parameters
+    ----------
+    task : _SNRTask
+
+    Returns
+    -------
+    rows : list of _SNRRow
+        One per mass of the chunk.
     """
-    (index, masses, conc, a, r, n_ang, sigma, q, signal, definition, seed, zl, zs, cosmology,
-     box, n) = task
+    a, r, n_ang, seed = task.jacobian, task.r_eff, task.n_angles, task.seed
+    zl, zs, cosmology = task.z_lens, task.z_source, task.cosmology
     from ..abundance import einstein_radius
     from ..simulation.halos import mass_concentration, tnfw_halo
 
     k = np.arange(n_ang)
     out = []
-    for i, m in zip(index, masses, strict=True):
+    for i, m in zip(task.index, task.masses, strict=True):
         mq = m * u.Msun
-        c = mass_concentration(mq) * (1.0 if conc == "mcr" else conc)
+        c = mass_concentration(mq) * (1.0 if task.concentration == "mcr" else task.concentration)
         sub = tnfw_halo(mq, c, z_lens=zl, z_source=zs, cosmology=cosmology)
         code, p0, p1, p2 = _as_subhalo(sub)
         te = float(einstein_radius(mq, zl, zs, cosmology).to_value(u.arcsec))
@@ -56,13 +101,16 @@ def _snr_chunk(task):
         else:
             phase = np.random.default_rng([seed, int(i)]).random(r.size)
         phi = (k[None, :] + phase[:, None]) * (2.0 * math.pi / n_ang)
-        unit = np.stack([np.cos(phi), np.sin(phi)], axis=-1) @ _unit_map(a, te, definition).T
+        unit = np.stack([np.cos(phi), np.sin(phi)], axis=-1) @ _unit_map(a, te, task.definition).T
         d = np.ascontiguousarray((r[:, None, None] * unit).reshape(-1, 2))
-        fe, cnt = _flux_excess_raw(a, code, p0, p1, p2, d, box, n)
+        fe, cnt = _flux_excess_raw(a, code, p0, p1, p2, d, task.box, task.n_grid)
         fe = fe.reshape(r.size, n_ang)
-        snr = _signal(fe, signal) / sigma
-        out.append((te, c, snr.mean(axis=1), np.percentile(snr, q, axis=1).T,
-                    np.median(fe, axis=1), cnt.reshape(r.size, n_ang).max(axis=1)))
+        snr = _signal(fe, task.signal) / task.sigma_rel
+        out.append(_SNRRow(
+            theta_e=te, concentration=c, snr_mean=snr.mean(axis=1),
+            snr_percentiles=np.percentile(snr, task.percentiles, axis=1).T,
+            flux_excess_median=np.median(fe, axis=1),
+            max_images=cnt.reshape(r.size, n_ang).max(axis=1)))
     return out
 
 
@@ -70,6 +118,52 @@ def _check_pool(client, executor):
     if client is not None and executor is not None:
         raise ValueError("give client or executor (its alias), not both")
     return check_client(client if client is not None else executor)
+
+
+def _as_concentration(concentration):
+    if isinstance(concentration, str):
+        if concentration != "mcr":
+            raise ValueError(
+                f"concentration must be 'mcr' or a positive factor, got {concentration!r}"
+            )
+        return "mcr"
+    return as_real(concentration, "concentration", minimum=0.0, inclusive=False)
+
+
+def _as_percentiles(percentiles):
+    try:
+        q = np.atleast_1d(np.asarray(percentiles, dtype=np.float64))
+    except (TypeError, ValueError):
+        raise TypeError(f"percentiles must be real numbers, got {percentiles!r}") from None
+    if q.ndim != 1 or q.size == 0 or not ((q >= 0) & (q <= 100)).all():
+        raise ValueError(f"percentiles must be a non-empty sequence in [0, 100], got {percentiles}")
+    return q
+
+
+def _as_seed(seed):
+    if isinstance(seed, np.random.Generator):
+        return int(seed.integers(0, 2**63 - 1))
+    if seed is not None:
+        return as_int(seed, "seed", minimum=0)
+    return None
+
+
+def _snr_table(m, r, q, rows):
+    """The map's table from one `_SNRRow` per mass (``r_eff`` varying fastest)."""
+    nr = r.size
+    cols = {
+        "mass": np.repeat(m, nr) * u.Msun,
+        "concentration": np.repeat([row.concentration for row in rows], nr),
+        "theta_e": np.repeat([row.theta_e for row in rows], nr) * u.arcsec,
+        "r_eff": np.tile(r, m.size),
+        "snr_mean": np.concatenate([row.snr_mean for row in rows]),
+    }
+    snr = np.vstack([row.snr_percentiles for row in rows])
+    for j, qq in enumerate(q):
+        cols[f"snr_p{qq:g}"] = snr[:, j]
+    cols["flux_excess_median"] = np.concatenate([row.flux_excess_median for row in rows])
+    cols["max_images"] = np.concatenate([row.max_images for row in rows])
+    return QTable(cols)
 
 
 def detection_snr_map(masses, r_eff, *, jacobian=None, sigma_rel=None, sigma_pos=None,
@@ -173,27 +267,12 @@ def detection_snr_map(masses, r_eff, *, jacobian=None, sigma_rel=None, sigma_pos
     if m.ndim != 1 or m.size == 0:
         raise ValueError(f"masses must be a non-empty 1-d Quantity, got shape {m.shape}")
     r = _as_r_eff(r_eff)
-    if isinstance(concentration, str):
-        if concentration != "mcr":
-            raise ValueError(
-                f"concentration must be 'mcr' or a positive factor, got {concentration!r}"
-            )
-        conc = "mcr"
-    else:
-        conc = as_real(concentration, "concentration", minimum=0.0, inclusive=False)
-    try:
-        q = np.atleast_1d(np.asarray(percentiles, dtype=np.float64))
-    except (TypeError, ValueError):
-        raise TypeError(f"percentiles must be real numbers, got {percentiles!r}") from None
-    if q.ndim != 1 or q.size == 0 or not ((q >= 0) & (q <= 100)).all():
-        raise ValueError(f"percentiles must be a non-empty sequence in [0, 100], got {percentiles}")
+    conc = _as_concentration(concentration)
+    q = _as_percentiles(percentiles)
     n_ang = as_int(n_angles, "n_angles", minimum=1)
     _choice(signal, "signal", _SIGNALS)
     _choice(definition, "definition", _DEFINITIONS)
-    if isinstance(seed, np.random.Generator):
-        seed = int(seed.integers(0, 2**63 - 1))
-    elif seed is not None:
-        seed = as_int(seed, "seed", minimum=0)
+    seed = _as_seed(seed)
     zl, zs = as_redshifts(z_lens, z_source)
     cosmology = as_cosmology(cosmology)
     box, n = _check_grid(box, n_grid)
@@ -219,24 +298,14 @@ def detection_snr_map(masses, r_eff, *, jacobian=None, sigma_rel=None, sigma_pos
             raise ValueError("sigma_rel is required with a jacobian (sigma_pos only sets the "
                              "bootstrap error of the default SMACS0723 reference)")
     _eig(a)
-    tasks = [(np.arange(i, min(i + cs, m.size)), m[i:i + cs], conc, a, r, n_ang, sigma, q,
-              signal, definition, seed, zl, zs, cosmology, box, n)
+    settings = _SNRTask(index=None, masses=None, concentration=conc, jacobian=a, r_eff=r,
+                        n_angles=n_ang, sigma_rel=sigma, percentiles=q, signal=signal,
+                        definition=definition, seed=seed, z_lens=zl, z_source=zs,
+                        cosmology=cosmology, box=box, n_grid=n)
+    tasks = [settings._replace(index=np.arange(i, min(i + cs, m.size)), masses=m[i:i + cs])
              for i in range(0, m.size, cs)]
     rows = [row for chunk in run_tasks(_snr_chunk, tasks, pool) for row in chunk]
-    nr = r.size
-    cols = {
-        "mass": np.repeat(m, nr) * u.Msun,
-        "concentration": np.repeat([row[1] for row in rows], nr),
-        "theta_e": np.repeat([row[0] for row in rows], nr) * u.arcsec,
-        "r_eff": np.tile(r, m.size),
-        "snr_mean": np.concatenate([row[2] for row in rows]),
-    }
-    snr = np.vstack([row[3] for row in rows])
-    for j, qq in enumerate(q):
-        cols[f"snr_p{qq:g}"] = snr[:, j]
-    cols["flux_excess_median"] = np.concatenate([row[4] for row in rows])
-    cols["max_images"] = np.concatenate([row[5] for row in rows])
-    t = QTable(cols)
+    t = _snr_table(m, r, q, rows)
     meta.update({"jacobian": a.tolist(), "sigma_rel": sigma, "signal": signal,
                  "definition": definition, "concentration": conc, "n_angles": n_ang,
                  "percentiles": q.tolist(), "seed": seed, "z_lens": zl, "z_source": zs})
