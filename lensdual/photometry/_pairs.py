@@ -2,6 +2,8 @@
 
 import warnings
 from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 from astropy import units as u
@@ -97,6 +99,240 @@ def _initial_sky(pairs, reference):
         "pairs must have SkyCoord columns sky1 and sky2, or angle columns x1, y1, x2, y2 "
         f"(with reference=...), got columns {cols}"
     )
+
+
+def _check_bands(bands, images_l1, images_l2):
+    """The bands to measure as a list (default: those of ``images_l1``), in both arcs."""
+    if bands is None:
+        bands = list(images_l1)
+    elif isinstance(bands, str):
+        bands = [bands]
+    else:
+        bands = list(bands)
+    if not bands:
+        raise ValueError("bands must name at least one band, got none")
+    for name, images in (("images_l1", images_l1), ("images_l2", images_l2)):
+        missing = [b for b in bands if b not in images]
+        if missing:
+            raise ValueError(f"band(s) {missing} missing from {name} (it has {list(images)})")
+    return bands
+
+
+def _check_pairs_and_reference(pairs, reference):
+    """Check that ``pairs`` is a non-empty table and ``reference`` a scalar SkyCoord or None."""
+    if not isinstance(pairs, Table):
+        raise TypeError(f"pairs must be an astropy Table or QTable, got {type(pairs).__name__}")
+    if len(pairs) == 0:
+        raise ValueError("pairs has no rows")
+    if reference is not None:
+        if not isinstance(reference, SkyCoord) or not reference.isscalar:
+            raise TypeError(f"reference must be a scalar SkyCoord or None, got {reference!r}")
+
+
+def _check_units(images_l1, images_l2, bands):
+    """Check that the two arcs' images of each band have convertible units (or none)."""
+    for band in bands:
+        u1, u2 = images_l1[band].unit, images_l2[band].unit
+        if (u1 is None) != (u2 is None):
+            raise ValueError(
+                f"band {band!r}: images_l1 and images_l2 must both have flux units or both have "
+                f"none (got {u1} and {u2})"
+            )
+        if u1 is not None and not u2.is_equivalent(u1):
+            raise ValueError(
+                f"band {band!r}: the unit {u2} of images_l2 is not convertible to the unit "
+                f"{u1} of images_l1"
+            )
+
+
+def _per_band(value, bands):
+    """``{band: value}`` of one value for all bands, or of a dict per band (None if absent)."""
+    if isinstance(value, Mapping):
+        return {b: value.get(b) for b in bands}
+    return dict.fromkeys(bands, value)
+
+
+def _band_photometries(bands, psf_of, os_of, **settings):
+    """One checked `ArcPSFPhotometry` per band, before any image is measured."""
+    for band in bands:
+        _as_oversampling(os_of[band], f"oversampling of band {band!r}")
+    return {
+        band: ArcPSFPhotometry(psf_of[band], warn=False, oversampling=os_of[band], **settings)
+        for band in bands
+    }
+
+
+def _new_table(pairs):
+    """A copy of ``pairs`` with a ``pair_id`` column (1, 2, ... when absent)."""
+    out = QTable(pairs, copy=True)
+    if PAIR_ID not in out.colnames:
+        out.add_column(np.arange(1, len(pairs) + 1), name=PAIR_ID, index=0)
+    return out
+
+
+@dataclass
+class _Troubles:
+    """What was not measured: per pair the notes and unusable flags, per fit the pairs."""
+
+    ids: np.ndarray  # the pair ids
+    notes: list = field(init=False)  # per pair: why something was not measured
+    pair_flags: np.ndarray = field(init=False)  # per pair: OR of the unusable flags
+    flagged: list = field(default_factory=list)  # per arc and band: the pairs with a bad fit
+
+    def __post_init__(self):
+        """Start with no note and no flag."""
+        self.notes = [[] for _ in range(len(self.ids))]
+        self.pair_flags = np.zeros(len(self.ids), np.int64)
+
+    def record_fits(self, arc, band, flags, bad, src_ids, path):
+        """Note the unusable fits (``bad``) of one arc and band."""
+        ids = self.ids
+        if bad.any():
+            self.flagged.append(f"L{arc} {band}: pairs {ids[bad].tolist()[:10]}")
+        for i in np.flatnonzero(bad):
+            src = "" if src_ids is None else f" (source id {src_ids[i]})"
+            where = f"L{arc} {band}" + ("" if path is None else f" [{path}]")
+            self.notes[i].append(
+                f"pair {ids[i]}{src}, {where}: {describe_flags(flags[i], unusable_only=True)}"
+            )
+            self.pair_flags[i] |= flags[i] & _BAD_FLAGS
+
+    def note(self, rows, text):
+        """Note ``"pair <id>: <text>"`` for each pair of ``rows``."""
+        for i in rows:
+            self.notes[i].append(f"pair {self.ids[i]}: {text}")
+
+
+class _ArcResult(NamedTuple):
+    """One arc's measurement: mean positions and errors (arcsec), and per band the fluxes."""
+
+    x: np.ndarray
+    y: np.ndarray
+    err: np.ndarray
+    fluxes: dict  # band -> (flux, flux_err, flags)
+
+
+def _fit_band(phot, img, sky_init, arc, band, reference):
+    """PSF photometry of one arc and band: ``(result, flags, bad, x, y, sigma)``.
+
+    ``x``, ``y`` and ``sigma`` are the fitted positions and their errors in the
+    tangent-plane frame about ``reference`` (arcsec), NaN where the fit gave none.
+    """
+    wcs = _as_wcs(img.wcs, f"images_l{arc}[{band!r}].wcs")
+    label = _describe_input(f"images_l{arc}[{band!r}] (arc L{arc}, band {band})", img)
+    px, py = wcs.world_to_pixel(sky_init)
+    px, py = np.atleast_1d(px), np.atleast_1d(py)
+    res = phot(img, np.column_stack([px, py]), label=label)
+    flags = np.asarray(res["flags"], dtype=np.int64)
+    bad = (flags & _BAD_FLAGS) != 0
+    good = np.isfinite(res["x_fit"]) & np.isfinite(res["y_fit"])
+    safe_x = np.where(good, res["x_fit"], np.where(np.isfinite(px), px, 0.0))
+    safe_y = np.where(good, res["y_fit"], np.where(np.isfinite(py), py, 0.0))
+    xb, yb, sig = _pixel_to_tangent_errors(
+        wcs,
+        safe_x,
+        safe_y,
+        np.asarray(res["x_err"]),
+        np.asarray(res["y_err"]),
+        reference,
+    )
+    xb, yb = np.where(good, xb, np.nan), np.where(good, yb, np.nan)
+    return res, flags, bad, xb, yb, sig
+
+
+def _usable_fluxes(res, flags, bad):
+    """``(flux, flux_err, flags)`` of one band, NaN where the fit is unusable."""
+    flux, flux_err = res["flux"].copy(), res["flux_err"].copy()
+    flux[bad] = np.nan  # not measured (pairs-table convention)
+    flux_err[bad] = np.nan
+    return flux, flux_err, flags
+
+
+def _measure_arc(arc, images, sky_init, bands, phot_of, reference, troubles, src_ids):
+    """Measure all bands of one arc and combine the positions: an `_ArcResult`."""
+    n = len(troubles.ids)
+    sum_w = np.zeros(n)
+    sum_x = np.zeros(n)
+    sum_y = np.zeros(n)
+    fluxes = {}
+    for band in bands:
+        img = images[band]
+        res, flags, bad, xb, yb, sig = _fit_band(phot_of[band], img, sky_init, arc, band,
+                                                 reference)
+        troubles.record_fits(arc, band, flags, bad, src_ids, _file_of(img))
+        ok = np.isfinite(xb) & np.isfinite(yb) & np.isfinite(sig) & (sig > 0) & ~bad
+        w = np.where(ok, 1.0 / np.where(ok, sig, 1.0) ** 2, 0.0)
+        sum_w += w
+        sum_x += np.where(ok, xb, 0.0) * w
+        sum_y += np.where(ok, yb, 0.0) * w
+        fluxes[band] = _usable_fluxes(res, flags, bad)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        xm = np.where(sum_w > 0, sum_x / sum_w, np.nan)
+        ym = np.where(sum_w > 0, sum_y / sum_w, np.nan)
+        err = np.where(sum_w > 0, 1.0 / np.sqrt(sum_w), np.nan)
+    troubles.note(np.flatnonzero(sum_w == 0), f"no band measured its L{arc} position (NaN)")
+    return _ArcResult(xm, ym, err, fluxes)
+
+
+def _write_positions(out, per_arc, reference):
+    """Set the mean positions, their errors and sky positions of both arcs in ``out``."""
+    for arc in ARCS:
+        xm, ym, err, _ = per_arc[arc]
+        out[x_col(arc)] = xm * u.arcsec
+        out[y_col(arc)] = ym * u.arcsec
+        out[pos_err_col(arc)] = err * u.arcsec
+        out[sky_col(arc)] = tangent_to_sky(xm, ym, reference)
+
+
+def _write_fluxes(out, per_arc, bands):
+    """Set the fluxes, errors and flags of each band in ``out`` (L2 in the unit of L1)."""
+    for band in bands:
+        f1, e1, g1 = per_arc["1"].fluxes[band]
+        f2, e2, g2 = per_arc["2"].fluxes[band]
+        if isinstance(f1, u.Quantity):
+            f2, e2 = f2.to(f1.unit), e2.to(f1.unit)
+        out[flux_col(1, band)] = f1
+        out[flux_col(2, band)] = f2
+        out[flux_err_col(1, band)] = e1
+        out[flux_err_col(2, band)] = e2
+        out[flags_col(1, band)] = g1
+        out[flags_col(2, band)] = g2
+
+
+def _measured(per_arc, bands, troubles):
+    """Per pair: both positions known and some band with both fluxes (notes the others)."""
+    n = len(troubles.ids)
+    positions_ok = np.ones(n, bool)
+    for arc in ("1", "2"):
+        positions_ok &= np.isfinite(per_arc[arc].x) & np.isfinite(per_arc[arc].y)
+    some_band = np.zeros(n, bool)
+    for band in bands:
+        f1, f2 = per_arc["1"].fluxes[band][0], per_arc["2"].fluxes[band][0]
+        some_band |= np.isfinite(np.asarray(getattr(f1, "value", f1))) & np.isfinite(
+            np.asarray(getattr(f2, "value", f2))
+        )
+    troubles.note(np.flatnonzero(positions_ok & ~some_band),
+                  "no band has both fluxes (no flux ratio)")
+    return positions_ok & some_band
+
+
+def _trouble_warning(troubles, measured, notes):
+    """The text of measure_pairs' warning about unmeasured pairs; None when all is clean."""
+    troubled = np.flatnonzero([bool(v) for v in troubles.notes])
+    if not troubled.size:
+        return None
+    ids = troubles.ids
+    dropped = np.flatnonzero(~measured)
+    text = (
+        f"measure_pairs: {troubled.size} of {len(ids)} pair(s) not fully measured (NaN where "
+        f"unusable; see the photometry_flags, photometry_note and flags columns)"
+    )
+    if troubles.flagged:
+        text += "; flagged fits: " + ", ".join(troubles.flagged)
+    if dropped.size:
+        text += f"; pairs {ids[dropped].tolist()} cannot be tested (measured = False)"
+    text += ". Why: " + "; ".join(notes[i] for i in troubled[:30])
+    return text
 
 
 def measure_pairs(
@@ -219,161 +455,40 @@ def measure_pairs(
     """
     images_l1 = _check_images(images_l1, "images_l1")
     images_l2 = _check_images(images_l2, "images_l2")
-    if bands is None:
-        bands = list(images_l1)
-    elif isinstance(bands, str):
-        bands = [bands]
-    else:
-        bands = list(bands)
-    if not bands:
-        raise ValueError("bands must name at least one band, got none")
-    for name, images in (("images_l1", images_l1), ("images_l2", images_l2)):
-        missing = [b for b in bands if b not in images]
-        if missing:
-            raise ValueError(f"band(s) {missing} missing from {name} (it has {list(images)})")
-    if not isinstance(pairs, Table):
-        raise TypeError(f"pairs must be an astropy Table or QTable, got {type(pairs).__name__}")
-    if len(pairs) == 0:
-        raise ValueError("pairs has no rows")
-    if reference is not None:
-        if not isinstance(reference, SkyCoord) or not reference.isscalar:
-            raise TypeError(f"reference must be a scalar SkyCoord or None, got {reference!r}")
-    for band in bands:
-        u1, u2 = images_l1[band].unit, images_l2[band].unit
-        if (u1 is None) != (u2 is None):
-            raise ValueError(
-                f"band {band!r}: images_l1 and images_l2 must both have flux units or both have "
-                f"none (got {u1} and {u2})"
-            )
-        if u1 is not None and not u2.is_equivalent(u1):
-            raise ValueError(
-                f"band {band!r}: the unit {u2} of images_l2 is not convertible to the unit "
-                f"{u1} of images_l1"
-            )
-    if isinstance(psf, Mapping):
-        psf_of = {b: psf.get(b) for b in bands}
-    else:
-        psf_of = dict.fromkeys(bands, psf)
-    if isinstance(oversampling, Mapping):
-        os_of = {b: oversampling.get(b) for b in bands}
-    else:
-        os_of = dict.fromkeys(bands, oversampling)
-    for band in bands:
-        _as_oversampling(os_of[band], f"oversampling of band {band!r}")
-    # one photometry per band, its settings checked before any image is measured
-    phot_of = {
-        band: ArcPSFPhotometry(
-            psf_of[band],
-            background=background,
-            fit_shape=fit_shape,
-            xy_bounds=xy_bounds,
-            neighbour_passes=neighbour_passes,
-            warn=False,
-            oversampling=os_of[band],
-            check_psf=check_psf,
-        )
-        for band in bands
-    }
+    bands = _check_bands(bands, images_l1, images_l2)
+    _check_pairs_and_reference(pairs, reference)
+    _check_units(images_l1, images_l2, bands)
+    psf_of = _per_band(psf, bands)
+    os_of = _per_band(oversampling, bands)
+    phot_of = _band_photometries(
+        bands,
+        psf_of,
+        os_of,
+        background=background,
+        fit_shape=fit_shape,
+        xy_bounds=xy_bounds,
+        neighbour_passes=neighbour_passes,
+        check_psf=check_psf,
+    )
 
     sky1_init, sky2_init = _initial_sky(pairs, reference)
     if reference is None:
         reference = mean_direction(sky1_init, sky2_init)
 
-    n = len(pairs)
-    out = QTable(pairs, copy=True)
-    if PAIR_ID not in out.colnames:
-        out.add_column(np.arange(1, n + 1), name=PAIR_ID, index=0)
-    ids = np.asarray(out[PAIR_ID])
-
+    out = _new_table(pairs)
+    troubles = _Troubles(np.asarray(out[PAIR_ID]))
     per_arc = {}
-    flagged = []  # per arc and band: the pairs with an unusable fit
-    notes = [[] for _ in range(n)]  # per pair: why something was not measured
-    pair_flags = np.zeros(n, np.int64)  # per pair: OR of the unusable flags
     for arc, images, sky_init in (("1", images_l1, sky1_init), ("2", images_l2, sky2_init)):
-        sum_w = np.zeros(n)
-        sum_x = np.zeros(n)
-        sum_y = np.zeros(n)
-        fluxes = {}
         src_ids = np.asarray(out[id_col(arc)]) if id_col(arc) in out.colnames else None
-        for band in bands:
-            img = images[band]
-            wcs = _as_wcs(img.wcs, f"images_l{arc}[{band!r}].wcs")
-            label = _describe_input(f"images_l{arc}[{band!r}] (arc L{arc}, band {band})", img)
-            px, py = wcs.world_to_pixel(sky_init)
-            px, py = np.atleast_1d(px), np.atleast_1d(py)
-            res = phot_of[band](img, np.column_stack([px, py]), label=label)
-            flags = np.asarray(res["flags"], dtype=np.int64)
-            bad = (flags & _BAD_FLAGS) != 0
-            path = _file_of(img)
-            if bad.any():
-                flagged.append(f"L{arc} {band}: pairs {ids[bad].tolist()[:10]}")
-            for i in np.flatnonzero(bad):
-                src = "" if src_ids is None else f" (source id {src_ids[i]})"
-                where = f"L{arc} {band}" + ("" if path is None else f" [{path}]")
-                notes[i].append(
-                    f"pair {ids[i]}{src}, {where}: {describe_flags(flags[i], unusable_only=True)}"
-                )
-                pair_flags[i] |= flags[i] & _BAD_FLAGS
-            good = np.isfinite(res["x_fit"]) & np.isfinite(res["y_fit"])
-            safe_x = np.where(good, res["x_fit"], np.where(np.isfinite(px), px, 0.0))
-            safe_y = np.where(good, res["y_fit"], np.where(np.isfinite(py), py, 0.0))
-            xb, yb, sig = _pixel_to_tangent_errors(
-                wcs,
-                safe_x,
-                safe_y,
-                np.asarray(res["x_err"]),
-                np.asarray(res["y_err"]),
-                reference,
-            )
-            xb, yb = np.where(good, xb, np.nan), np.where(good, yb, np.nan)
-            ok = np.isfinite(xb) & np.isfinite(yb) & np.isfinite(sig) & (sig > 0) & ~bad
-            w = np.where(ok, 1.0 / np.where(ok, sig, 1.0) ** 2, 0.0)
-            sum_w += w
-            sum_x += np.where(ok, xb, 0.0) * w
-            sum_y += np.where(ok, yb, 0.0) * w
-            flux, flux_err = res["flux"].copy(), res["flux_err"].copy()
-            flux[bad] = np.nan  # not measured (pairs-table convention)
-            flux_err[bad] = np.nan
-            fluxes[band] = (flux, flux_err, flags)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            xm = np.where(sum_w > 0, sum_x / sum_w, np.nan)
-            ym = np.where(sum_w > 0, sum_y / sum_w, np.nan)
-            err = np.where(sum_w > 0, 1.0 / np.sqrt(sum_w), np.nan)
-        for i in np.flatnonzero(sum_w == 0):
-            notes[i].append(f"pair {ids[i]}: no band measured its L{arc} position (NaN)")
-        per_arc[arc] = (xm, ym, err, fluxes)
-
-    for arc in ARCS:
-        xm, ym, err, _ = per_arc[arc]
-        out[x_col(arc)] = xm * u.arcsec
-        out[y_col(arc)] = ym * u.arcsec
-        out[pos_err_col(arc)] = err * u.arcsec
-        out[sky_col(arc)] = tangent_to_sky(xm, ym, reference)
-    for band in bands:
-        f1, e1, g1 = per_arc["1"][3][band]
-        f2, e2, g2 = per_arc["2"][3][band]
-        if isinstance(f1, u.Quantity):
-            f2, e2 = f2.to(f1.unit), e2.to(f1.unit)
-        out[flux_col(1, band)] = f1
-        out[flux_col(2, band)] = f2
-        out[flux_err_col(1, band)] = e1
-        out[flux_err_col(2, band)] = e2
-        out[flags_col(1, band)] = g1
-        out[flags_col(2, band)] = g2
-    positions_ok = np.ones(n, bool)
-    for arc in ("1", "2"):
-        positions_ok &= np.isfinite(per_arc[arc][0]) & np.isfinite(per_arc[arc][1])
-    some_band = np.zeros(n, bool)
-    for band in bands:
-        f1, f2 = per_arc["1"][3][band][0], per_arc["2"][3][band][0]
-        some_band |= np.isfinite(np.asarray(getattr(f1, "value", f1))) & np.isfinite(
-            np.asarray(getattr(f2, "value", f2))
+        per_arc[arc] = _measure_arc(
+            arc, images, sky_init, bands, phot_of, reference, troubles, src_ids
         )
-    measured = positions_ok & some_band
-    for i in np.flatnonzero(positions_ok & ~some_band):
-        notes[i].append(f"pair {ids[i]}: no band has both fluxes (no flux ratio)")
-    out["photometry_flags"] = pair_flags
-    out["photometry_note"] = ["; ".join(v) for v in notes]
+
+    _write_positions(out, per_arc, reference)
+    _write_fluxes(out, per_arc, bands)
+    measured = _measured(per_arc, bands, troubles)
+    out["photometry_flags"] = troubles.pair_flags
+    out["photometry_note"] = ["; ".join(v) for v in troubles.notes]
     out["measured"] = measured
     out.meta["bands"] = list(bands)
     out.meta["reference"] = reference
@@ -386,17 +501,7 @@ def measure_pairs(
         "oversampling": {b: os_of[b] for b in bands},
         "frame": "gnomonic about reference, x west, y north, arcsec",
     }
-    troubled = np.flatnonzero([bool(v) for v in notes])
-    if troubled.size:
-        dropped = np.flatnonzero(~measured)
-        text = (
-            f"measure_pairs: {troubled.size} of {n} pair(s) not fully measured (NaN where "
-            f"unusable; see the photometry_flags, photometry_note and flags columns)"
-        )
-        if flagged:
-            text += "; flagged fits: " + ", ".join(flagged)
-        if dropped.size:
-            text += f"; pairs {ids[dropped].tolist()} cannot be tested (measured = False)"
-        text += ". Why: " + "; ".join(out["photometry_note"][i] for i in troubled[:30])
+    text = _trouble_warning(troubles, measured, out["photometry_note"])
+    if text is not None:
         warnings.warn(text, LensdualWarning, stacklevel=2)
     return out
