@@ -122,7 +122,9 @@ class ConfigError(ValueError):
 class ImageSpec:
     """One image of an arc in one band, as given in ``[arcs.<arc>.<band>]``.
 
-    Attributes
+    Every parameter is also an attribute of the same name.
+
+    Parameters
     ----------
     image : `~pathlib.Path`
         The FITS file of the image (absolute path).
@@ -157,7 +159,9 @@ class ImageSpec:
 class BandSpec:
     """One band, as given in ``[bands.<band>]``.
 
-    Attributes
+    Every parameter is also an attribute of the same name.
+
+    Parameters
     ----------
     name : str
         The band name (e.g. ``"F150W"``).
@@ -185,7 +189,9 @@ class BandSpec:
 class ArcSpec:
     """One lens arc: its images and optional cutout (``[arcs.<arc>]``).
 
-    Attributes
+    Every parameter is also an attribute of the same name.
+
+    Parameters
     ----------
     name : str
         ``"L1"`` or ``"L2"``.
@@ -208,7 +214,9 @@ class ArcSpec:
 class ParametricSpec:
     """Parametric lens models to compare with (``[parametric]``).
 
-    Attributes
+    Every parameter is also an attribute of the same name.
+
+    Parameters
     ----------
     lenstool : `~pathlib.Path` or None
         A Lenstool parameter file (``best.par``), or None.
@@ -246,7 +254,9 @@ class ParametricSpec:
 class KnotSpec:
     """A catalogue-only run on a knot constellation (``[knots]``).
 
-    Attributes
+    Every parameter is also an attribute of the same name.
+
+    Parameters
     ----------
     catalogue : `~pathlib.Path`
         The multiple-image catalogue (Lenstool format, or ECSV).
@@ -304,7 +314,9 @@ class RunConfig:
 
     All paths are absolute and resolved (symbolic links followed).
 
-    Attributes
+    Every parameter is also an attribute of the same name.
+
+    Parameters
     ----------
     path : `~pathlib.Path`
         The configuration file.
@@ -1301,6 +1313,17 @@ def band_psfs(config):
 
 
 def band_oversampling(config):
-    """``{band: oversampling}`` of the bands whose PSF image is oversampled."""
+    """``{band: oversampling}`` of the bands whose PSF image is oversampled.
+
+    Parameters
+    ----------
+    config : `RunConfig`
+        A configuration from :func:`load_config`.
+
+    Returns
+    -------
+    oversampling : dict of str to int
+        The ``psf_oversampling`` of every band that has one.
+    """
     return {name: band.psf_oversampling for name, band in config.bands.items()
             if band.psf_oversampling is not None}
