@@ -106,8 +106,7 @@ def _lenstool_model(lenstool, zs):
 
 
 def _needed_sky(tab, reference, *, lt_model, fit, centre):
-    """The pairs' ``(sky1, sky2)`` when the Lenstool model or the fit about ``centre`` need
-    them, else None."""
+    """The pairs' ``(sky1, sky2)`` if the Lenstool model or a fit about ``centre`` needs them."""
     need_sky = lt_model is not None or (fit and centre is not None)
     sky = _sky_positions(tab, reference) if need_sky else None
     if need_sky and sky is None:
@@ -138,8 +137,7 @@ def _fit_frame(tab, sky, centre, lt_tab):
 
 
 def _default_sigma_pos(tab):
-    """The fit's default ``sigma_pos``: the duality test's, else the median per-source
-    error; None when neither is known."""
+    """The fit's default ``sigma_pos``: the duality test's, else the median per-source error."""
     duality = tab.meta.get("duality")
     used = duality.get("sigma_pos") if isinstance(duality, dict) else None
     if isinstance(used, u.Quantity) and used.isscalar:

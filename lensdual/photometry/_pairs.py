@@ -213,11 +213,9 @@ class _ArcResult(NamedTuple):
 
 
 def _fit_band(phot, img, sky_init, arc, band, reference):
-    """PSF photometry of one arc and band: ``(result, flags, bad, x, y, sigma)``.
-
-    ``x``, ``y`` and ``sigma`` are the fitted positions and their errors in the
-    tangent-plane frame about ``reference`` (arcsec), NaN where the fit gave none.
-    """
+    """PSF photometry of one arc and band: ``(result, flags, bad, x, y, sigma)``, in arcsec."""
+    # x, y, sigma: the fitted positions and their errors in the tangent-plane frame about
+    # reference, NaN where the fit gave none
     wcs = _as_wcs(img.wcs, f"images_l{arc}[{band!r}].wcs")
     label = _describe_input(f"images_l{arc}[{band!r}] (arc L{arc}, band {band})", img)
     px, py = wcs.world_to_pixel(sky_init)

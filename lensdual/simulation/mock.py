@@ -563,8 +563,7 @@ def _truth_table(system, bands, pairs, intrinsic_flux, rng):
 
 
 def _host_kwargs(host_p, truth, system, xy_l1):
-    """lenstronomy's Sérsic parameters of the host (no ``amp``), centred by default on the
-    sources."""
+    """The host's lenstronomy Sérsic parameters (no ``amp``); default centre: the sources'."""
     centre = host_p["center"]
     if centre is None:
         if "beta_x" in truth.colnames and "beta_y" in truth.colnames:
