@@ -385,7 +385,7 @@ def _knot_redshift(tab, z_source, needed):
 # ---------------------------------------------------------------------------
 
 
-def pairs_from_knots(images, macro_images, *, knots=None, assign=None, mapping=None, model=None,
+def pairs_from_knots(images, macro_images, *, knots=None, assign=None, mapping=None, model=None,  # noqa: C901, PLR0915
                      z_source=None, reference=None, max_distance=None, match_radius=0.3 * u.arcsec,
                      min_knots=3, bands=None, flux_columns="flux_{band}",
                      flux_err_columns="flux_err_{band}"):

@@ -835,7 +835,7 @@ def _pairs_table(id_pairs, ids1, ids2, p, q, sky1, sky2, i, j):
     return out
 
 
-def pair_constellations(
+def pair_constellations(  # noqa: C901, PLR0915
     catalog1,
     catalog2,
     *,

@@ -795,7 +795,7 @@ class _Validator:
             size = self.get_angle(table, "size", sec)
         return center, size
 
-    def image(self, table, sec):
+    def image(self, table, sec):  # noqa: C901
         self.unknown_keys(table, _IMAGE_KEYS, sec)
         if "image" not in table:
             self.add(f"[{sec}] image: missing (the FITS file of the image)")

@@ -48,7 +48,7 @@ METHOD_QUAD2 = 2
 
 
 @njit(**JIT_OPTIONS)
-def _lstsq_mgs(A, Y, ncol, sol, cond_max):
+def _lstsq_mgs(A, Y, ncol, sol, cond_max):  # noqa: C901
     """Least squares ``min ||A[:, :ncol] B - Y||`` by modified Gram-Schmidt.
 
     ``A`` (M, >=ncol) is overwritten (it becomes Q, column-equilibrated), ``Y``
@@ -571,7 +571,7 @@ def _slope_covariance(L, p, scale, work, out):
 
 
 @njit(**JIT_OPTIONS)
-def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_extra,
+def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_extra,  # noqa: C901, PLR0915
                    min_candidates, lookahead, k_dense, order, dsort, U, Yr, W, A, rhs, L, scale,
                    beta,
                    work, jac_out):

@@ -682,7 +682,7 @@ def _run_emcee(emcee, logp, p_best, cov, lower, upper, n_walkers, n_steps, rng, 
     return samples, float(np.mean(acceptance)), tau, info
 
 
-def fit_parametric_lens(pairs, *, model=("NFW_ELLIPSE_CSE", "SHEAR"), z_lens=None,
+def fit_parametric_lens(pairs, *, model=("NFW_ELLIPSE_CSE", "SHEAR"), z_lens=None,  # noqa: C901
                         z_source=None, cosmology=None, sigma_pos=0.06 * u.arcsec, fixed=None,
                         fixed_params=None, bounds=None, init=None, n_starts=8, max_nfev=2000,
                         mcmc=False, n_mcmc=4000, n_walkers=None, n_samples=300, seed=None,

@@ -427,7 +427,7 @@ def _check_nlens(path, blocks, n_potentials):
                         f"{int(nlens)}, which this reader does not emulate")
 
 
-def _potential(path, block):
+def _potential(path, block):  # noqa: C901
     """The keys of one potential block, validated; returns a dict.
 
     Keys are stored under their canonical names (``_KEY_ALIASES`` and, once
@@ -670,7 +670,7 @@ def _nfw_parameters(path, p, cosmo, z_lens, kpc_per_arcsec):
 # --------------------------------------------------------------------------- public API
 
 
-def read_lenstool(path, *, cosmology=None):
+def read_lenstool(path, *, cosmology=None):  # noqa: C901, PLR0915
     """Read a Lenstool parameter file (``best.par``) of dPIE, NFW and shear potentials.
 
     Parameters
@@ -1349,7 +1349,7 @@ class DPIELensModel(LenstoolLensModel):
         return f"<DPIELensModel {len(self.params)} components, z_source={self.z_source}>"
 
 
-def read_lenstool_images(path, *, reference):
+def read_lenstool_images(path, *, reference):  # noqa: C901, PLR0915
     """Read a Lenstool multiple-image catalogue (``arcs.dat``).
 
     One image per line: ``id RA DEC a b theta z [mag]``. Without a header the

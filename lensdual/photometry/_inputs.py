@@ -143,7 +143,7 @@ def _in_box(array, shape, box):
     return array[box]
 
 
-def _unpack_image(image, name, label=None, box=None, parts=None):
+def _unpack_image(image, name, label=None, box=None, parts=None):  # noqa: C901
     """Return (float64 data copy, invalid mask or None, error or None, unit, wcs).
 
     With ``box`` (a pair of slices) only that part of the image is copied and
@@ -290,7 +290,7 @@ def _as_oversampling(oversampling, name="oversampling"):
     return (ints[0], ints[-1])
 
 
-def _psf_spec(psf, name="psf", oversampling=None):
+def _psf_spec(psf, name="psf", oversampling=None):  # noqa: C901
     """The PSF setting checked: ('gaussian', FWHM in pixels or None), ('image', ImagePSF)
     or ('angle', the FWHM as an angle, converted to pixels by `_psf_in_pixels`)."""
     from photutils.psf import ImagePSF

@@ -197,7 +197,7 @@ class ImageFinder:
         return out
 
     # ------------------------------------------------------------------ the grid
-    def _build(self):
+    def _build(self):  # noqa: PLR0915
         n, h, r = self._n, self.spacing, self.refine
         levels = self.refine_levels if r > 1 else 0
         scale = r**levels  # base cell size in units of the finest lattice
