@@ -23,6 +23,7 @@ from astropy.table import QTable
 from astropy.wcs import WCS
 from scipy.special import erf
 
+from .._frames import tangent_to_sky
 from .._pairs_table import POSITION_COLUMNS, arc_xy, flux_col
 from .._validation import as_angle_scalar, as_int, as_positions, as_real
 from .lens_system import LensSystem
@@ -208,8 +209,7 @@ def lens_to_sky(xy, sky_center=DEFAULT_SKY_CENTER):
         raise TypeError(f"sky_center must be a scalar SkyCoord, got {sky_center!r}")
     sky_center = sky_center.icrs
     arr = as_positions(xy, "xy")
-    w = _tan_wcs(sky_center, 1.0, (0.0, 0.0))  # 1 arcsec "pixels", pixel 0 at the origin
-    return w.pixel_to_world(arr[:, 0], arr[:, 1])
+    return tangent_to_sky(arr[:, 0], arr[:, 1], sky_center)
 
 
 def _sky_center_of(image):
