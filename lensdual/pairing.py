@@ -17,6 +17,7 @@ spurious. See the "Pairing" page of the documentation for the algorithm and
 its measured accuracy.
 """
 
+from dataclasses import dataclass
 from itertools import combinations
 
 import numpy as np
@@ -835,7 +836,141 @@ def _pairs_table(id_pairs, ids1, ids2, p, q, sky1, sky2, i, j):
     return out
 
 
-def pair_constellations(  # noqa: C901, PLR0915
+@dataclass(frozen=True)
+class _MapFit:
+    """A fitted arc-to-arc map and its residuals (shared by manual and automatic pairing).
+
+    ``coef`` (K, 2) are the map coefficients about ``centre`` (see
+    :func:`_features`), ``d2`` the (N1, N2) squared metric residuals of every
+    combination, ``rms_robust`` and ``rms`` those of the pairs (arcsec).
+    """
+
+    coef: np.ndarray
+    centre: np.ndarray
+    d2: np.ndarray
+    rms_robust: float
+    rms: float
+
+    def meta(self):
+        """``meta['map']`` of the pairs table: A, offset, centre, parity, det, rms, order."""
+        coef, centre = self.coef, self.centre
+        a_mat = coef[1:3].T.copy()
+        det = float(np.linalg.det(a_mat))
+        offset = coef[0] - a_mat @ centre
+        return {
+            "A": a_mat,
+            "offset": offset * u.arcsec,
+            "centre": centre * u.arcsec,
+            "parity": int(np.sign(det)),
+            "det": det,
+            "rms": self.rms * u.arcsec,
+            "rms_robust": self.rms_robust * u.arcsec,
+            "order": 2 if len(coef) == 6 else 1,
+            "quadratic": coef[3:].copy() / u.arcsec if len(coef) == 6 else None,
+        }
+
+
+@dataclass(frozen=True)
+class _Pairing:
+    """The pairs (i, j) of a pairing, its map and its bookkeeping (for ``meta``)."""
+
+    i: np.ndarray
+    j: np.ndarray
+    fit: _MapFit
+    n_hypotheses: int
+    n_inliers: int
+    max_residual: float | None
+
+
+def _colour_terms(catalog1, catalog2, cols, csig, n1, n2):
+    """(chi2 (N1, N2), largest colour difference or None, colour gate or None)."""
+    if cols is None:
+        return np.zeros((n1, n2)), None, None
+    units = [None] * len(cols)
+    col1 = _colours(catalog1, cols, "catalog1", units)
+    col2 = _colours(catalog2, cols, "catalog2", units)
+    dcol = col1[:, None, :] - col2[None, :, :]  # (N1, N2, K-1)
+    dcol = np.where(np.isfinite(dcol), dcol, 0.0)
+    colour_chi2 = (dcol**2).sum(axis=2) / csig**2
+    colour_diff = np.abs(dcol).max(axis=2)
+    return colour_chi2, colour_diff, colour_diff <= _COLOUR_GATE * csig
+
+
+def _tolerances(p, q, tolerance):
+    """(inlier tolerance, cap of the residual gate) in arcsec."""
+    nn1 = cKDTree(p).query(p, k=2)[0][:, 1]
+    nn2 = cKDTree(q).query(q, k=2)[0][:, 1]
+    nn = min(np.median(nn1), np.median(nn2))
+    if tolerance is None:
+        tol = _TOLERANCE_FRACTION * nn
+    else:
+        tol = as_angle_scalar(tolerance, "tolerance", allow_zero=False)
+    return tol, max(tol, _GATE_CAP * nn)
+
+
+def _manual_pairing(ids, ids1, ids2, p, q, centre, order, max_residual):
+    """The map fitted to a manual list of id pairs."""
+    id1, id2 = _id_pairs(ids, "ids")
+    i = _rows_of(ids1, id1, "ids", "catalog1")
+    j = _rows_of(ids2, id2, "ids", "catalog2")
+    if len(i) < 3:
+        raise ValueError(f"ids must give at least 3 pairs to fit the map, got {len(i)}")
+    if max_residual is not None:
+        as_angle_scalar(max_residual, "max_residual", allow_zero=False)
+    coef = _fit(p[i], q[j], centre, _choose_order(p[i], q[j], centre, order))
+    d2_all = _residuals2(coef, p, q, centre)
+    rms_rob, rms = _robust_rms(d2_all[i, j], 2 * len(coef))
+    fit = _MapFit(coef, centre, d2_all, rms_rob, rms)
+    return _Pairing(i, j, fit, n_hypotheses=0, n_inliers=len(i), max_residual=None)
+
+
+def _automatic_pairing(p, q, centre, *, parity, order, tol, cap, max_residual, colours, rng):
+    """Search for the map, then assign the pairs one to one along it (twice)."""
+    colour_chi2, _, colour_ok = colours
+    n2 = len(q)
+    maxres_user = None if max_residual is None else as_angle_scalar(
+        max_residual, "max_residual", allow_zero=False)
+    best, n_hyp = _search(p, q, parity, tol**2, colour_ok, order, rng)
+    if best is None or len(best[0]) < _MIN_AUTO_PAIRS:
+        found = 0 if best is None else len(best[0])
+        raise ValueError(
+            "no map relates at least 4 points of catalog1 and catalog2 within the "
+            f"tolerance {tol:.3g} arcsec (best: {found} points); check the catalogues, "
+            "increase tolerance or pair manually with ids="
+        )
+    i, j = best[0], best[1]
+    n_inliers = len(i)
+    for _ in range(2):
+        coef, keep, rms_rob, rms = _robust_fit(p, q, i, j, centre, order, _TRIM_FLOOR * tol)
+        if maxres_user is None:
+            maxres = min(max(_MAX_RESIDUAL_RMS * rms_rob, _MAX_RESIDUAL_FLOOR * tol), cap)
+        else:
+            maxres = maxres_user
+        d2_all = _residuals2(coef, p, q, centre)
+        gate2 = np.full(n2, maxres**2)
+        if maxres_user is None:
+            # prediction interval: wider where the map extrapolates
+            gate2 = np.minimum(gate2 * (1.0 + _leverage(coef, q, q[j[keep]], centre)), cap**2)
+        allowed = d2_all <= gate2
+        cost = d2_all / gate2
+        if colour_ok is not None:
+            allowed &= colour_ok
+            cost = cost + colour_chi2 / (_COLOUR_GATE**2)
+        i, j = _assign(allowed, cost)
+        if len(i) < 3:
+            raise ValueError(
+                "the pairing collapsed to fewer than 3 pairs; increase max_residual or "
+                "pair manually with ids="
+            )
+    # final map on the final pairs
+    coef, keep, rms_rob, rms = _robust_fit(p, q, i, j, centre, order, _TRIM_FLOOR * tol)
+    d2_all = _residuals2(coef, p, q, centre)
+    rms = _robust_rms(d2_all[i, j], 2 * len(coef))[1]
+    fit = _MapFit(coef, centre, d2_all, rms_rob, rms)
+    return _Pairing(i, j, fit, n_hypotheses=n_hyp, n_inliers=n_inliers, max_residual=maxres)
+
+
+def pair_constellations(
     catalog1,
     catalog2,
     *,
@@ -1018,125 +1153,40 @@ def pair_constellations(  # noqa: C901, PLR0915
             raise ValueError(f"{name} must hold at least 3 positions, got {len(xy)}")
         check_unique_rows(xy, name)
     rng = np.random.default_rng(seed)
-    n1, n2 = len(p), len(q)
-
-    # colours
-    if cols is not None:
-        units = [None] * len(cols)
-        col1 = _colours(catalog1, cols, "catalog1", units)
-        col2 = _colours(catalog2, cols, "catalog2", units)
-        dcol = col1[:, None, :] - col2[None, :, :]  # (N1, N2, K-1)
-        dcol = np.where(np.isfinite(dcol), dcol, 0.0)
-        colour_chi2 = (dcol**2).sum(axis=2) / csig**2
-        colour_diff = np.abs(dcol).max(axis=2)
-        colour_ok = colour_diff <= _COLOUR_GATE * csig
-    else:
-        colour_chi2 = np.zeros((n1, n2))
-        colour_diff = None
-        colour_ok = None
-
-    # inlier tolerance
-    nn1 = cKDTree(p).query(p, k=2)[0][:, 1]
-    nn2 = cKDTree(q).query(q, k=2)[0][:, 1]
-    nn = min(np.median(nn1), np.median(nn2))
-    if tolerance is None:
-        tol = _TOLERANCE_FRACTION * nn
-    else:
-        tol = as_angle_scalar(tolerance, "tolerance", allow_zero=False)
-    tau2 = tol**2
-    cap = max(tol, _GATE_CAP * nn)
+    colours = _colour_terms(catalog1, catalog2, cols, csig, len(p), len(q))
+    colour_chi2, colour_diff, _ = colours
+    tol, cap = _tolerances(p, q, tolerance)
     centre = q.mean(axis=0)
 
     if ids is not None:
         method = "manual"
-        id1, id2 = _id_pairs(ids, "ids")
-        i = _rows_of(ids1, id1, "ids", "catalog1")
-        j = _rows_of(ids2, id2, "ids", "catalog2")
-        if len(i) < 3:
-            raise ValueError(f"ids must give at least 3 pairs to fit the map, got {len(i)}")
-        if max_residual is not None:
-            as_angle_scalar(max_residual, "max_residual", allow_zero=False)
-        n_hyp = 0
-        n_inliers = len(i)
-        coef = _fit(p[i], q[j], centre, _choose_order(p[i], q[j], centre, order))
-        d2_all = _residuals2(coef, p, q, centre)
-        rms_rob, rms = _robust_rms(d2_all[i, j], 2 * len(coef))
-        maxres = None
+        pairing = _manual_pairing(ids, ids1, ids2, p, q, centre, order, max_residual)
     else:
         method = "automatic"
-        maxres_user = None if max_residual is None else as_angle_scalar(
-            max_residual, "max_residual", allow_zero=False)
-        best, n_hyp = _search(p, q, parity, tau2, colour_ok, order, rng)
-        if best is None or len(best[0]) < _MIN_AUTO_PAIRS:
-            found = 0 if best is None else len(best[0])
-            raise ValueError(
-                "no map relates at least 4 points of catalog1 and catalog2 within the "
-                f"tolerance {tol:.3g} arcsec (best: {found} points); check the catalogues, "
-                "increase tolerance or pair manually with ids="
-            )
-        i, j = best[0], best[1]
-        n_inliers = len(i)
-        for _ in range(2):
-            coef, keep, rms_rob, rms = _robust_fit(p, q, i, j, centre, order, _TRIM_FLOOR * tol)
-            if maxres_user is None:
-                maxres = min(max(_MAX_RESIDUAL_RMS * rms_rob, _MAX_RESIDUAL_FLOOR * tol), cap)
-            else:
-                maxres = maxres_user
-            d2_all = _residuals2(coef, p, q, centre)
-            gate2 = np.full(n2, maxres**2)
-            if maxres_user is None:
-                # prediction interval: wider where the map extrapolates
-                gate2 = np.minimum(gate2 * (1.0 + _leverage(coef, q, q[j[keep]], centre)), cap**2)
-            allowed = d2_all <= gate2
-            cost = d2_all / gate2
-            if colour_ok is not None:
-                allowed &= colour_ok
-                cost = cost + colour_chi2 / (_COLOUR_GATE**2)
-            i, j = _assign(allowed, cost)
-            if len(i) < 3:
-                raise ValueError(
-                    "the pairing collapsed to fewer than 3 pairs; increase max_residual or "
-                    "pair manually with ids="
-                )
-        # final map on the final pairs
-        coef, keep, rms_rob, rms = _robust_fit(p, q, i, j, centre, order, _TRIM_FLOOR * tol)
-        d2_all = _residuals2(coef, p, q, centre)
-        rms = _robust_rms(d2_all[i, j], 2 * len(coef))[1]
+        pairing = _automatic_pairing(p, q, centre, parity=parity, order=order, tol=tol,
+                                     cap=cap, max_residual=max_residual, colours=colours,
+                                     rng=rng)
+    fit = pairing.fit
 
     # confidence: chi-square of every combination
-    sigma2 = max(rms_rob, 1e-3 * tol) ** 2 / 2.0  # per-axis variance of the metric residual
-    chi2 = d2_all / sigma2 + colour_chi2
-    conf = _confidence(chi2, i, j)
+    sigma2 = max(fit.rms_robust, 1e-3 * tol) ** 2 / 2.0  # per-axis variance of the metric residual
+    conf = _confidence(fit.d2 / sigma2 + colour_chi2, pairing.i, pairing.j)
 
-    sort = np.argsort(j, kind="stable") if method == "automatic" else np.arange(len(i))
-    i, j, conf = i[sort], j[sort], conf[sort]
-    res = np.sqrt(d2_all[i, j])
+    sort = np.argsort(pairing.j, kind="stable") if method == "automatic" else np.arange(len(conf))
+    i, j, conf = pairing.i[sort], pairing.j[sort], conf[sort]
 
     out = _pairs_table(ids if method == "manual" else None, ids1, ids2, p, q, sky1, sky2, i, j)
-    out["residual"] = res * u.arcsec
+    out["residual"] = np.sqrt(fit.d2[i, j]) * u.arcsec
     out["confidence"] = conf
     if colour_diff is not None:
         out["colour_diff"] = colour_diff[i, j] * u.mag
-
-    a_mat = coef[1:3].T.copy()
-    det = float(np.linalg.det(a_mat))
-    offset = coef[0] - a_mat @ centre
-    out.meta["map"] = {
-        "A": a_mat,
-        "offset": offset * u.arcsec,
-        "centre": centre * u.arcsec,
-        "parity": int(np.sign(det)),
-        "det": det,
-        "rms": rms * u.arcsec,
-        "rms_robust": rms_rob * u.arcsec,
-        "order": 2 if len(coef) == 6 else 1,
-        "quadratic": coef[3:].copy() / u.arcsec if len(coef) == 6 else None,
-    }
+    maxres = pairing.max_residual
+    out.meta["map"] = fit.meta()
     out.meta["method"] = method
     out.meta["tolerance"] = tol * u.arcsec
     out.meta["max_residual"] = None if maxres is None else maxres * u.arcsec
-    out.meta["n_hypotheses"] = int(n_hyp)
-    out.meta["n_inliers"] = int(n_inliers)
+    out.meta["n_hypotheses"] = int(pairing.n_hypotheses)
+    out.meta["n_inliers"] = int(pairing.n_inliers)
     out.meta["unmatched1"] = np.delete(ids1, i).tolist()
     out.meta["unmatched2"] = np.delete(ids2, j).tolist()
     out.meta["position_columns"] = (
@@ -1145,7 +1195,6 @@ def pair_constellations(  # noqa: C901, PLR0915
     out.meta["flux_columns"] = cols
     out.meta["reference"] = tangent
     return out
-
 
 def pairs_from_ids(
     catalog1,
