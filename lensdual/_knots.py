@@ -86,6 +86,30 @@ class KnotPairs:
     skipped : dict
         ``(macro1, macro2) -> reason`` for the pairs of macro-images that
         give no pairs table (too few common knots).
+
+    Examples
+    --------
+    Three knots seen on macro-images A and B, and a fourth seen on A only:
+
+    >>> import astropy.units as u
+    >>> from astropy.coordinates import SkyCoord
+    >>> from astropy.table import QTable
+    >>> from lensdual.pairing import pairs_from_knots
+    >>> c = SkyCoord(150 * u.deg, 2 * u.deg)
+    >>> def at(dx, dy):  # arcsec West and North of c
+    ...     return c.spherical_offsets_by(-dx * u.arcsec, dy * u.arcsec)
+    >>> cat = QTable({"id": ["1.1", "1.2", "2.1", "2.2", "3.1", "3.2", "4.1"],
+    ...               "sky": SkyCoord([at(-10, 0), at(10, 0), at(-9, 1), at(11, -1),
+    ...                                at(-10.5, 1.5), at(9, 1), at(-9.5, -1)])})
+    >>> kp = pairs_from_knots(cat, {"A": at(-10, 0.5), "B": at(10, 0)})
+    >>> kp
+    <KnotPairs of 7 images by centre: A-B: 3; 1 images not used>
+    >>> print(kp.summary())
+    7 knot images, assigned by centre
+      A - B: 3 knots
+      single (1): 4.1
+    >>> kp["A", "B"]["id1"].tolist()
+    ['1.1', '2.1', '3.1']
     """
 
     pairs: dict
@@ -135,7 +159,7 @@ class KnotPairs:
 
 
 def read_macro_images(path, names):
-    """Macro-image centres from the commented lines of a Lenstool catalogue.
+    r"""Macro-image centres from the commented lines of a Lenstool catalogue.
 
     Lenstool catalogues often keep images out of the fit by commenting them
     (``#1.1 177.39700 22.396007 ...``); the MACS J1149 knot catalogue gives
@@ -152,6 +176,25 @@ def read_macro_images(path, names):
     -------
     centres : dict
         ``name -> SkyCoord``, in the order of ``names``.
+
+    Examples
+    --------
+    >>> import os
+    >>> import tempfile
+    >>> from lensdual.pairing import read_macro_images
+    >>> tmp = tempfile.TemporaryDirectory()
+    >>> path = os.path.join(tmp.name, "knots.cat")
+    >>> with open(path, "w") as fh:
+    ...     _ = fh.write("#REFERENCE 0\n"
+    ...                  "#1.1 177.39700 22.396007 0.5 0.5 0 1.49 0\n"
+    ...                  "#1.2 177.40000 22.398000 0.5 0.5 0 1.49 0\n"
+    ...                  "2.1 177.39710 22.396100 0.1 0.1 0 1.49 0\n")
+    >>> centres = read_macro_images(path, ["1.2", "1.1"])
+    >>> list(centres)
+    ['1.2', '1.1']
+    >>> centres["1.2"].dec  # doctest: +FLOAT_CMP
+    <Latitude 22.398 deg>
+    >>> tmp.cleanup()
     """
     if not isinstance(path, (str, os.PathLike)):
         raise TypeError(f"path must be a str or os.PathLike, got {type(path).__name__}")

@@ -1139,6 +1139,23 @@ def pair_constellations(
     best from about 8. Points closer together than the position noise (in
     the direction the map compresses) cannot be told apart by their
     positions; colours may. Check pairs of low ``confidence`` by eye.
+
+    Examples
+    --------
+    Ten points of arc L2 and their images on arc L1 under a rotated,
+    stretched map, listed in the reverse order:
+
+    >>> import numpy as np
+    >>> import astropy.units as u
+    >>> from lensdual.pairing import pair_constellations
+    >>> x2 = np.random.default_rng(1).uniform(-5, 5, (10, 2))
+    >>> x1 = x2 @ np.array([[0.0, 0.8], [-1.5, 0.3]]) + [20.0, 0.0]
+    >>> pairs = pair_constellations(x1[::-1] * u.arcsec, x2 * u.arcsec, id_column=None)
+    >>> pairs["id1"].tolist(), pairs["id2"].tolist()
+    ([9, 8, 7, 6, 5, 4, 3, 2, 1, 0], [0, 1, 2, 3, 4, 5, 6, 7, 8, 9])
+    >>> pairs.meta["map"]["A"].round(3)  # doctest: +FLOAT_CMP
+    array([[ 0. , -1.5],
+           [ 0.8,  0.3]])
     """
     if order is not None and (isinstance(order, bool) or order not in (1, 2)):
         raise ValueError(f"order must be None, 1 or 2, got {order!r}")
@@ -1261,6 +1278,21 @@ def pairs_from_ids(
     ValueError
         Ids not found in their catalogue, or an id in more than one pair;
         missing columns.
+
+    Examples
+    --------
+    >>> import astropy.units as u
+    >>> from astropy.table import QTable
+    >>> from lensdual.pairing import pairs_from_ids
+    >>> cat1 = QTable({"id": [1, 2, 3], "x": [0.0, 1.0, 2.0] * u.arcsec,
+    ...                "y": [0.0, 1.0, 0.0] * u.arcsec, "flux_F150W": [10.0, 20.0, 30.0]})
+    >>> cat2 = QTable({"id": [11, 12, 13], "x": [9.0, 8.0, 7.0] * u.arcsec,
+    ...                "y": [0.0, 2.0, 0.0] * u.arcsec, "flux_F150W": [5.0, 9.0, 16.0]})
+    >>> pairs = pairs_from_ids(cat1, cat2, [(1, 13), (3, 11)], bands=["F150W"])
+    >>> pairs["pair_id"].tolist(), pairs["id2"].tolist(), pairs["flux2_F150W"].tolist()
+    ([1, 2], [13, 11], [16.0, 5.0])
+    >>> pairs["x2"]
+    <Quantity [7., 9.] arcsec>
     """
     ids1, p, sky1, ids2, q, sky2, tangent = _catalogs(
         catalog1, catalog2, position_columns, id_column, reference)
