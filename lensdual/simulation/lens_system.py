@@ -96,6 +96,25 @@ class LensSystem:
         in arcsec (e.g. a lenstronomy ``LensModel``, or the Numba dPIE model
         of a Lenstool file); ``kwargs_lens`` is passed through unchanged.
         Such a system has no components, so :meth:`add` is not available.
+
+        Parameters
+        ----------
+        model : object
+            The lens model (``ray_shooting``, ``alpha``, ``hessian``).
+        kwargs_lens : object, optional
+            Its keyword arguments, passed to every call.
+        z_lens, z_source : float
+            Redshifts (``z_source > z_lens``).
+        cosmology : `~astropy.cosmology.Cosmology`, optional
+            Defaults to :data:`DEFAULT_COSMOLOGY`.
+        sources : `~astropy.units.Quantity`, shape (M, 2), optional
+            Source positions attached to the system.
+        label : str
+            A name for the model.
+
+        Returns
+        -------
+        system : `LensSystem`
         """
         for name in ("ray_shooting", "alpha", "hessian"):
             if not callable(getattr(model, name, None)):
@@ -113,7 +132,17 @@ class LensSystem:
         return self
 
     def add(self, *components):
-        """A new system with ``components`` appended (this one is unchanged)."""
+        """A new system with ``components`` appended (this one is unchanged).
+
+        Parameters
+        ----------
+        *components : `LensComponent`
+            The components to add.
+
+        Returns
+        -------
+        system : `LensSystem`
+        """
         if not self.components:
             raise TypeError("add() needs a system built from LensComponents; this one wraps "
                             f"a {type(self.lens_model).__name__}")
@@ -132,13 +161,35 @@ class LensSystem:
         return arr[:, 0], arr[:, 1]
 
     def ray_shoot(self, theta):
-        """Source-plane positions ``beta = theta - alpha(theta)``, (N, 2) arcsec."""
+        """Source-plane positions ``beta = theta - alpha(theta)``.
+
+        Parameters
+        ----------
+        theta : `~astropy.units.Quantity`, shape (N, 2)
+            Image-plane positions (angles, lens frame).
+
+        Returns
+        -------
+        beta : `~astropy.units.Quantity`, shape (N, 2)
+            Arcsec.
+        """
         x, y = self._xy(theta)
         bx, by = self.lens_model.ray_shooting(x, y, self.kwargs_lens)
         return np.column_stack([bx, by]) * u.arcsec
 
     def deflection(self, theta):
-        """Deflection angles ``alpha(theta)``, (N, 2) arcsec."""
+        """Deflection angles ``alpha(theta)``.
+
+        Parameters
+        ----------
+        theta : `~astropy.units.Quantity`, shape (N, 2)
+            Image-plane positions (angles, lens frame).
+
+        Returns
+        -------
+        alpha : `~astropy.units.Quantity`, shape (N, 2)
+            Arcsec.
+        """
         x, y = self._xy(theta)
         ax, ay = self.lens_model.alpha(x, y, self.kwargs_lens)
         return np.column_stack([ax, ay]) * u.arcsec
@@ -153,11 +204,31 @@ class LensSystem:
         return jac
 
     def jacobian(self, theta):
-        """Lens Jacobian ``d beta / d theta`` at ``theta``, shape (N, 2, 2)."""
+        """Lens Jacobian ``d beta / d theta`` at ``theta``.
+
+        Parameters
+        ----------
+        theta : `~astropy.units.Quantity`, shape (N, 2)
+            Image-plane positions (angles, lens frame).
+
+        Returns
+        -------
+        jacobian : `~numpy.ndarray`, shape (N, 2, 2)
+        """
         return self._jacobian_xy(*self._xy(theta))
 
     def magnification(self, theta):
-        """Signed magnification ``1 / det(d beta / d theta)``, shape (N,)."""
+        """Signed magnification ``1 / det(d beta / d theta)``.
+
+        Parameters
+        ----------
+        theta : `~astropy.units.Quantity`, shape (N, 2)
+            Image-plane positions (angles, lens frame).
+
+        Returns
+        -------
+        magnification : `~numpy.ndarray`, shape (N,)
+        """
         jac = self.jacobian(theta)
         with np.errstate(divide="ignore"):
             return 1.0 / np.linalg.det(jac)
@@ -188,6 +259,15 @@ class LensSystem:
         (contourpy's marching squares, linear interpolation between nodes),
         so the curves are accurate to a small fraction of ``grid_spacing``.
 
+        Parameters
+        ----------
+        center : `~astropy.units.Quantity`, shape (2,)
+            Centre of the grid (default the origin).
+        half_width : `~astropy.units.Quantity`
+            Half the side of the square grid (default 30 arcsec).
+        grid_spacing : `~astropy.units.Quantity`
+            Grid step (default 0.05 arcsec).
+
         Returns
         -------
         curves : list of `~astropy.units.Quantity`
@@ -203,7 +283,15 @@ class LensSystem:
     def caustics(self, **kwargs):
         """Caustics: the critical curves mapped to the source plane.
 
-        Takes the arguments of :meth:`critical_curves`.
+        Parameters
+        ----------
+        **kwargs
+            The arguments of :meth:`critical_curves`.
+
+        Returns
+        -------
+        caustics : list of `~astropy.units.Quantity`
+            One (K, 2) array per critical curve, arcsec.
         """
         return [self.ray_shoot(c) for c in self.critical_curves(**kwargs)]
 
@@ -216,6 +304,22 @@ class LensSystem:
         The base grid of ``grid_spacing`` is subdivided ``refine`` times per
         side around critical curves and lens centres, and recursively where
         the Jacobian varies strongly (see ``lensdual.simulation._solver``).
+
+        Parameters
+        ----------
+        center : `~astropy.units.Quantity`, shape (2,)
+            Centre of the image-plane grid (default the origin).
+        half_width : `~astropy.units.Quantity`
+            Half the side of the grid (default 50 arcsec).
+        grid_spacing : `~astropy.units.Quantity`
+            Base grid step (default 0.5 arcsec).
+        refine : int
+            Subdivisions per side near critical curves and lens centres.
+
+        Returns
+        -------
+        finder : ``ImageFinder``
+            Built once per grid and cached on the system.
         """
         from ._solver import ImageFinder
 
@@ -244,6 +348,8 @@ class LensSystem:
         ----------
         beta : `~astropy.units.Quantity`, shape (M, 2)
             Source positions.
+        center, half_width, grid_spacing, refine
+            The image-plane grid, see :meth:`image_finder`.
         link_length : `~astropy.units.Quantity`
             Images of the same parity closer than this (over all sources)
             are given the same ``arc`` label (single linkage).

@@ -154,7 +154,17 @@ class MockImages(Mapping):
         return tuple(dict.fromkeys(k[1] for k in self._images))
 
     def arc(self, arc):
-        """The bands of one arc, ``{band: CCDData}``, as :func:`find_point_sources` takes."""
+        """The bands of one arc, ``{band: CCDData}``, as :func:`find_point_sources` takes.
+
+        Parameters
+        ----------
+        arc : str
+            One of :attr:`arcs` (``"L1"`` or ``"L2"``).
+
+        Returns
+        -------
+        images : dict of str to `~astropy.nddata.CCDData`
+        """
         out = {band: image for (a, band), image in self._images.items() if a == arc}
         if not out:
             raise ValueError(f"arc must be one of {list(self.arcs)}, got {arc!r}")

@@ -94,6 +94,15 @@ def cusp_lens(*, axis_ratio=0.7):
 
     M200 = 5e14 Msun, c = 9.6 (as the SMACS0723 analogue), axis ratio 0.7,
     z = 0.39 / 2.2: a tangential caustic about 12 x 9 arcsec with four cusps.
+
+    Parameters
+    ----------
+    axis_ratio : float
+        Axis ratio of the halo (default 0.7).
+
+    Returns
+    -------
+    system : `LensSystem`
     """
     main = elliptical_nfw_halo(5e14 * u.Msun, 9.6, axis_ratio=axis_ratio, z_lens=0.39,
                                z_source=2.2)
@@ -131,6 +140,20 @@ def pair_placements(system, target_ratios, *, margin=0.25 * u.arcsec, n_candidat
     opposite-parity pairs among its three most magnified images are
     considered, and for every target the (centre, pair) with the closest
     ratio ``mu_faint / mu_bright`` is returned.
+
+    Parameters
+    ----------
+    system : `LensSystem`
+        The lens.
+    target_ratios : array_like
+        Wanted signed ratios ``mu_faint / mu_bright`` (in ``[-1, 0)``).
+    margin : `~astropy.units.Quantity`
+        Least distance of a centre from the caustic (default 0.25 arcsec).
+    n_candidates : int
+        Points of the caustic used to make candidate centres (default 300).
+    caustic_kwargs : dict, optional
+        Arguments of :meth:`LensSystem.critical_curves` (default a 40 arcsec
+        half width at 0.1 arcsec).
 
     Returns
     -------
@@ -182,6 +205,25 @@ def appendix_b_grid(n_sources=(10, 20, 30), target_ratios=(-1.0, -0.65, -0.3), *
     around it until ``n`` of them are imaged on both arcs, and every
     estimator is run on the pairs.
 
+    Parameters
+    ----------
+    n_sources : sequence of int
+        Constellation sizes (default 10, 20, 30).
+    target_ratios : sequence of float
+        Magnification ratios of the panels (default -1, -0.65, -0.3).
+    methods : sequence of str
+        Estimators to run.
+    sigma : `~astropy.units.Quantity`
+        Spread of the sources around the centre (default 0.06 arcsec).
+    margin : `~astropy.units.Quantity`
+        See :func:`pair_placements`.
+    position_noise : `~astropy.units.Quantity`
+        See :func:`estimator_errors`.
+    system : `LensSystem`, optional
+        The lens (default :func:`cusp_lens`).
+    seed : int
+        Seed of the source draws and the noise.
+
     Returns
     -------
     table : `~astropy.table.QTable`
@@ -218,7 +260,24 @@ def appendix_b_grid(n_sources=(10, 20, 30), target_ratios=(-1.0, -0.65, -0.3), *
 
 def analog_errors(*, perturbers=False, seeds=range(10), methods=DEFAULT_METHODS,
                   position_noise=0 * u.arcsec):
-    """Estimator errors on the SMACS0723 analogue over several constellations (Fig. 6)."""
+    """Estimator errors on the SMACS0723 analogue over several constellations (Fig. 6).
+
+    Parameters
+    ----------
+    perturbers : bool
+        Add the analogue's perturbing members (default False).
+    seeds : iterable of int
+        One constellation (and analogue) per seed.
+    methods : sequence of str
+        Estimators to run.
+    position_noise : `~astropy.units.Quantity`
+        See :func:`estimator_errors`.
+
+    Returns
+    -------
+    table : `~astropy.table.QTable`
+        :func:`estimator_errors`' columns for every seed, plus ``seed``.
+    """
     rows = []
     for seed in seeds:
         system = smacs0723_analog(perturbers=perturbers, seed=seed)
@@ -245,6 +304,12 @@ def summarize_errors(table, by=("n_sources", "target_ratio")):
         :func:`analog_errors`.
     by : sequence of str
         Grouping columns (empty: one group).
+
+    Returns
+    -------
+    summary : `~astropy.table.QTable`
+        The ``by`` columns, ``method``, ``n``, ``median_abs_err``,
+        ``half_width_68``, ``abs_err_95`` and ``max_abs_err``.
     """
     methods = table.meta["methods"]
     by = [c for c in by if c in table.colnames]
