@@ -152,17 +152,56 @@ class LenstoolMultiPlaneLensModel:
             alphas.append((ax, ay))
 
     def ray_shooting(self, x, y, kwargs=None, k=None):
-        """Source-plane positions ``beta(theta)``, arcsec."""
+        """Source-plane positions ``beta(theta)``, arcsec.
+
+        Parameters
+        ----------
+        x, y : array_like
+            Image-plane positions, arcsec (any shape).
+        kwargs, k
+            Ignored (lenstronomy's ``LensModel`` interface).
+
+        Returns
+        -------
+        beta_x, beta_y : `~numpy.ndarray`
+            Source-plane positions, arcsec, of the shape of ``x``.
+        """
         bx, by, _ = self._trace(x, y, False)
         return bx, by
 
     def alpha(self, x, y, kwargs=None, k=None):
-        """Effective deflection ``theta - beta(theta)``, arcsec."""
+        """Effective deflection ``theta - beta(theta)``, arcsec.
+
+        Parameters
+        ----------
+        x, y : array_like
+            Image-plane positions, arcsec (any shape).
+        kwargs, k
+            Ignored (lenstronomy's ``LensModel`` interface).
+
+        Returns
+        -------
+        alpha_x, alpha_y : `~numpy.ndarray`
+            The deflection, arcsec, of the shape of ``x``.
+        """
         bx, by, _ = self._trace(x, y, False)
         return np.subtract(x, bx), np.subtract(y, by)
 
     def hessian(self, x, y, kwargs=None, k=None, diff=None):
-        """``(f_xx, f_xy, f_yx, f_yy) = I - d beta / d theta`` (multi-plane Jacobian)."""
+        """``(f_xx, f_xy, f_yx, f_yy) = I - d beta / d theta`` (multi-plane Jacobian).
+
+        Parameters
+        ----------
+        x, y : array_like
+            Image-plane positions, arcsec (any shape).
+        kwargs, k, diff
+            Ignored (lenstronomy's ``LensModel`` interface).
+
+        Returns
+        -------
+        f_xx, f_xy, f_yx, f_yy : `~numpy.ndarray`
+            Of the shape of ``x``.
+        """
         _, _, (a11, a12, a21, a22) = self._trace(x, y, True)
         return 1.0 - a11, -a12, -a21, 1.0 - a22
 
@@ -170,18 +209,56 @@ class LenstoolMultiPlaneLensModel:
         """Deflection and Hessian in one pass: ``alpha_x, alpha_y, f_xx, f_xy, f_yy``.
 
         ``f_xy`` is the mean of ``f_xy`` and ``f_yx`` (use `hessian` for both).
+
+        Parameters
+        ----------
+        x, y : array_like
+            Image-plane positions, arcsec (any shape).
+        kwargs
+            Ignored (lenstronomy's ``LensModel`` interface).
+
+        Returns
+        -------
+        alpha_x, alpha_y, f_xx, f_xy, f_yy : `~numpy.ndarray`
+            Of the shape of ``x``.
         """
         bx, by, (a11, a12, a21, a22) = self._trace(x, y, True)
         return (np.subtract(x, bx), np.subtract(y, by), 1.0 - a11, -0.5 * (a12 + a21),
                 1.0 - a22)
 
     def kappa(self, x, y, kwargs=None, k=None):
-        """Effective convergence ``(f_xx + f_yy) / 2`` of the multi-plane Jacobian."""
+        """Effective convergence ``(f_xx + f_yy) / 2`` of the multi-plane Jacobian.
+
+        Parameters
+        ----------
+        x, y : array_like
+            Image-plane positions, arcsec (any shape).
+        kwargs, k
+            Ignored (lenstronomy's ``LensModel`` interface).
+
+        Returns
+        -------
+        kappa : `~numpy.ndarray`
+            Of the shape of ``x``.
+        """
         fxx, _, _, fyy = self.hessian(x, y)
         return 0.5 * (fxx + fyy)
 
     def magnification(self, x, y, kwargs=None, k=None):
-        """Signed magnification ``1 / det(d beta / d theta)``."""
+        """Signed magnification ``1 / det(d beta / d theta)``.
+
+        Parameters
+        ----------
+        x, y : array_like
+            Image-plane positions, arcsec (any shape).
+        kwargs, k
+            Ignored (lenstronomy's ``LensModel`` interface).
+
+        Returns
+        -------
+        mu : `~numpy.ndarray`
+            Of the shape of ``x``.
+        """
         _, _, (a11, a12, a21, a22) = self._trace(x, y, True)
         with np.errstate(divide="ignore"):
             return 1.0 / (a11 * a22 - a12 * a21)
