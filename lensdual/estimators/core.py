@@ -251,6 +251,26 @@ def relative_jacobian(theta1, theta2, method="quad", *, weight_power=2, min_angl
     ValueError
         Wrong shapes, unequal numbers of pairs, too few pairs, non-finite or
         duplicate positions, an unknown method.
+
+    Examples
+    --------
+    Eight pairs related by an exactly linear map, ``theta1 = J theta2``:
+    every pair recovers ``J``, whose negative determinant marks a fold pair.
+
+    >>> import numpy as np
+    >>> import astropy.units as u
+    >>> from lensdual.estimators import relative_jacobian
+    >>> rng = np.random.default_rng(1)
+    >>> theta2 = rng.uniform(-1, 1, (8, 2)) * u.arcsec
+    >>> J = np.array([[1.5, 0.3], [0.1, -0.8]])
+    >>> jac = relative_jacobian(theta2 @ J.T, theta2, method="quad")
+    >>> jac.shape
+    (8, 2, 2)
+    >>> np.round(jac[0], 3)
+    array([[ 1.5,  0.3],
+           [ 0.1, -0.8]])
+    >>> np.round(np.linalg.det(jac), 3).tolist()
+    [-1.23, -1.23, -1.23, -1.23, -1.23, -1.23, -1.23, -1.23]
     """
     t1, t2, code, wp, min_sin = _prepare(theta1, theta2, method, weight_power, min_angle)
     cap = _max_neighbours(max_neighbours, method)
@@ -539,6 +559,32 @@ def size_magnification(
         - ``jacobian``: the (2, 2) relative Jacobian.
 
         ``meta`` records the method and the bootstrap settings.
+
+    Examples
+    --------
+    The same linear map as in :func:`relative_jacobian`, ``|det J| = 1.23``,
+    with the default adaptive estimator and 0.01 arcsec position errors:
+
+    >>> import numpy as np
+    >>> import astropy.units as u
+    >>> from lensdual.estimators import size_magnification
+    >>> rng = np.random.default_rng(1)
+    >>> theta2 = rng.uniform(-1, 1, (8, 2)) * u.arcsec
+    >>> theta1 = theta2 @ np.array([[1.5, 0.3], [0.1, -0.8]]).T
+    >>> tab = size_magnification(theta1, theta2, sigma_pos=0.01 * u.arcsec)
+    >>> np.round(tab["mu_size"], 3).tolist()
+    [1.23, 1.23, 1.23, 1.23, 1.23, 1.23, 1.23, 1.23]
+    >>> tab["parity"].tolist()
+    [-1, -1, -1, -1, -1, -1, -1, -1]
+    >>> tab["mu_size_status"].tolist()
+    ['ok', 'ok', 'ok', 'ok', 'ok', 'ok', 'ok', 'ok']
+
+    The paper's Quad estimator, with bootstrap errors:
+
+    >>> tab = size_magnification(theta1, theta2, method="quad", sigma_pos=0.01 * u.arcsec,
+    ...                          n_bootstrap=200, seed=0)
+    >>> round(float(tab["mu_size"][0]), 3), int(tab["n_bootstrap_valid"][0])
+    (1.23, 200)
     """
     t1, t2, code, wp, min_sin = _prepare(theta1, theta2, method, weight_power, min_angle)
     n = t1.shape[0]

@@ -19,6 +19,15 @@ class PhotometryFlag(enum.IntFlag):
     bits start at 2**16 and never reuse a photutils bit. A flag in
     :data:`UNUSABLE_FLAGS` makes the measurement unusable: :func:`measure_pairs`
     sets its fluxes (and its share of the position) to NaN.
+
+    Examples
+    --------
+    >>> from lensdual.photometry import UNUSABLE_FLAGS, PhotometryFlag
+    >>> flags = PhotometryFlag(32 | 65536)
+    >>> [flag.name for flag in flags]
+    ['NEAR_BOUND', 'OUTSIDE_IMAGE']
+    >>> bool(flags & UNUSABLE_FLAGS), bool(PhotometryFlag.NEAR_BOUND & UNUSABLE_FLAGS)
+    (True, False)
     """
 
     N_PIXELS_FIT_PARTIAL = 1

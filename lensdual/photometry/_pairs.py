@@ -450,6 +450,38 @@ def measure_pairs(
     with north up and east to the left, x and y thus grow with the pixel
     coordinates. The reflection relative to the usual east-north frame is
     common to both arcs and changes neither ``mu_size`` nor the parity.
+
+    Examples
+    --------
+    One pair in one band: two 31 x 31 cut-outs (0.03 arcsec pixels) of arcs
+    that lie 1.8 arcsec apart in declination, each with one point source:
+
+    >>> import numpy as np
+    >>> from scipy.special import erf
+    >>> from astropy.nddata import CCDData
+    >>> from astropy.table import QTable
+    >>> from astropy.wcs import WCS
+    >>> from lensdual.photometry import measure_pairs
+    >>> def cutout(x, y, flux, dec):
+    ...     k = np.sqrt(2) * 2.5 / 2.3548  # a Gaussian PSF of FWHM 2.5 pixels
+    ...     px = np.diff(erf((np.arange(32) - 0.5 - x) / k)) / 2
+    ...     py = np.diff(erf((np.arange(32) - 0.5 - y) / k)) / 2
+    ...     wcs = WCS(naxis=2)
+    ...     wcs.wcs.ctype = ["RA---TAN", "DEC--TAN"]
+    ...     wcs.wcs.crval, wcs.wcs.crpix = [110.8, dec], [16, 16]
+    ...     wcs.wcs.cdelt = [-0.03 / 3600, 0.03 / 3600]
+    ...     return CCDData(10.0 + flux * np.outer(py, px), unit="adu", wcs=wcs)
+    >>> l1 = {"F150W": cutout(15.4, 14.8, 600.0, -73.45)}
+    >>> l2 = {"F150W": cutout(14.7, 15.3, 500.0, -73.4505)}
+    >>> pairs = QTable({"sky1": l1["F150W"].wcs.pixel_to_world([15], [15]),
+    ...                 "sky2": l2["F150W"].wcs.pixel_to_world([15], [15])})
+    >>> out = measure_pairs(l1, l2, pairs, psf=2.5, background="constant")
+    >>> out.meta["bands"], out["measured"].tolist()
+    (['F150W'], [True])
+    >>> out["flux1_F150W"].value.round(1).tolist(), out["flux2_F150W"].value.round(1).tolist()
+    ([600.0], [500.0])
+    >>> np.round((out["y1"] - out["y2"]).to_value("arcsec"), 3).tolist()
+    [1.785]
     """
     images_l1 = _check_images(images_l1, "images_l1")
     images_l2 = _check_images(images_l2, "images_l2")

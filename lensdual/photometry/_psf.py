@@ -893,6 +893,33 @@ def psf_photometry(
     ArcPSFPhotometry : The same, set up once and called on images;
         ``psf_photometry(image, positions, label=label, **settings)`` is
         ``ArcPSFPhotometry(**settings)(image, positions, label=label)``.
+
+    Examples
+    --------
+    A point source of 500 counts at (15.4, 14.8), a Gaussian PSF of FWHM 2.5
+    pixels integrated over the pixels, on a flat background of 10, fitted
+    from the initial position (15, 15):
+
+    >>> import numpy as np
+    >>> from scipy.special import erf
+    >>> from lensdual.photometry import psf_photometry
+    >>> k = np.sqrt(2) * 2.5 / 2.3548  # sqrt(2) sigma
+    >>> px = np.diff(erf((np.arange(32) - 0.5 - 15.4) / k)) / 2
+    >>> py = np.diff(erf((np.arange(32) - 0.5 - 14.8) / k)) / 2
+    >>> image = 10.0 + 500.0 * np.outer(py, px)
+    >>> table = psf_photometry(image, [(15.0, 15.0)], psf=2.5, background="constant")
+    >>> round(float(table["flux"][0]), 1)
+    500.0
+    >>> round(float(table["x_fit"][0]), 2), round(float(table["y_fit"][0]), 2)
+    (15.4, 14.8)
+    >>> int(table["flags"][0])
+    0
+
+    Without ``psf`` the FWHM is fitted first:
+
+    >>> table = psf_photometry(image, [(15.0, 15.0)])
+    >>> round(float(table.meta["fwhm"]), 2)
+    2.5
     """
     phot = ArcPSFPhotometry(
         psf,

@@ -36,6 +36,16 @@ def subhalo_einstein_radius(subhalo):
     -------
     theta_E : `~astropy.units.Quantity`
         arcsec.
+
+    Examples
+    --------
+    >>> import astropy.units as u
+    >>> from lensdual.sensitivity import subhalo_einstein_radius
+    >>> subhalo_einstein_radius({"theta_E": 0.02})
+    <Quantity 0.02 arcsec>
+    >>> theta_e = subhalo_einstein_radius({"Rs": 0.01, "alpha_Rs": 0.002, "r_trunc": 0.3})
+    >>> round(float(theta_e.to_value(u.arcsec)), 4)
+    0.0128
     """
     code, p0, p1, p2 = _as_subhalo(subhalo)
     return _te(code, p0, p1, p2) * u.arcsec
@@ -83,6 +93,23 @@ def micro_images(jacobian, subhalo, offset, *, box=10.0, n_grid=400):
     images : `~astropy.table.QTable`
         ``x``, ``y`` (image position minus macro image position, arcsec) and
         ``mu`` (signed magnification), sorted by ``|mu|`` descending.
+
+    Examples
+    --------
+    A point mass (``theta_E = 0.02`` arcsec) in an isotropic macro field
+    ``A0 = 0.5 I`` at ``|d| = theta_E / sqrt(0.5)``: the two images of the
+    rescaled point lens at impact parameter 1, of total magnification
+    ``|mu_0| 3 / sqrt(5)`` with ``mu_0 = 1 / det A0 = 4``:
+
+    >>> import numpy as np
+    >>> import astropy.units as u
+    >>> from lensdual.sensitivity import micro_images
+    >>> d = [0.02 / np.sqrt(0.5), 0.0] * u.arcsec
+    >>> images = micro_images(0.5 * np.eye(2), {"theta_E": 0.02}, d)
+    >>> len(images), np.round(images["mu"], 3).tolist()
+    (2, [4.683, -0.683])
+    >>> round(float(np.abs(images["mu"]).sum() / 4), 4)
+    1.3416
     """
     a = _as_jacobian(jacobian)
     code, p0, p1, p2 = _as_subhalo(subhalo)
@@ -176,6 +203,20 @@ def flux_excess_distribution(jacobian, subhalo, r_eff_values, n_angles=36, *, th
     table : `~astropy.table.QTable`
         ``r_eff``, ``angle`` (deg), ``x_offset``, ``y_offset`` (arcsec),
         ``flux_excess``, ``n_images``; ``meta['theta_e']``.
+
+    Examples
+    --------
+    A point mass in an isotropic macro field (see :func:`micro_images`) on
+    three ellipses, here circles, of four angles each:
+
+    >>> import numpy as np
+    >>> from lensdual.sensitivity import flux_excess_distribution
+    >>> tab = flux_excess_distribution(0.5 * np.eye(2), {"theta_E": 0.02}, [0.5, 1.0, 2.0],
+    ...                                n_angles=4, n_grid=200)
+    >>> len(tab), tab["angle"][:4].value.tolist()
+    (12, [0.0, 90.0, 180.0, 270.0])
+    >>> np.round(tab["flux_excess"][::4], 3).tolist()
+    [2.959, 1.667, 1.155]
     """
     a = _as_jacobian(jacobian)
     code, p0, p1, p2 = _as_subhalo(subhalo)

@@ -21,6 +21,20 @@ def plot_flux_excess_violin(table, ax=None, mu_size_band=None):
     Returns
     -------
     ax : `matplotlib.axes.Axes`
+
+    Examples
+    --------
+    >>> import matplotlib
+    >>> matplotlib.use("Agg")
+    >>> import numpy as np
+    >>> from lensdual.sensitivity import flux_excess_distribution, plot_flux_excess_violin
+    >>> tab = flux_excess_distribution(0.5 * np.eye(2), {"theta_E": 0.02}, [0.5, 1.0, 2.0],
+    ...                                n_angles=4, n_grid=200)
+    >>> ax = plot_flux_excess_violin(tab, mu_size_band=(0.9, 1.1))
+    >>> type(ax).__name__
+    'Axes'
+    >>> import matplotlib.pyplot as plt
+    >>> plt.close(ax.figure)
     """
     import matplotlib.pyplot as plt
 
@@ -79,6 +93,22 @@ def plot_detection_snr_map(table, *, columns=None, axes=None, vmin=0.3, vmax=100
     axes : list of `matplotlib.axes.Axes`
     mesh : `matplotlib.collections.QuadMesh`
         Of the last panel (for a colour bar).
+
+    Examples
+    --------
+    >>> import matplotlib
+    >>> matplotlib.use("Agg")
+    >>> import numpy as np
+    >>> import astropy.units as u
+    >>> from lensdual.sensitivity import detection_snr_map, plot_detection_snr_map
+    >>> table = detection_snr_map([1e8, 1e9] * u.Msun, [0.5, 1.0, 2.0],
+    ...                           jacobian=np.diag([-0.6, 0.2]), sigma_rel=0.1,
+    ...                           n_angles=4, n_grid=100)
+    >>> axes, mesh = plot_detection_snr_map(table)
+    >>> len(axes), type(mesh).__name__
+    (3, 'QuadMesh')
+    >>> import matplotlib.pyplot as plt
+    >>> plt.close(axes[0].figure)
     """
     import matplotlib.pyplot as plt
     from matplotlib.colors import LogNorm

@@ -153,6 +153,25 @@ def offsets_on_ellipse(r_eff, angles, jacobian, theta_e, *, definition="paper"):
     -------
     offsets : `~astropy.units.Quantity`, shape (len(r_eff) * len(angles), 2)
         r_eff varies slowest.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import astropy.units as u
+    >>> from lensdual.sensitivity import offsets_on_ellipse
+    >>> A0 = np.diag([-0.25, 0.64])
+    >>> offsets_on_ellipse([1.0, 2.0], [0, 90] * u.deg, A0, 0.02 * u.arcsec).round(3)
+    <Quantity [[0.02, 0.  ],
+               [0.  , 0.02],
+               [0.04, 0.  ],
+               [0.  , 0.04]] arcsec>
+
+    With ``definition="caustic"`` the semi-axes are ``2 theta_E / sqrt(|lambda_i|)``:
+
+    >>> offsets_on_ellipse([1.0], [0, 90] * u.deg, A0, 0.02 * u.arcsec,
+    ...                    definition="caustic").round(3)
+    <Quantity [[0.08, 0.  ],
+               [0.  , 0.05]] arcsec>
     """
     r = _as_r_eff(r_eff)
     phi = np.atleast_1d(_as_angle_value(angles, "angles") * (math.pi / 180 / 3600))

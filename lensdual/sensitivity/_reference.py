@@ -53,6 +53,16 @@ def smacs0723_reference(*, seed=0, source=0, image=2, sigma_pos=0.06 * u.arcsec,
     (Quad: 0.12); the paper quotes a
     recovery of ``mu_size`` to about 10 % for its analogue and
     ``1.04 +- 0.09`` for the real pair 1 at 0.06 arcsec.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from lensdual.sensitivity import smacs0723_reference
+    >>> ref = smacs0723_reference()
+    >>> np.round(np.linalg.eigvalsh(ref["jacobian"]), 3)  # a saddle point
+    array([-0.635,  0.223])
+    >>> round(ref["mu_macro"], 2), round(ref["sigma_rel"], 2)
+    (-7.06, 1.09)
     """
     from ..estimators import size_magnification
     from ..simulation.scenarios import smacs0723_analog
