@@ -23,6 +23,7 @@ output_checker = pytest.importorskip("pytest_doctestplus.output_checker")
 MODULES = (
     "lensdual.estimators",
     "lensdual.duality",
+    "lensdual.pairing",
     "lensdual.photometry",
     "lensdual.sensitivity",
 )
