@@ -1,5 +1,8 @@
 """The files of the ``lensdual`` commands: the output directory and what goes in it.
 
+(And the few input files of a run that :mod:`lensdual.config` does not read:
+detection catalogues and manual pairs.)
+
 Every command writes into a temporary sibling of its output directory and moves
 the files there only once all of them have been written
 (:func:`atomic_directory`); a manifest lists what lensdual wrote, so that stale
@@ -16,6 +19,15 @@ import numpy as np
 
 #: The file in an output directory that lists what lensdual wrote there.
 MANIFEST = ".lensdual-outputs"
+#: The columns of ``pairs.ecsv``, for the commands' help.
+PAIRS_TABLE_COLUMNS_DOC = """\
+pairs.ecsv columns (one row per pair; see the "pairs table" page of the docs):
+pair_id, id1, id2 (catalogue ids), x1, y1, x2, y2 (arcsec, common tangent-plane
+frame, x to the west), sky1, sky2, pos_err1, pos_err2, flux1_<band>,
+flux2_<band>, flux_err1_<band>, flux_err2_<band>, jacobian, parity, mu_size,
+mu_size_err, mu_size_p16, mu_size_p84, mu_flux_<band>, mu_flux_err_<band>,
+mu_flux, mu_flux_err, duality_ratio, duality_ratio_err, snr, snr_paper,
+anomalous."""
 #: lensdual's own output names, recognised without a manifest (older versions).
 KNOWN_OUTPUTS = ("pairs.ecsv", "catalog_L1.ecsv", "catalog_L2.ecsv", "pairing_map.png",
                   "duality.png", "report.txt", "parametric.ecsv", "parametric.png",
@@ -151,6 +163,43 @@ def write_analysis(analysis, directory, report_text, *, title, images=None):
     (directory / "report.txt").write_text(report_text + "\n")
 
 
+def read_catalog(path):
+    """A detection catalogue (ECSV) of a run configuration, with a ``sky`` column."""
+    import astropy.units as u
+    from astropy.coordinates import SkyCoord
+    from astropy.table import QTable
+
+    cat = QTable.read(path, format="ascii.ecsv")
+    if "sky" not in cat.colnames:
+        cat["sky"] = SkyCoord(u.Quantity(cat["ra"], u.deg), u.Quantity(cat["dec"], u.deg))
+    return cat
+
+
+def read_catalogs_and_pairs(config):
+    """The catalogues (``{arc: QTable}`` or None) and manual pairs (or None) of a run."""
+    from astropy.table import QTable
+
+    catalogs = None
+    if config.catalogs is not None:
+        catalogs = {arc: read_catalog(path) for arc, path in config.catalogs.items()}
+    manual = None
+    if config.pairing_method == "manual":
+        manual = QTable.read(config.pairs_file, format="ascii.ecsv")
+    return catalogs, manual
+
+
+def fit_kwargs(fix_centre=False, n_starts=None, max_nfev=None):
+    """Keyword arguments of the parametric fit for :func:`parametric_outputs`."""
+    kwargs = {}
+    if fix_centre:
+        kwargs["fixed_params"] = {0: {"center_x": 0.0, "center_y": 0.0}}
+    if n_starts is not None:
+        kwargs["n_starts"] = n_starts
+    if max_nfev is not None:
+        kwargs["max_nfev"] = max_nfev
+    return kwargs
+
+
 def parametric_outputs(analysis, directory, *, lenstool=None, fit=False, model=None,
                        z_lens=None, z_source=None, sigma_pos=0.01, centre=None, seed=0,
                        fit_kwargs=None):
@@ -233,3 +282,14 @@ def write_knot_figure(table, path):
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
+
+
+def write_knot_outputs(analysis, directory, report_text):
+    """The outputs of a knots run: the images table, one table (and figure) per macro pair."""
+    write_table(analysis.knot_pairs.images, directory / "knot_images.ecsv")
+    for (m1, m2), table in analysis.tables.items():
+        stem = f"knots_{m1}_{m2}"
+        write_table(table, directory / f"{stem}.ecsv")
+        if table.meta.get("models"):
+            write_knot_figure(table, directory / f"{stem}.png")
+    (directory / "report.txt").write_text(report_text + "\n")

@@ -29,11 +29,14 @@ from pathlib import Path
 # The pipeline and the demo live in lensdual.pipeline and lensdual.demo; the names
 # marked "re-exported" stay importable from lensdual.cli for existing scripts.
 from ._outputs import (
+    PAIRS_TABLE_COLUMNS_DOC,
     atomic_directory,
     check_output_directory,
+    fit_kwargs,
     parametric_outputs,
+    read_catalogs_and_pairs,
     write_analysis,
-    write_knot_figure,
+    write_knot_outputs,
     write_run_inputs,
     write_table,
 )
@@ -48,9 +51,9 @@ from .demo import (
 from .pipeline import (
     Analysis,
     PipelineError,
+    _analyse_knot_config,
     _parametric_paragraph,
     analyse,
-    analyse_knots,
     format_pairs_table,  # noqa: F401 (re-exported)
     format_report,
     knot_report,
@@ -70,15 +73,6 @@ __all__ = [
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
 
-_TABLE_COLUMNS_DOC = """\
-pairs.ecsv columns (one row per pair; see the "pairs table" page of the docs):
-pair_id, id1, id2 (catalogue ids), x1, y1, x2, y2 (arcsec, common tangent-plane
-frame, x to the west), sky1, sky2, pos_err1, pos_err2, flux1_<band>,
-flux2_<band>, flux_err1_<band>, flux_err2_<band>, jacobian, parity, mu_size,
-mu_size_err, mu_size_p16, mu_size_p84, mu_flux_<band>, mu_flux_err_<band>,
-mu_flux, mu_flux_err, duality_ratio, duality_ratio_err, snr, snr_paper,
-anomalous."""
-
 
 # ---------------------------------------------------------------------------
 # progress
@@ -86,10 +80,10 @@ anomalous."""
 
 
 class _Progress:
-    """One tqdm bar over the named steps of a command (silent when quiet)."""
+    """One tqdm bar over the named steps of a command (see `_show_progress`)."""
 
-    def __init__(self, steps, *, quiet, desc):
-        self.quiet = quiet
+    def __init__(self, steps, args, *, desc):
+        self.quiet = quiet = not _show_progress(args)
         self.bar = None
         if not quiet:
             from tqdm.auto import tqdm
@@ -115,17 +109,6 @@ class _Progress:
 #: Settings of the demo's parametric fit (tests make it cheaper): the halo
 #: centre is held on the cluster centre (the BCG, known to the observer).
 _DEMO_FIT = {"sigma_pos": 0.01, "n_starts": 4, "fix_centre": True}
-
-
-def _fit_kwargs(fix_centre=False, n_starts=None, max_nfev=None):
-    kwargs = {}
-    if fix_centre:
-        kwargs["fixed_params"] = {0: {"center_x": 0.0, "center_y": 0.0}}
-    if n_starts is not None:
-        kwargs["n_starts"] = n_starts
-    if max_nfev is not None:
-        kwargs["max_nfev"] = max_nfev
-    return kwargs
 
 
 # ---------------------------------------------------------------------------
@@ -178,7 +161,7 @@ def _cmd_demo(args):
     removed = []
     steps = ["simulate", "render", "detect L1", "detect L2", "pair", "photometry", "mu_size",
              "write"] + (["parametric"] if args.parametric else [])
-    progress = _Progress(steps, quiet=not _show_progress(args), desc="lensdual demo")
+    progress = _Progress(steps, args, desc="lensdual demo")
     try:
         with progress.step("simulate the lens"):
             system, truth = simulate_demo(subhalo=args.subhalo, n_sources=args.n_sources,
@@ -211,10 +194,9 @@ def _cmd_demo(args):
                 with progress.step("parametric fit"):
                     settings = dict(_DEMO_FIT)
                     sigma = settings.pop("sigma_pos")
-                    fit_kwargs = _fit_kwargs(**settings)
                     table = parametric_outputs(analysis, tmp, fit=True, z_lens=0.39,
                                                z_source=2.2, sigma_pos=sigma, centre=centre,
-                                               seed=args.seed, fit_kwargs=fit_kwargs)
+                                               seed=args.seed, fit_kwargs=fit_kwargs(**settings))
                 report += "\n\n" + _parametric_paragraph(table)
             write_analysis(analysis, tmp, report, title="lensdual demo", images=images)
     except _FAILURES as err:
@@ -224,8 +206,6 @@ def _cmd_demo(args):
 
 
 def _cmd_run(args):
-    from astropy.table import QTable
-
     from .config import ConfigError, band_oversampling, band_psfs, load_config, load_images
 
     start = time.perf_counter()
@@ -246,19 +226,14 @@ def _cmd_run(args):
     steps = ["read", "detect L1", "detect L2", "pair", "photometry", "mu_size", "write"]
     if par is not None:
         steps.append("parametric")
-    progress = _Progress(steps, quiet=not _show_progress(args), desc="lensdual run")
+    progress = _Progress(steps, args, desc="lensdual run")
     try:
         with progress.step("read images"), warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             images = load_images(config)
             psf = band_psfs(config)
             oversampling = band_oversampling(config)
-            catalogs = None
-            if config.catalogs is not None:
-                catalogs = {arc: _read_catalog(path) for arc, path in config.catalogs.items()}
-            manual = None
-            if config.pairing_method == "manual":
-                manual = QTable.read(config.pairs_file, format="ascii.ecsv")
+            catalogs, manual = read_catalogs_and_pairs(config)
         analysis = analyse(images, psf=psf, estimator=config.estimator,
                            sigma_pos=config.sigma_pos, n_bootstrap=config.n_bootstrap,
                            snr_threshold=config.snr_threshold, seed=config.seed,
@@ -277,7 +252,7 @@ def _cmd_run(args):
                         analysis, tmp, lenstool=par.lenstool, fit=par.fit, model=par.model,
                         z_lens=par.z_lens, z_source=par.z_source, sigma_pos=par.sigma_pos,
                         centre=par.centre, seed=config.seed,
-                        fit_kwargs=_fit_kwargs(par.fix_centre))
+                        fit_kwargs=fit_kwargs(par.fix_centre))
                 extra = ["", _parametric_paragraph(table)]
             report = format_report(analysis, extra)
             with progress.step("write outputs"):
@@ -291,48 +266,18 @@ def _cmd_run(args):
 
 def _run_knots(args, config, start):
     """``lensdual run`` on a ``[knots]`` configuration: a catalogue, no images."""
-    spec = config.knots
-    progress = _Progress(["analyse", "write"], quiet=not _show_progress(args),
-                         desc="lensdual run")
+    progress = _Progress(["analyse", "write"], args, desc="lensdual run")
+    removed = []
     try:
         with progress.step("knot constellation"):
-            macro = spec.centres if spec.centres is not None else list(spec.macro_images)
-            mapping = None
-            if spec.mapping is not None:
-                from astropy.table import Table
-
-                mapping = Table.read(spec.mapping, format="ascii.ecsv")
-            sigma = spec.sigma_pos
-            analysis = analyse_knots(spec.catalogue, macro, knots=spec.knot_filter(),
-                                     assign=spec.assign, mapping=mapping,
-                                     models=list(spec.models), z_source=spec.z_source,
-                                     sigma_pos=sigma, method=config.estimator,
-                                     snr_threshold=config.snr_threshold)
+            analysis = _analyse_knot_config(config)
         report = knot_report(analysis)
-        removed = []
         with atomic_directory(config.outdir, removed) as tmp, progress.step("write outputs"):
-            write_table(analysis.knot_pairs.images, tmp / "knot_images.ecsv")
-            for (m1, m2), table in analysis.tables.items():
-                stem = f"knots_{m1}_{m2}"
-                write_table(table, tmp / f"{stem}.ecsv")
-                if table.meta.get("models"):
-                    write_knot_figure(table, tmp / f"{stem}.png")
-            (tmp / "report.txt").write_text(report + "\n")
+            write_knot_outputs(analysis, tmp, report)
     except _FAILURES as err:
         return _finish(args, "run", progress, start, error=err)
     return _finish(args, "run", progress, start, report=report, outdir=config.outdir,
                    removed=removed)
-
-
-def _read_catalog(path):
-    import astropy.units as u
-    from astropy.coordinates import SkyCoord
-    from astropy.table import QTable
-
-    cat = QTable.read(path, format="ascii.ecsv")
-    if "sky" not in cat.colnames:
-        cat["sky"] = SkyCoord(u.Quantity(cat["ra"], u.deg), u.Quantity(cat["dec"], u.deg))
-    return cat
 
 
 def _int_range(lo, hi=None):
@@ -376,6 +321,16 @@ def _config_schema():
             + textwrap.dedent(doc[knots:knots_end]))
 
 
+def _add_output_options(parser):
+    """--progress and --quiet, common to every command."""
+    parser.add_argument("--progress", action="store_true",
+                        help="show progress bars even when stderr is not a terminal (by "
+                             "default they appear on a terminal only, so logs stay clean)")
+    parser.add_argument("--quiet", "-q", action="store_true",
+                        help="print nothing (no progress bars, no table); errors still go to "
+                             "stderr")
+
+
 def build_parser():
     """The argument parser of the ``lensdual`` command.
 
@@ -408,7 +363,7 @@ def build_parser():
                     "the truth; at the end, compare with the injected truth. Writes the "
                     "images (FITS), catalogues and the pairs table (ECSV), the pairing map "
                     "and the duality figure (PNG) and a report to OUTDIR.",
-        epilog=_TABLE_COLUMNS_DOC)
+        epilog=PAIRS_TABLE_COLUMNS_DOC)
     demo.add_argument("--outdir", default="lensdual-demo", type=Path,
                       help="output directory (created; files in it are replaced)")
     demo.add_argument("--subhalo", choices=DEMO_SUBHALOES, default="overconcentrated",
@@ -438,12 +393,7 @@ def build_parser():
                       help="also fit a parametric lenstronomy model (NFW_ELLIPSE_CSE + SHEAR) "
                            "to the pairs and compare its magnification ratios "
                            "(parametric.ecsv, parametric.png)")
-    demo.add_argument("--progress", action="store_true",
-                     help="show progress bars even when stderr is not a terminal (by "
-                          "default they appear on a terminal only, so logs stay clean)")
-    demo.add_argument("--quiet", "-q", action="store_true",
-                      help="print nothing (no progress bars, no table); errors still go to "
-                           "stderr")
+    _add_output_options(demo)
     demo.set_defaults(func=_cmd_demo)
 
     run = sub.add_parser(
@@ -457,17 +407,12 @@ def build_parser():
                     "pairs.ecsv, pairing_map.png, duality.png, report.txt) appear in the "
                     "output directory only when all of them have been written. "
                     "'lensdual demo --write-config' writes an example.",
-        epilog=_TABLE_COLUMNS_DOC + "\n\nThe configuration file (relative paths are "
+        epilog=PAIRS_TABLE_COLUMNS_DOC + "\n\nThe configuration file (relative paths are "
                "relative to it; angles are strings with units):\n\n" + _config_schema())
     run.add_argument("config", type=Path, help="the TOML configuration file")
     run.add_argument("--outdir", type=Path, default=None,
                      help="output directory (overrides [output] outdir of the file)")
-    run.add_argument("--progress", action="store_true",
-                     help="show progress bars even when stderr is not a terminal (by "
-                          "default they appear on a terminal only, so logs stay clean)")
-    run.add_argument("--quiet", "-q", action="store_true",
-                     help="print nothing (no progress bars, no table); errors still go to "
-                          "stderr")
+    _add_output_options(run)
     run.set_defaults(func=_cmd_run)
     return parser
 

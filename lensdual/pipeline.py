@@ -758,6 +758,21 @@ def analyse_knots(catalogue, macro_images, *, knots=None, assign=None, mapping=N
                         models=loaded)
 
 
+def _analyse_knot_config(config):
+    """:func:`analyse_knots` on the ``[knots]`` section of a run configuration."""
+    spec = config.knots
+    macro = spec.centres if spec.centres is not None else list(spec.macro_images)
+    mapping = None
+    if spec.mapping is not None:
+        from astropy.table import Table
+
+        mapping = Table.read(spec.mapping, format="ascii.ecsv")
+    return analyse_knots(spec.catalogue, macro, knots=spec.knot_filter(), assign=spec.assign,
+                         mapping=mapping, models=list(spec.models), z_source=spec.z_source,
+                         sigma_pos=spec.sigma_pos, method=config.estimator,
+                         snr_threshold=config.snr_threshold)
+
+
 def knot_report(analysis):
     """A text report of a `KnotAnalysis`.
 
