@@ -428,7 +428,84 @@ def _knot_redshift(tab, z_source, needed):
 # ---------------------------------------------------------------------------
 
 
-def pairs_from_knots(images, macro_images, *, knots=None, assign=None, mapping=None, model=None,  # noqa: C901, PLR0915
+def _check_assign(assign, mapping, model, centres_sky):
+    """The assignment method (default from the arguments given), checked."""
+    if assign is None:
+        assign = "mapping" if mapping is not None else "model" if model is not None else "centre"
+    if assign not in ("centre", "mapping", "model"):
+        raise ValueError(f"assign must be 'centre', 'mapping' or 'model', got {assign!r}")
+    if assign == "mapping" and mapping is None:
+        raise ValueError("assign='mapping' needs a mapping {image id: macro-image}")
+    if assign == "model" and model is None:
+        raise ValueError("assign='model' needs a model (e.g. read_lenstool(...))")
+    if centres_sky is None and assign != "mapping":
+        raise ValueError("macro_images given as names only: give their centres (dict {name: "
+                         "SkyCoord}) or assign with a mapping")
+    return assign
+
+
+def _crowds(system, macro, status, names):
+    """Mark "extra" and "single" images in ``status``; their notes, and the used images.
+
+    A knot with two images on one macro-image: both are "extra" there (the knot
+    is not used on that macro-image); a knot on one macro-image only: "single".
+    """
+    note = np.array([""] * len(system), dtype=object)
+    for knot in np.unique(system):
+        rows = np.flatnonzero((system == knot) & (macro >= 0))
+        on, counts = np.unique(macro[rows], return_counts=True)
+        for k in on[counts > 1]:
+            crowd = rows[macro[rows] == k]
+            status[crowd] = "extra"
+            note[crowd] = f"{len(crowd)} images of knot {knot} on {names[k]}"
+        clean = on[counts == 1]
+        if len(clean) < 2:
+            lone = rows[np.isin(macro[rows], clean)]
+            status[lone] = "single"
+            note[lone] = f"knot {knot} seen cleanly on {len(clean)} macro-image(s)"
+    used = (status == "") & (macro >= 0)
+    status[used] = "used"
+    return note, used
+
+
+def _knot_table(common, i, j, ids, xy, sky, tab, bands, flux_columns, flux_err_columns):
+    """The pairs table of the knots ``common`` at rows i (macro1) and j (macro2)."""
+    out = QTable()
+    out[PAIR_ID] = np.arange(1, len(common) + 1)
+    out["knot"] = np.array(common)
+    out[ID_COLUMNS[0]], out[ID_COLUMNS[1]] = ids[i], ids[j]
+    for (x, y), rows in ((xy_cols(1), i), (xy_cols(2), j)):
+        out[x], out[y] = xy[rows, 0] * u.arcsec, xy[rows, 1] * u.arcsec
+    out[SKY_COLUMNS[0]], out[SKY_COLUMNS[1]] = sky[i], sky[j]
+    for band in ([] if bands is None else [bands] if isinstance(bands, str) else bands):
+        fcol, ecol = flux_columns.format(band=band), flux_err_columns.format(band=band)
+        if fcol not in tab.colnames:
+            raise ValueError(f"images has no flux column {fcol!r} of band {band!r}")
+        out[flux_col(1, band)], out[flux_col(2, band)] = tab[fcol][i], tab[fcol][j]
+        if ecol in tab.colnames:
+            out[flux_err_col(1, band)], out[flux_err_col(2, band)] = tab[ecol][i], tab[ecol][j]
+    return out
+
+
+def _report_tables(ids, system, macro, status, nearest, note, names, centres_sky, cxy, n_knots):
+    """The ``images`` and ``macro_images`` tables of `KnotPairs`."""
+    report = QTable()
+    report["id"] = ids
+    report["knot"] = system
+    report["macro"] = np.array([names[k] if k >= 0 else "" for k in macro])
+    report["status"] = status.astype(str)
+    report["distance"] = nearest * u.arcsec
+    report["note"] = note.astype(str)
+    macro_tab = QTable()
+    macro_tab["name"] = np.array(names)
+    if centres_sky is not None:
+        macro_tab["sky"] = centres_sky
+        macro_tab["x"], macro_tab["y"] = cxy[:, 0] * u.arcsec, cxy[:, 1] * u.arcsec
+    macro_tab["n_knots"] = n_knots
+    return report, macro_tab
+
+
+def pairs_from_knots(images, macro_images, *, knots=None, assign=None, mapping=None, model=None,
                      z_source=None, reference=None, max_distance=None, match_radius=0.3 * u.arcsec,
                      min_knots=3, bands=None, flux_columns="flux_{band}",
                      flux_err_columns="flux_err_{band}"):
@@ -531,17 +608,7 @@ def pairs_from_knots(images, macro_images, *, knots=None, assign=None, mapping=N
     """
     ids, system, sky, tab = _images_table(images, knots)
     names, centres_sky = _macro_table(macro_images)
-    if assign is None:
-        assign = "mapping" if mapping is not None else "model" if model is not None else "centre"
-    if assign not in ("centre", "mapping", "model"):
-        raise ValueError(f"assign must be 'centre', 'mapping' or 'model', got {assign!r}")
-    if assign == "mapping" and mapping is None:
-        raise ValueError("assign='mapping' needs a mapping {image id: macro-image}")
-    if assign == "model" and model is None:
-        raise ValueError("assign='model' needs a model (e.g. read_lenstool(...))")
-    if centres_sky is None and assign != "mapping":
-        raise ValueError("macro_images given as names only: give their centres (dict {name: "
-                         "SkyCoord}) or assign with a mapping")
+    assign = _check_assign(assign, mapping, model, centres_sky)
     min_knots = as_int(min_knots, "min_knots", minimum=3)
     z_source = _knot_redshift(tab, z_source, needed=assign == "model")
     if reference is None:
@@ -552,6 +619,7 @@ def pairs_from_knots(images, macro_images, *, knots=None, assign=None, mapping=N
     _check_duplicates(ids, xy)
 
     nearest = np.full(len(ids), np.nan)
+    cxy = None
     if centres_sky is not None:
         cxy = np.column_stack(tangent_xy(centres_sky, reference))
         _, _, nearest = _by_centre(xy, cxy, np.inf, 1.0)
@@ -564,24 +632,7 @@ def pairs_from_knots(images, macro_images, *, knots=None, assign=None, mapping=N
     else:
         radius = as_angle_scalar(match_radius, "match_radius", allow_zero=False)
         macro, status = _by_model(sky, system, centres_sky, model, z_source, radius)
-
-    # a knot with two images on one macro-image: both are "extra" there (the knot
-    # is not used on that macro-image); a knot on one macro-image only: "single"
-    note = np.array([""] * len(ids), dtype=object)
-    for knot in np.unique(system):
-        rows = np.flatnonzero((system == knot) & (macro >= 0))
-        on, counts = np.unique(macro[rows], return_counts=True)
-        for k in on[counts > 1]:
-            crowd = rows[macro[rows] == k]
-            status[crowd] = "extra"
-            note[crowd] = f"{len(crowd)} images of knot {knot} on {names[k]}"
-        clean = on[counts == 1]
-        if len(clean) < 2:
-            lone = rows[np.isin(macro[rows], clean)]
-            status[lone] = "single"
-            note[lone] = f"knot {knot} seen cleanly on {len(clean)} macro-image(s)"
-    used = (status == "") & (macro >= 0)
-    status[used] = "used"
+    note, used = _crowds(system, macro, status, names)
 
     n_knots = np.array([int(np.sum(used & (macro == k))) for k in range(len(names))])
     few = [f"{names[k]} ({n_knots[k]})" for k in range(len(names)) if n_knots[k] < min_knots]
@@ -598,37 +649,14 @@ def pairs_from_knots(images, macro_images, *, knots=None, assign=None, mapping=N
             continue
         i = np.array([np.flatnonzero(used & (macro == a) & (system == k))[0] for k in common])
         j = np.array([np.flatnonzero(used & (macro == b) & (system == k))[0] for k in common])
-        out = QTable()
-        out[PAIR_ID] = np.arange(1, len(common) + 1)
-        out["knot"] = np.array(common)
-        out[ID_COLUMNS[0]], out[ID_COLUMNS[1]] = ids[i], ids[j]
-        for (x, y), rows in ((xy_cols(1), i), (xy_cols(2), j)):
-            out[x], out[y] = xy[rows, 0] * u.arcsec, xy[rows, 1] * u.arcsec
-        out[SKY_COLUMNS[0]], out[SKY_COLUMNS[1]] = sky[i], sky[j]
-        for band in ([] if bands is None else [bands] if isinstance(bands, str) else bands):
-            fcol, ecol = flux_columns.format(band=band), flux_err_columns.format(band=band)
-            if fcol not in tab.colnames:
-                raise ValueError(f"images has no flux column {fcol!r} of band {band!r}")
-            out[flux_col(1, band)], out[flux_col(2, band)] = tab[fcol][i], tab[fcol][j]
-            if ecol in tab.colnames:
-                out[flux_err_col(1, band)], out[flux_err_col(2, band)] = tab[ecol][i], tab[ecol][j]
+        out = _knot_table(common, i, j, ids, xy, sky, tab, bands, flux_columns,
+                          flux_err_columns)
         out.meta.update(bands=[] if bands is None else list(np.atleast_1d(bands)),
                         reference=reference, macro1=names[a], macro2=names[b],
                         z_source=z_source, assign=assign)
         pairs[(names[a], names[b])] = out
 
-    report = QTable()
-    report["id"] = ids
-    report["knot"] = system
-    report["macro"] = np.array([names[k] if k >= 0 else "" for k in macro])
-    report["status"] = status.astype(str)
-    report["distance"] = nearest * u.arcsec
-    report["note"] = note.astype(str)
-    macro_tab = QTable()
-    macro_tab["name"] = np.array(names)
-    if centres_sky is not None:
-        macro_tab["sky"] = centres_sky
-        macro_tab["x"], macro_tab["y"] = cxy[:, 0] * u.arcsec, cxy[:, 1] * u.arcsec
-    macro_tab["n_knots"] = n_knots
+    report, macro_tab = _report_tables(ids, system, macro, status, nearest, note, names,
+                                       centres_sky, cxy, n_knots)
     return KnotPairs(pairs=pairs, images=report, macro_images=macro_tab, reference=reference,
                      assign=assign, z_source=z_source, skipped=skipped)
