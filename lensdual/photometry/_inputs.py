@@ -143,7 +143,38 @@ def _in_box(array, shape, box):
     return array[box]
 
 
-def _unpack_image(image, name, label=None, box=None, parts=None):  # noqa: C901
+def _error_map(unc, name, unit, full_shape, box):
+    """The uncertainty of an image as a standard deviation in the image's unit (in ``box``)."""
+    arr = np.asarray(_in_box(unc.array, full_shape, box), dtype=np.float64)
+    if isinstance(unc, StdDevUncertainty):
+        error = arr
+    elif isinstance(unc, VarianceUncertainty):
+        error = np.sqrt(arr)
+    elif isinstance(unc, InverseVariance):
+        with np.errstate(divide="ignore"):
+            error = 1.0 / np.sqrt(arr)
+    else:
+        raise TypeError(
+            f"{name}.uncertainty must be a StdDevUncertainty, VarianceUncertainty "
+            f"or InverseVariance, got {type(unc).__name__}"
+        )
+    eunit = unc.unit
+    if isinstance(unc, VarianceUncertainty) and eunit is not None:
+        eunit = eunit**0.5
+    elif isinstance(unc, InverseVariance) and eunit is not None:
+        eunit = eunit**-0.5
+    if eunit is not None and unit is not None and eunit != unit:
+        try:
+            error = error * float(eunit.to(unit))
+        except u.UnitsError:
+            raise ValueError(
+                f"{name}.uncertainty has unit {eunit!s}, not convertible to the "
+                f"image unit {unit!s}"
+            ) from None
+    return error
+
+
+def _unpack_image(image, name, label=None, box=None, parts=None):
     """Return (float64 data copy, invalid mask or None, error or None, unit, wcs).
 
     With ``box`` (a pair of slices) only that part of the image is copied and
@@ -156,34 +187,7 @@ def _unpack_image(image, name, label=None, box=None, parts=None):  # noqa: C901
     data = _in_box(data, full_shape, box)
     if mask is not None:
         mask = _in_box(mask, full_shape, box)
-    error = None
-    if unc is not None:
-        arr = np.asarray(_in_box(unc.array, full_shape, box), dtype=np.float64)
-        if isinstance(unc, StdDevUncertainty):
-            error = arr
-        elif isinstance(unc, VarianceUncertainty):
-            error = np.sqrt(arr)
-        elif isinstance(unc, InverseVariance):
-            with np.errstate(divide="ignore"):
-                error = 1.0 / np.sqrt(arr)
-        else:
-            raise TypeError(
-                f"{name}.uncertainty must be a StdDevUncertainty, VarianceUncertainty "
-                f"or InverseVariance, got {type(unc).__name__}"
-            )
-        eunit = unc.unit
-        if isinstance(unc, VarianceUncertainty) and eunit is not None:
-            eunit = eunit**0.5
-        elif isinstance(unc, InverseVariance) and eunit is not None:
-            eunit = eunit**-0.5
-        if eunit is not None and unit is not None and eunit != unit:
-            try:
-                error = error * float(eunit.to(unit))
-            except u.UnitsError:
-                raise ValueError(
-                    f"{name}.uncertainty has unit {eunit!s}, not convertible to the "
-                    f"image unit {unit!s}"
-                ) from None
+    error = None if unc is None else _error_map(unc, name, unit, full_shape, box)
     data = np.array(data, dtype=np.float64)  # a copy: the input is never modified
     invalid = ~np.isfinite(data)
     if invalid.all():
@@ -290,7 +294,45 @@ def _as_oversampling(oversampling, name="oversampling"):
     return (ints[0], ints[-1])
 
 
-def _psf_spec(psf, name="psf", oversampling=None):  # noqa: C901
+def _quantity_psf(psf, name):
+    """The PSF setting of a Quantity FWHM: ('angle', FWHM) or ('gaussian', pixels)."""
+    if not psf.isscalar:
+        raise ValueError(f"{name} (a Gaussian FWHM) must be a scalar, got shape {psf.shape}")
+    if psf.unit.physical_type == "angle":
+        _check_fwhm(psf.to_value(u.arcsec), psf, name)
+        return "angle", psf
+    if psf.unit == u.pix:
+        fwhm = psf.value
+    else:
+        raise TypeError(
+            f"{name} as a Quantity must be an angle or in pixels (u.pix), got unit {psf.unit!s}"
+        )
+    return "gaussian", _check_fwhm(fwhm, psf, name)
+
+
+def _array_psf(psf, name, oversampling):
+    """The PSF setting of an array: ('gaussian', FWHM) for a scalar, else ('image', ImagePSF)."""
+    from photutils.psf import ImagePSF
+
+    arr = np.asarray(psf, dtype=np.float64)
+    if arr.ndim == 0:
+        return "gaussian", _check_fwhm(float(arr), psf, name)
+    if arr.ndim != 2 or min(arr.shape) < 4:
+        raise ValueError(
+            f"{name} as an array must be a 2-D PSF image of at least 4x4 pixels, "
+            f"got shape {arr.shape}"
+        )
+    if not np.isfinite(arr).all():
+        raise ValueError(f"{name} contains NaN or infinite values")
+    total = arr.sum()
+    if not total > 0:
+        raise ValueError(f"{name} must have a positive sum, got {total}")
+    os_ = (1, 1) if oversampling is None else oversampling
+    # photutils' convention: an oversampled image sums to oy * ox
+    return "image", ImagePSF(arr * (os_[0] * os_[1] / total), oversampling=os_)
+
+
+def _psf_spec(psf, name="psf", oversampling=None):
     """The PSF setting checked: ('gaussian', FWHM in pixels or None), ('image', ImagePSF)
     or ('angle', the FWHM as an angle, converted to pixels by `_psf_in_pixels`)."""
     from photutils.psf import ImagePSF
@@ -316,35 +358,9 @@ def _psf_spec(psf, name="psf", oversampling=None):  # noqa: C901
             )
         return "image", psf
     if isinstance(psf, u.Quantity):
-        if not psf.isscalar:
-            raise ValueError(f"{name} (a Gaussian FWHM) must be a scalar, got shape {psf.shape}")
-        if psf.unit.physical_type == "angle":
-            _check_fwhm(psf.to_value(u.arcsec), psf, name)
-            return "angle", psf
-        if psf.unit == u.pix:
-            fwhm = psf.value
-        else:
-            raise TypeError(
-                f"{name} as a Quantity must be an angle or in pixels (u.pix), got unit {psf.unit!s}"
-            )
-        return "gaussian", _check_fwhm(fwhm, psf, name)
+        return _quantity_psf(psf, name)
     if isinstance(psf, (np.ndarray, list, tuple)):
-        arr = np.asarray(psf, dtype=np.float64)
-        if arr.ndim == 0:
-            return "gaussian", _check_fwhm(float(arr), psf, name)
-        if arr.ndim != 2 or min(arr.shape) < 4:
-            raise ValueError(
-                f"{name} as an array must be a 2-D PSF image of at least 4x4 pixels, "
-                f"got shape {arr.shape}"
-            )
-        if not np.isfinite(arr).all():
-            raise ValueError(f"{name} contains NaN or infinite values")
-        total = arr.sum()
-        if not total > 0:
-            raise ValueError(f"{name} must have a positive sum, got {total}")
-        os_ = (1, 1) if oversampling is None else oversampling
-        # photutils' convention: an oversampled image sums to oy * ox
-        return "image", ImagePSF(arr * (os_[0] * os_[1] / total), oversampling=os_)
+        return _array_psf(psf, name, oversampling)
     if isinstance(psf, (int, float, np.integer, np.floating)) and not isinstance(psf, bool):
         return "gaussian", _check_fwhm(float(psf), psf, name)
     raise TypeError(
