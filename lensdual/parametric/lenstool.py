@@ -427,6 +427,9 @@ def _check_nlens(path, blocks, n_potentials):
                         f"{int(nlens)}, which this reader does not emulate")
 
 
+# One validator on purpose (noqa): each branch is one check of the block with its own
+# message, in the order a user fixes them; split, the checks would pass values, lines
+# and spellings between helpers without making any of them simpler.
 def _potential(path, block):  # noqa: C901
     """The keys of one potential block, validated; returns a dict.
 
@@ -670,7 +673,65 @@ def _nfw_parameters(path, p, cosmo, z_lens, kpc_per_arcsec):
 # --------------------------------------------------------------------------- public API
 
 
-def read_lenstool(path, *, cosmology=None):  # noqa: C901, PLR0915
+def _potential_row(path, p, origin, cosmo, kpc):
+    """One row of ``LenstoolModel.potentials`` (see ``names`` in :func:`read_lenstool`)."""
+    cosd0 = math.cos(origin.dec.radian)
+    where = f"{path}, line {p['_line']}, block '{p['_label']}'"
+    if "x_centre_wcs" in p:
+        dra = (p["x_centre_wcs"] - origin.ra.deg + 180.0) % 360.0 - 180.0
+        x = -dra * cosd0 * 3600.0
+    else:
+        x = p.get("x_centre", 0.0)
+    if "y_centre_wcs" in p:
+        y = (p["y_centre_wcs"] - origin.dec.deg) * 3600.0
+    else:
+        y = p.get("y_centre", 0.0)
+    nan = math.nan
+    gamma = kappa = nan
+    if p["profile"] == 14:
+        # external shear (e_grad.c, e_grad2.c): psi = gamma/2 (X^2 - Y^2) in the frame
+        # of angle_pos, plus kappa/2 (X^2 + Y^2); scaled by D_ls/D_s like the others
+        gamma, kappa = p["gamma"], p.get("kappa", 0.0)
+        emass = eps = core = cut = v_disp = b0 = nan
+        extra = (nan, nan, nan, nan, nan, "gamma, kappa")
+    elif p["profile"] == 12:
+        nfw = _nfw_parameters(path, p, cosmo, p["z_lens"], kpc)
+        # Lenstool's NFW takes its ellipticity in the potential: the value of
+        # 'ellipticite', or 3 * 'ellip_pot' (set_lens.c, e_grad.c, e_grad2.c)
+        emass = 3.0 * p["ellip_pot"] if "ellip_pot" in p else p.get("ellipticity", 0.0)
+        eps = emass
+        core = cut = nan
+        v_disp = nfw["v_disp"]
+        extra = (nfw["rs"], nfw["rs_kpc"], nfw["concentration"], nfw["m200"],
+                 nfw["r200_kpc"], nfw["definition"])
+    else:
+        core = (p["core_radius_kpc"] / kpc if "core_radius_kpc" in p
+                else p["core_radius"])
+        cut = (p["cut_radius_kpc"] / kpc if "cut_radius_kpc" in p
+               else p["cut_radius"])
+        if not cut > core:
+            raise ValueError(f"{where}: the cut radius ({cut:.6g} arcsec) must be larger "
+                             f"than the core radius ({core:.6g} arcsec)")
+        if "ellip_pot" in p:
+            eps = p["ellip_pot"]
+            emass = 2.0 * eps / (1.0 + eps * eps)
+        else:
+            emass = p.get("ellipticity", 0.0)
+            eps = (1.0 - math.sqrt(1.0 - emass * emass)) / emass if emass > 0 else 0.0
+        if eps > _kernels.EPS_MAX:
+            raise ValueError(f"{where}: ellipticity {emass} (epsilon {eps:.6g}) is too "
+                             f"close to 1: epsilon must be <= {_kernels.EPS_MAX} (axis "
+                             "ratio 1:2000)")
+        v_disp = p["v_disp"]
+        extra = (nan, nan, nan, nan, nan, "v_disp, core_radius, cut_radius")
+    if p["profile"] != 14:
+        b0 = 6.0 * math.pi * (v_disp / _C_KMS) ** 2 * _ARCSEC_PER_RAD
+    return (p["_name"], p["_line"], int(p["profile"]), x, y, emass, eps,
+            p.get("angle_pos", 0.0), core, cut, core * kpc, cut * kpc, v_disp,
+            p["z_lens"], p.get("mag", np.nan), b0, *extra, gamma, kappa)
+
+
+def read_lenstool(path, *, cosmology=None):
     """Read a Lenstool parameter file (``best.par``) of dPIE, NFW and shear potentials.
 
     Parameters
@@ -762,63 +823,7 @@ def read_lenstool(path, *, cosmology=None):  # noqa: C901, PLR0915
     kpc_per_arcsec = {z: cosmo.angular_diameter_distance(z).to_value(u.kpc) / _ARCSEC_PER_RAD
                       for z in z_planes}
 
-    cosd0 = math.cos(origin.dec.radian)
-    rows = []
-    for p in pots:
-        where = f"{path}, line {p['_line']}, block '{p['_label']}'"
-        kpc = kpc_per_arcsec[p["z_lens"]]
-        if "x_centre_wcs" in p:
-            dra = (p["x_centre_wcs"] - origin.ra.deg + 180.0) % 360.0 - 180.0
-            x = -dra * cosd0 * 3600.0
-        else:
-            x = p.get("x_centre", 0.0)
-        if "y_centre_wcs" in p:
-            y = (p["y_centre_wcs"] - origin.dec.deg) * 3600.0
-        else:
-            y = p.get("y_centre", 0.0)
-        nan = math.nan
-        gamma = kappa = nan
-        if p["profile"] == 14:
-            # external shear (e_grad.c, e_grad2.c): psi = gamma/2 (X^2 - Y^2) in the frame
-            # of angle_pos, plus kappa/2 (X^2 + Y^2); scaled by D_ls/D_s like the others
-            gamma, kappa = p["gamma"], p.get("kappa", 0.0)
-            emass = eps = core = cut = v_disp = b0 = nan
-            extra = (nan, nan, nan, nan, nan, "gamma, kappa")
-        elif p["profile"] == 12:
-            nfw = _nfw_parameters(path, p, cosmo, p["z_lens"], kpc)
-            # Lenstool's NFW takes its ellipticity in the potential: the value of
-            # 'ellipticite', or 3 * 'ellip_pot' (set_lens.c, e_grad.c, e_grad2.c)
-            emass = 3.0 * p["ellip_pot"] if "ellip_pot" in p else p.get("ellipticity", 0.0)
-            eps = emass
-            core = cut = nan
-            v_disp = nfw["v_disp"]
-            extra = (nfw["rs"], nfw["rs_kpc"], nfw["concentration"], nfw["m200"],
-                     nfw["r200_kpc"], nfw["definition"])
-        else:
-            core = (p["core_radius_kpc"] / kpc if "core_radius_kpc" in p
-                    else p["core_radius"])
-            cut = (p["cut_radius_kpc"] / kpc if "cut_radius_kpc" in p
-                   else p["cut_radius"])
-            if not cut > core:
-                raise ValueError(f"{where}: the cut radius ({cut:.6g} arcsec) must be larger "
-                                 f"than the core radius ({core:.6g} arcsec)")
-            if "ellip_pot" in p:
-                eps = p["ellip_pot"]
-                emass = 2.0 * eps / (1.0 + eps * eps)
-            else:
-                emass = p.get("ellipticity", 0.0)
-                eps = (1.0 - math.sqrt(1.0 - emass * emass)) / emass if emass > 0 else 0.0
-            if eps > _kernels.EPS_MAX:
-                raise ValueError(f"{where}: ellipticity {emass} (epsilon {eps:.6g}) is too "
-                                 f"close to 1: epsilon must be <= {_kernels.EPS_MAX} (axis "
-                                 "ratio 1:2000)")
-            v_disp = p["v_disp"]
-            extra = (nan, nan, nan, nan, nan, "v_disp, core_radius, cut_radius")
-        if p["profile"] != 14:
-            b0 = 6.0 * math.pi * (v_disp / _C_KMS) ** 2 * _ARCSEC_PER_RAD
-        rows.append((p["_name"], p["_line"], int(p["profile"]), x, y, emass, eps,
-                     p.get("angle_pos", 0.0), core, cut, core * kpc, cut * kpc, v_disp,
-                     p["z_lens"], p.get("mag", np.nan), b0, *extra, gamma, kappa))
+    rows = [_potential_row(path, p, origin, cosmo, kpc_per_arcsec[p["z_lens"]]) for p in pots]
     names = ("name", "line", "profile", "x_centre", "y_centre", "ellipticity", "epsilon",
              "angle_pos", "core_radius", "cut_radius", "core_radius_kpc", "cut_radius_kpc",
              "v_disp", "z_lens", "mag", "b0", "scale_radius", "scale_radius_kpc",
@@ -1349,7 +1354,45 @@ class DPIELensModel(LenstoolLensModel):
         return f"<DPIELensModel {len(self.params)} components, z_source={self.z_source}>"
 
 
-def read_lenstool_images(path, *, reference):  # noqa: C901, PLR0915
+def _catalogue_reference(tokens, text, where):
+    """The frame of a ``#REFERENCE`` line: None (absolute degrees) or its SkyCoord."""
+    if len(tokens) < 2 or tokens[1] not in ("0", "1", "3"):
+        raise ValueError(f"{where}: expected '#REFERENCE 0', '#REFERENCE 1 RA DEC' "
+                         f"or '#REFERENCE 3 RA DEC', got {text!r}")
+    if tokens[1] == "0":
+        return None
+    if len(tokens) != 4:
+        raise ValueError(f"{where}: '#REFERENCE {tokens[1]}' needs RA and DEC")
+    if tokens[1] == "3":
+        return SkyCoord(_number(tokens[2], where, "RA") * u.deg,
+                        _number(tokens[3], where, "DEC") * u.deg, frame="icrs")
+    return SkyCoord(tokens[2], tokens[3], unit=(u.hourangle, u.deg), frame="icrs")
+
+
+def _image_values(tokens, where):
+    """RA, DEC, a, b, theta, z and mag (NaN when not given) of one image line."""
+    cols = ("RA", "DEC", "a", "b", "theta", "z", "mag")
+    vals = [_number(tok, where, col) for tok, col in zip(tokens[1:], cols, strict=False)]
+    if len(vals) == 6:
+        vals.append(np.nan)
+    if vals[5] < 0:
+        raise ValueError(f"{where}: the redshift must be >= 0 (0: unknown), got {vals[5]}")
+    return vals
+
+
+def _catalogue_sky(path, c1, c2, ref):
+    """Sky positions of the catalogue columns RA, DEC (degrees, or arcsec from ``ref``)."""
+    if ref is None:
+        if ((c2 < -90) | (c2 > 90)).any():
+            raise ValueError(f"{path}: DEC outside [-90, 90] deg; a relative catalogue needs a "
+                             "'#REFERENCE 3 RA DEC' header")
+        return SkyCoord(c1 * u.deg, c2 * u.deg, frame="icrs")
+    ra = ref.ra.deg - c1 / (3600.0 * math.cos(ref.dec.radian))
+    dec = ref.dec.deg + c2 / 3600.0
+    return SkyCoord(ra % 360.0 * u.deg, dec * u.deg, frame="icrs")
+
+
+def read_lenstool_images(path, *, reference):
     """Read a Lenstool multiple-image catalogue (``arcs.dat``).
 
     One image per line: ``id RA DEC a b theta z [mag]``. Without a header the
@@ -1401,19 +1444,7 @@ def read_lenstool_images(path, *, reference):  # noqa: C901, PLR0915
             if tokens and tokens[0].upper() == "REFERENCE":
                 if rows:
                     raise ValueError(f"{where}: #REFERENCE must come before the images")
-                if len(tokens) < 2 or tokens[1] not in ("0", "1", "3"):
-                    raise ValueError(f"{where}: expected '#REFERENCE 0', '#REFERENCE 1 RA DEC' "
-                                     f"or '#REFERENCE 3 RA DEC', got {text!r}")
-                if tokens[1] == "0":
-                    file_ref = None
-                elif len(tokens) != 4:
-                    raise ValueError(f"{where}: '#REFERENCE {tokens[1]}' needs RA and DEC")
-                elif tokens[1] == "3":
-                    file_ref = SkyCoord(_number(tokens[2], where, "RA") * u.deg,
-                                        _number(tokens[3], where, "DEC") * u.deg, frame="icrs")
-                else:
-                    file_ref = SkyCoord(tokens[2], tokens[3], unit=(u.hourangle, u.deg),
-                                        frame="icrs")
+                file_ref = _catalogue_reference(tokens, text, where)
             continue
         tokens = text.split("#", 1)[0].split()
         if len(tokens) not in (7, 8):
@@ -1423,28 +1454,12 @@ def read_lenstool_images(path, *, reference):  # noqa: C901, PLR0915
         if ident in seen:
             raise ValueError(f"{where}: image {ident!r} already given at line {seen[ident]}")
         seen[ident] = number
-        cols = ("RA", "DEC", "a", "b", "theta", "z", "mag")
-        vals = [_number(tok, where, col) for tok, col in zip(tokens[1:], cols, strict=False)]
-        if len(vals) == 6:
-            vals.append(np.nan)
-        if vals[5] < 0:
-            raise ValueError(f"{where}: the redshift must be >= 0 (0: unknown), got {vals[5]}")
-        rows.append((ident, *vals, file_ref))
+        rows.append((ident, *_image_values(tokens, where), file_ref))
     if not rows:
         raise ValueError(f"{path}: no images")
     ident = [r[0] for r in rows]
-    c1 = np.array([r[1] for r in rows])
-    c2 = np.array([r[2] for r in rows])
-    ref = rows[-1][-1]
-    if ref is None:
-        if ((c2 < -90) | (c2 > 90)).any():
-            raise ValueError(f"{path}: DEC outside [-90, 90] deg; a relative catalogue needs a "
-                             "'#REFERENCE 3 RA DEC' header")
-        sky = SkyCoord(c1 * u.deg, c2 * u.deg, frame="icrs")
-    else:
-        ra = ref.ra.deg - c1 / (3600.0 * math.cos(ref.dec.radian))
-        dec = ref.dec.deg + c2 / 3600.0
-        sky = SkyCoord(ra % 360.0 * u.deg, dec * u.deg, frame="icrs")
+    sky = _catalogue_sky(path, np.array([r[1] for r in rows]), np.array([r[2] for r in rows]),
+                         rows[-1][-1])
     dra = (sky.ra.deg - origin.ra.deg + 180.0) % 360.0 - 180.0
     table = QTable()
     table["id"] = np.array(ident)
