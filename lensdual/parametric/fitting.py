@@ -682,7 +682,41 @@ def _run_emcee(emcee, logp, p_best, cov, lower, upper, n_walkers, n_steps, rng, 
     return samples, float(np.mean(acceptance)), tau, info
 
 
-def fit_parametric_lens(pairs, *, model=("NFW_ELLIPSE_CSE", "SHEAR"), z_lens=None,  # noqa: C901
+def _mcmc_walkers(n_walkers, n_free, n_mcmc):
+    """(walkers, steps per walker) of the MCMC, checked against the free parameters."""
+    if n_walkers is None:
+        n_walkers = max(8, 2 * n_free)
+    if n_walkers < 2 * n_free:
+        raise ValueError(f"n_walkers must be >= 2 * n_free = {2 * n_free} (emcee's "
+                         f"ensemble moves), got {n_walkers}")
+    n_steps = n_mcmc // n_walkers
+    if n_steps < 4:
+        raise ValueError(f"n_mcmc = {n_mcmc} gives {n_steps} step(s) per walker for "
+                         f"{n_walkers} walkers; need n_mcmc >= {4 * n_walkers}")
+    return n_walkers, n_steps
+
+
+def _multi_start(resid, param, n_starts, max_nfev, rng):
+    """The best of ``n_starts`` bounded least-squares fits (the first from ``param.start``)."""
+    from scipy.optimize import least_squares
+
+    starts = [np.clip(param.start, param.lower, param.upper)]
+    for _ in range(n_starts - 1):
+        starts.append(rng.uniform(param.lower, param.upper))
+    best = None
+    for p0 in starts:
+        # keep away from the bounds, where least_squares' trust region stalls
+        p0 = np.clip(p0, param.lower + 1e-6 * (param.upper - param.lower),
+                     param.upper - 1e-6 * (param.upper - param.lower))
+        res = least_squares(resid, p0, bounds=(param.lower, param.upper), method="trf",
+                            jac="3-point", x_scale="jac", max_nfev=max_nfev, xtol=1e-12, ftol=1e-12,
+                            gtol=1e-12)
+        if best is None or res.cost < best.cost:
+            best = res
+    return best
+
+
+def fit_parametric_lens(pairs, *, model=("NFW_ELLIPSE_CSE", "SHEAR"), z_lens=None,
                         z_source=None, cosmology=None, sigma_pos=0.06 * u.arcsec, fixed=None,
                         fixed_params=None, bounds=None, init=None, n_starts=8, max_nfev=2000,
                         mcmc=False, n_mcmc=4000, n_walkers=None, n_samples=300, seed=None,
@@ -842,7 +876,6 @@ def fit_parametric_lens(pairs, *, model=("NFW_ELLIPSE_CSE", "SHEAR"), z_lens=Non
     CONVERGENCE are always fixed.
     """
     from lenstronomy.LensModel.lens_model import LensModel
-    from scipy.optimize import least_squares
 
     # ---- validation, all before fitting
     if z_lens is None or z_source is None:
@@ -885,15 +918,7 @@ def fit_parametric_lens(pairs, *, model=("NFW_ELLIPSE_CSE", "SHEAR"), z_lens=Non
             "(fixed_params)"
         )
     if mcmc:
-        if n_walkers is None:
-            n_walkers = max(8, 2 * n_free)
-        if n_walkers < 2 * n_free:
-            raise ValueError(f"n_walkers must be >= 2 * n_free = {2 * n_free} (emcee's "
-                             f"ensemble moves), got {n_walkers}")
-        n_steps = n_mcmc // n_walkers
-        if n_steps < 4:
-            raise ValueError(f"n_mcmc = {n_mcmc} gives {n_steps} step(s) per walker for "
-                             f"{n_walkers} walkers; need n_mcmc >= {4 * n_walkers}")
+        n_walkers, n_steps = _mcmc_walkers(n_walkers, n_free, n_mcmc)
     rng = np.random.default_rng(seed)
 
     # ---- fitting
@@ -902,19 +927,7 @@ def fit_parametric_lens(pairs, *, model=("NFW_ELLIPSE_CSE", "SHEAR"), z_lens=Non
     def resid(p):
         return _residuals(lens_model, param.kwargs(p) + fixed_kwargs, theta, sigma, chi2)
 
-    starts = [np.clip(param.start, param.lower, param.upper)]
-    for _ in range(n_starts - 1):
-        starts.append(rng.uniform(param.lower, param.upper))
-    best = None
-    for p0 in starts:
-        # keep away from the bounds, where least_squares' trust region stalls
-        p0 = np.clip(p0, param.lower + 1e-6 * (param.upper - param.lower),
-                     param.upper - 1e-6 * (param.upper - param.lower))
-        res = least_squares(resid, p0, bounds=(param.lower, param.upper), method="trf",
-                            jac="3-point", x_scale="jac", max_nfev=max_nfev, xtol=1e-12, ftol=1e-12,
-                            gtol=1e-12)
-        if best is None or res.cost < best.cost:
-            best = res
+    best = _multi_start(resid, param, n_starts, max_nfev, rng)
     p_best = best.x
     chi2_best = float(2 * best.cost)
     jtj = best.jac.T @ best.jac
