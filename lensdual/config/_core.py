@@ -795,7 +795,54 @@ class _Validator:
             size = self.get_angle(table, "size", sec)
         return center, size
 
-    def image(self, table, sec):  # noqa: C901
+    def image_unit_key(self, table, sec):
+        """The ``unit`` of an image table: None (not given), a unit, or _BAD (recorded)."""
+        if "unit" not in table:
+            return None
+        if not isinstance(table["unit"], str):
+            self.add(f"[{sec}] unit: expected a unit string such as \"nJy\", "
+                     f"got {_describe(table['unit'])}")
+            return _BAD
+        unit, message = _parse_unit(table["unit"])
+        if unit is None:
+            self.add(f"[{sec}] unit: {message}")
+            return _BAD
+        return unit
+
+    def check_bunit(self, info, unit, table, sec, image):
+        """The image's BUNIT: a valid unit, and the one of ``unit`` when both are given."""
+        if info is not None and unit is None and info.bunit:
+            if _parse_unit(info.bunit)[0] is None:
+                self.add(f"[{sec}] image: the BUNIT {info.bunit!r} of {image} is "
+                         'not a valid astropy unit; give the unit, e.g. unit = "nJy"')
+        elif info is not None and unit not in (None, _BAD) and info.bunit:
+            header_unit = _parse_unit(info.bunit)[0]
+            if header_unit is not None and header_unit != unit:
+                self.add(f"[{sec}] unit: {table['unit']!r} is given, but the BUNIT of "
+                         f"{image} says {info.bunit!r}; remove unit (the header is "
+                         "right) or correct the header (a typo here scales the fluxes)")
+
+    def check_maps(self, maps, info, image_unit, sec):
+        """The error or weight map of an image: its shape, and the error map's unit."""
+        for key, (path, map_hdu) in maps.items():
+            if path is None or path is _BAD or map_hdu is _BAD:
+                continue
+            map_info = self.inspect_fits(path, map_hdu, sec, key, f"{key}_hdu")
+            if info is not None and map_info is not None and map_info.shape != info.shape:
+                self.add(f"[{sec}] {key}: the {key} map in {path} has shape {map_info.shape}, "
+                         f"the image {info.shape}")
+            if key == "error" and map_info is not None and map_info.bunit:
+                map_unit = _parse_unit(map_info.bunit)[0]
+                if map_unit is None:
+                    self.add(f"[{sec}] error: the BUNIT {map_info.bunit!r} of the error map "
+                             f"{path} is not a valid astropy unit")
+                elif image_unit is not None and not map_unit.is_equivalent(image_unit):
+                    self.add(f"[{sec}] error: the error map {path} is in {map_unit} (its "
+                             f"BUNIT), the image in {image_unit}: not convertible; give both "
+                             "in one unit (e.g. convert MJy/sr to flux per pixel with the "
+                             "pixel area, PIXAR_SR)")
+
+    def image(self, table, sec):
         self.unknown_keys(table, _IMAGE_KEYS, sec)
         if "image" not in table:
             self.add(f"[{sec}] image: missing (the FITS file of the image)")
@@ -819,30 +866,11 @@ class _Validator:
             found = _product_map(image)
             if found is not None:
                 maps[found[0]] = (image, found[1])
-        unit = None
-        if "unit" in table:
-            if not isinstance(table["unit"], str):
-                self.add(f"[{sec}] unit: expected a unit string such as \"nJy\", "
-                         f"got {_describe(table['unit'])}")
-                unit = _BAD
-            else:
-                unit, message = _parse_unit(table["unit"])
-                if unit is None:
-                    self.add(f"[{sec}] unit: {message}")
-                    unit = _BAD
+        unit = self.image_unit_key(table, sec)
         info = None
         if image is not _BAD and hdu is not _BAD:
             info = self.inspect_fits(image, hdu, sec, "image", "hdu", celestial=True)
-            if info is not None and unit is None and info.bunit:
-                if _parse_unit(info.bunit)[0] is None:
-                    self.add(f"[{sec}] image: the BUNIT {info.bunit!r} of {image} is "
-                             'not a valid astropy unit; give the unit, e.g. unit = "nJy"')
-            elif info is not None and unit not in (None, _BAD) and info.bunit:
-                header_unit = _parse_unit(info.bunit)[0]
-                if header_unit is not None and header_unit != unit:
-                    self.add(f"[{sec}] unit: {table['unit']!r} is given, but the BUNIT of "
-                             f"{image} says {info.bunit!r}; remove unit (the header is "
-                             "right) or correct the header (a typo here scales the fluxes)")
+            self.check_bunit(info, unit, table, sec, image)
         if unit is _BAD or info is None:
             image_unit = None  # unknown: its problem is already recorded
         elif unit is not None:
@@ -851,23 +879,7 @@ class _Validator:
             image_unit = _parse_unit(info.bunit)[0]
         else:
             image_unit = u.dimensionless_unscaled
-        for key, (path, map_hdu) in maps.items():
-            if path is None or path is _BAD or map_hdu is _BAD:
-                continue
-            map_info = self.inspect_fits(path, map_hdu, sec, key, f"{key}_hdu")
-            if info is not None and map_info is not None and map_info.shape != info.shape:
-                self.add(f"[{sec}] {key}: the {key} map in {path} has shape {map_info.shape}, "
-                         f"the image {info.shape}")
-            if key == "error" and map_info is not None and map_info.bunit:
-                map_unit = _parse_unit(map_info.bunit)[0]
-                if map_unit is None:
-                    self.add(f"[{sec}] error: the BUNIT {map_info.bunit!r} of the error map "
-                             f"{path} is not a valid astropy unit")
-                elif image_unit is not None and not map_unit.is_equivalent(image_unit):
-                    self.add(f"[{sec}] error: the error map {path} is in {map_unit} (its "
-                             f"BUNIT), the image in {image_unit}: not convertible; give both "
-                             "in one unit (e.g. convert MJy/sr to flux per pixel with the "
-                             "pixel area, PIXAR_SR)")
+        self.check_maps(maps, info, image_unit, sec)
         if not _valid(image, hdu, unit, *maps["error"], *maps["weight"]):
             return None, info
         spec = ImageSpec(image=image, hdu=hdu, error=maps["error"][0],
