@@ -197,7 +197,7 @@ class ImageFinder:
         return out
 
     # ------------------------------------------------------------------ the grid
-    def _build(self):  # noqa: PLR0915
+    def _build(self):
         n, h, r = self._n, self.spacing, self.refine
         levels = self.refine_levels if r > 1 else 0
         scale = r**levels  # base cell size in units of the finest lattice
@@ -276,8 +276,16 @@ class ImageFinder:
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             tol, multi = self._triangle_properties(tx, ty, bx, by, jac, tri)
 
-        # bucket grid over the traced source plane
-        used = np.zeros(tx.size, dtype=bool)
+        self._build_buckets(tx.size, bx, by, tri, tol)
+        self._tx, self._ty, self._bx, self._by = tx, ty, bx, by
+        self._tri, self._tol, self._multi = tri, tol, multi
+        self.n_points = int(tx.size)
+        self.n_triangles = int(tri.shape[0])
+        self.n_candidates = self.n_starts = 0
+
+    def _build_buckets(self, n_points, bx, by, tri, tol):
+        """The bucket grid over the traced source plane (``_source_box``, ``_bucket_grid``)."""
+        used = np.zeros(n_points, dtype=bool)
         used[tri.ravel()] = True
         if not used.any():
             raise ValueError("the lens model is not finite anywhere on the grid")
@@ -293,12 +301,6 @@ class ImageFinder:
         self._bucket_grid = (float(x_lo), float(y_lo), float(cell), nbx, nby)
         self._start, self._items, self._global = _kernels.bucket_triangles(
             bx, by, tri, tol, x_lo, y_lo, cell, nbx, nby, _MAX_COVER)
-
-        self._tx, self._ty, self._bx, self._by = tx, ty, bx, by
-        self._tri, self._tol, self._multi = tri, tol, multi
-        self.n_points = int(tx.size)
-        self.n_triangles = int(tri.shape[0])
-        self.n_candidates = self.n_starts = 0
 
     def _component_centers(self):
         """(x, y) of the lens components that have a finite centre inside the grid."""
