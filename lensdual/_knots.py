@@ -135,11 +135,22 @@ class KnotPairs:
         return len(self.pairs)
 
     def dropped(self):
-        """The images not used in any pairs table, with their status and note."""
+        """The images not used in any pairs table, with their status and note.
+
+        Returns
+        -------
+        images : `~astropy.table.QTable`
+            The rows of ``images`` whose status is not ``"used"``.
+        """
         return self.images[self.images["status"] != "used"]
 
     def summary(self):
-        """A short text report: pairs per macro-image pair and images left out."""
+        """A short text report: pairs per macro-image pair and images left out.
+
+        Returns
+        -------
+        text : str
+        """
         lines = [f"{len(self.images)} knot images, assigned by {self.assign}"]
         for (m1, m2), tab in self.pairs.items():
             lines.append(f"  {m1} - {m2}: {len(tab)} knots")

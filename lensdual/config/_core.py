@@ -292,7 +292,14 @@ class KnotSpec:
     sigma_pos: u.Quantity | str = _d("knots", "sigma_pos")
 
     def knot_filter(self):
-        """The ``knots`` argument of :func:`~lensdual.pairing.pairs_from_knots`."""
+        """The ``knots`` argument of :func:`~lensdual.pairing.pairs_from_knots`.
+
+        Returns
+        -------
+        knots : callable, sequence of str or None
+            None for every system, a predicate on the system name for a
+            range, or the list of the systems named.
+        """
         if not self.systems:
             return None
         if self.systems[0] == "range":

@@ -981,6 +981,10 @@ class LenstoolModel:
         ----------
         xy : `~astropy.units.Quantity`, shape (N, 2)
             Angles in the model frame.
+
+        Returns
+        -------
+        sky : `~astropy.coordinates.SkyCoord`, shape (N,)
         """
         arr = as_positions(xy, "xy")
         ra = self.origin.ra.deg - arr[:, 0] / (3600.0 * math.cos(self.origin.dec.radian))
@@ -994,6 +998,17 @@ class LenstoolModel:
 
         ``z_lens`` defaults to the main plane, `z_lens`; give another of
         `z_planes` for the ratio of that plane.
+
+        Parameters
+        ----------
+        z_source : float
+            Source redshift.
+        z_lens : float, optional
+            Lens-plane redshift (default the main plane's).
+
+        Returns
+        -------
+        ratio : float
         """
         zs = as_real(z_source, "z_source")
         zl = self.z_lens if z_lens is None else as_real(z_lens, "z_lens")
@@ -1028,6 +1043,11 @@ class LenstoolModel:
             which each potential is scaled by its own plane's ``D_ls / D_s``
             (what Lenstool 6.8 does for the Hessian), not the multi-plane lens
             equation of `lens_model`.
+
+        Returns
+        -------
+        params : `~numpy.ndarray`
+            Shape (M, 7), (K, 6) or (S, 5), as described for ``profile``.
         """
         if profile not in (81, 12, 14):
             raise ValueError(f"profile must be 81 (dPIE), 12 (NFW) or 14 (external shear), "
@@ -1144,6 +1164,10 @@ class LenstoolModel:
             `~lensdual.simulation.LensSystem`).
         n_threads : int
             See `lens_model`.
+
+        Returns
+        -------
+        system : `~lensdual.simulation.LensSystem`
         """
         from ..simulation.lens_system import LensSystem
 
@@ -1267,36 +1291,114 @@ class LenstoolLensModel:
         return res[()] if shape == () else res
 
     def alpha(self, x, y, kwargs=None, k=None):
-        """Deflection ``(alpha_x, alpha_y)`` at ``(x, y)``, arcsec."""
+        """Deflection ``(alpha_x, alpha_y)`` at ``(x, y)``, arcsec.
+
+        Parameters
+        ----------
+        x, y : array_like
+            Image-plane positions, arcsec (any shape).
+        kwargs, k
+            Ignored (lenstronomy's ``LensModel`` interface).
+
+        Returns
+        -------
+        alpha_x, alpha_y : `~numpy.ndarray`
+            The deflection, arcsec, of the shape of ``x``.
+        """
         out, shape = self._run((_kernels.dpie_deflection, _kernels.nfw_deflection, "alpha"),
                                x, y)
         return self._shaped(out[:, 0], shape), self._shaped(out[:, 1], shape)
 
     def ray_shooting(self, x, y, kwargs=None, k=None):
-        """Source-plane positions ``(x - alpha_x, y - alpha_y)``, arcsec."""
+        """Source-plane positions ``(x - alpha_x, y - alpha_y)``, arcsec.
+
+        Parameters
+        ----------
+        x, y : array_like
+            Image-plane positions, arcsec (any shape).
+        kwargs, k
+            Ignored (lenstronomy's ``LensModel`` interface).
+
+        Returns
+        -------
+        beta_x, beta_y : `~numpy.ndarray`
+            Source-plane positions, arcsec, of the shape of ``x``.
+        """
         ax, ay = self.alpha(x, y)
         return np.subtract(x, ax), np.subtract(y, ay)
 
     def hessian(self, x, y, kwargs=None, k=None, diff=None):
-        """Second derivatives of the potential, ``(f_xx, f_xy, f_yx, f_yy)``."""
+        """Second derivatives of the potential, ``(f_xx, f_xy, f_yx, f_yy)``.
+
+        Parameters
+        ----------
+        x, y : array_like
+            Image-plane positions, arcsec (any shape).
+        kwargs, k, diff
+            Ignored (lenstronomy's ``LensModel`` interface).
+
+        Returns
+        -------
+        f_xx, f_xy, f_yx, f_yy : `~numpy.ndarray`
+            Of the shape of ``x``.
+        """
         out, shape = self._run((_kernels.dpie_hessian, _kernels.nfw_hessian, "hessian"), x, y)
         fxy = self._shaped(out[:, 1], shape)
         return self._shaped(out[:, 0], shape), fxy, fxy, self._shaped(out[:, 2], shape)
 
     def alpha_hessian(self, x, y, kwargs=None):
-        """Deflection and Hessian in one pass: ``alpha_x, alpha_y, f_xx, f_xy, f_yy``."""
+        """Deflection and Hessian in one pass: ``alpha_x, alpha_y, f_xx, f_xy, f_yy``.
+
+        Parameters
+        ----------
+        x, y : array_like
+            Image-plane positions, arcsec (any shape).
+        kwargs
+            Ignored (lenstronomy's ``LensModel`` interface).
+
+        Returns
+        -------
+        alpha_x, alpha_y, f_xx, f_xy, f_yy : `~numpy.ndarray`
+            Of the shape of ``x``.
+        """
         out, shape = self._run((_kernels.dpie_deflection_hessian,
                                 _kernels.nfw_deflection_hessian, "both"), x, y)
         return tuple(self._shaped(out[:, i], shape) for i in range(5))
 
     def kappa(self, x, y, kwargs=None, k=None):
-        """Convergence at ``(x, y)`` (closed form)."""
+        """Convergence at ``(x, y)`` (closed form).
+
+        Parameters
+        ----------
+        x, y : array_like
+            Image-plane positions, arcsec (any shape).
+        kwargs, k
+            Ignored (lenstronomy's ``LensModel`` interface).
+
+        Returns
+        -------
+        kappa : `~numpy.ndarray`
+            Of the shape of ``x``.
+        """
         out, shape = self._run((_kernels.dpie_convergence, _kernels.nfw_convergence, "kappa"),
                                x, y)
         return self._shaped(out, shape)
 
     def magnification(self, x, y, kwargs=None, k=None):
-        """Signed magnification ``1 / det(d beta / d theta)``."""
+        """Signed magnification ``1 / det(d beta / d theta)``.
+
+        Parameters
+        ----------
+        x, y : array_like
+            Image-plane positions, arcsec (any shape).
+        kwargs, k
+            Ignored (lenstronomy's ``LensModel`` interface).
+
+        Returns
+        -------
+        mu : `~numpy.ndarray`
+            Of the shape of ``x``.
+        """
         fxx, fxy, _, fyy = self.hessian(x, y)
         det = (1.0 - fxx) * (1.0 - fyy) - fxy * fxy
         with np.errstate(divide="ignore"):
