@@ -29,7 +29,8 @@ from astropy import units as u
 
 from ._pairs_table import ARCS, POS_ERR_COLUMNS, arc_xy, flux_col, flux_err_col
 from ._validation import as_angle_scalar, as_real
-from .estimators import DEFAULT_METHOD, estimate_sigma_pos
+from .duality import DEFAULT_SNR_THRESHOLD
+from .estimators import DEFAULT_METHOD, DEFAULT_N_BOOTSTRAP, estimate_sigma_pos
 
 __all__ = [
     "Analysis",
@@ -130,9 +131,10 @@ def _catalogue(images, psf, catalog=None, oversampling=None):
     return out
 
 
-def analyse(images, *, psf=None, estimator="adaptive", sigma_pos="auto", n_bootstrap=1000,
-            snr_threshold=3.0, seed=0, catalogs=None, manual_pairs=None, progress=None,
-            null_realisations=0, oversampling=None):
+def analyse(images, *, psf=None, estimator=DEFAULT_METHOD, sigma_pos="auto",
+            n_bootstrap=DEFAULT_N_BOOTSTRAP, snr_threshold=DEFAULT_SNR_THRESHOLD, seed=0,
+            catalogs=None, manual_pairs=None, progress=None, null_realisations=0,
+            oversampling=None):
     """Run the pipeline from images of two arcs to the duality table.
 
     Parameters
@@ -653,7 +655,8 @@ def _model_name(path, taken):
 
 
 def analyse_knots(catalogue, macro_images, *, knots=None, assign=None, mapping=None, models=(),
-                  z_source=None, sigma_pos="auto", method=DEFAULT_METHOD, snr_threshold=3.0):
+                  z_source=None, sigma_pos="auto", method=DEFAULT_METHOD,
+                  snr_threshold=DEFAULT_SNR_THRESHOLD):
     """Knot constellation of a catalogue: pairs, ``mu_size`` and model ratios.
 
     Parameters

@@ -17,7 +17,9 @@ from dataclasses import dataclass
 
 from astropy import units as u
 
-from ..estimators import DEFAULT_METHOD, METHODS
+from ..duality import DEFAULT_SNR_THRESHOLD
+from ..estimators import DEFAULT_METHOD, DEFAULT_N_BOOTSTRAP, METHODS
+from ..parametric.fitting import DEFAULT_MODEL
 from ._writer import _toml_string, _toml_value
 
 __all__ = ["Field", "FIELDS", "TABLES", "REQUIRED", "MIN_NULL_REALISATIONS", "table_keys",
@@ -201,9 +203,9 @@ FIELDS = (
     _F("analysis", "sigma_pos", '"auto" or angle', "auto",
        'positional error of the sources: "auto" (errors of the PSF fits) or an angle > 0',
        note='"auto" (errors of the PSF fits) or an angle > 0'),
-    _F("analysis", "n_bootstrap", "integer", 1000, "number of bootstrap resamplings",
+    _F("analysis", "n_bootstrap", "integer", DEFAULT_N_BOOTSTRAP, "number of bootstrap resamplings",
        minimum=10),
-    _F("analysis", "snr_threshold", "real", 3.0,
+    _F("analysis", "snr_threshold", "real", DEFAULT_SNR_THRESHOLD,
        "significance threshold of a duality violation", above=0),
     _F("analysis", "seed", "integer", 0, "seed of the random numbers", minimum=0),
     _F("analysis", "null_realisations", "integer", 0,
@@ -262,7 +264,7 @@ FIELDS = (
 
     _F("parametric", "lenstool", "file", None, "a Lenstool parameter file to compare with"),
     _F("parametric", "fit", "boolean", False, "fit a lenstronomy model to the pairs"),
-    _F("parametric", "model", "list of strings", ("NFW_ELLIPSE_CSE", "SHEAR"),
+    _F("parametric", "model", "list of strings", DEFAULT_MODEL,
        "the lenstronomy profiles of the fit"),
     _F("parametric", "z_lens", "real", None,
        "the lens redshift; required with fit = true or lenstool", above=0),

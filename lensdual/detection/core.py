@@ -41,7 +41,7 @@ def _readonly(array):
     return view
 
 
-@dataclass(kw_only=True, eq=False, repr=False)
+@dataclass(kw_only=True, eq=False, repr=False, frozen=True)
 class PointSourceMap:
     """Output of :class:`PointSourceFilter`: the candidate map and its ingredients.
 

@@ -20,8 +20,9 @@ from .._validation import (
 from ..exceptions import EstimatorWarning
 from . import _kernels
 
-__all__ = ["METHODS", "DEFAULT_METHOD", "DEFAULT_MAX_NEIGHBOURS", "ADAPTIVE_STATUS",
-           "TESTABLE_STATUS", "relative_jacobian", "size_magnification", "estimate_sigma_pos"]
+__all__ = ["METHODS", "DEFAULT_METHOD", "DEFAULT_N_BOOTSTRAP", "DEFAULT_MAX_NEIGHBOURS",
+           "ADAPTIVE_STATUS", "TESTABLE_STATUS", "relative_jacobian", "size_magnification",
+           "estimate_sigma_pos"]
 
 #: Estimators known to :func:`relative_jacobian`, with the smallest number of
 #: pairs each one needs. ``"adaptive"`` (the default of
@@ -32,6 +33,11 @@ METHODS = {"2v": 3, "quad": 3, "quad2": 3, "adaptive": 7}
 #: The default estimator of :func:`size_magnification` and
 #: :func:`~lensdual.duality.check_duality`.
 DEFAULT_METHOD = "adaptive"
+
+#: The default number of bootstrap realisations of the paper's estimators
+#: (:func:`size_magnification`, :func:`~lensdual.duality.check_duality`,
+#: ``lensdual run``).
+DEFAULT_N_BOOTSTRAP = 1000
 
 _METHOD_CODES = {
     "2v": _kernels.METHOD_2V,
@@ -456,7 +462,7 @@ def size_magnification(
     method=DEFAULT_METHOD,
     *,
     sigma_pos=0.06 * u.arcsec,
-    n_bootstrap=1000,
+    n_bootstrap=DEFAULT_N_BOOTSTRAP,
     seed=None,
     weight_power=2,
     min_angle=5 * u.deg,

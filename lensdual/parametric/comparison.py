@@ -17,7 +17,13 @@ from astropy.table import QTable, Table
 from .._frames import tangent_to_sky, tangent_xy
 from .._pairs_table import POS_ERR_COLUMNS, POSITION_COLUMNS
 from .._validation import as_real
-from .fitting import compare_with_parametric, fit_parametric_lens, plot_parametric_comparison
+from ..duality import DEFAULT_SNR_THRESHOLD
+from .fitting import (
+    DEFAULT_MODEL,
+    compare_with_parametric,
+    fit_parametric_lens,
+    plot_parametric_comparison,
+)
 from .lenstool import LenstoolModel, read_lenstool
 
 __all__ = ["parametric_comparison"]
@@ -179,8 +185,9 @@ def _add_lenstool_columns(parametric, lt_table):
 
 
 def parametric_comparison(pairs, *, lenstool=None, fit=False,
-                          model=("NFW_ELLIPSE_CSE", "SHEAR"), z_lens=None, z_source=None,
-                          reference=None, centre=None, fit_kwargs=None, snr_threshold=3.0,
+                          model=DEFAULT_MODEL, z_lens=None, z_source=None,
+                          reference=None, centre=None, fit_kwargs=None,
+                          snr_threshold=DEFAULT_SNR_THRESHOLD,
                           n_samples=300, seed=0):
     r"""Compare the pairs' flux ratios with ``mu_size`` and parametric models, in one call.
 

@@ -10,6 +10,7 @@ magnification ``mu_size`` and the flux ratio ``mu_flux`` of
 draws the three ratios. See :doc:`/parametric_fits` for the method.
 """
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -23,14 +24,21 @@ from .._validation import (
     as_real,
     as_redshifts,
 )
+from ..duality import DEFAULT_SNR_THRESHOLD
 
 __all__ = [
+    "DEFAULT_MODEL",
     "PROFILE_DEFAULTS",
     "ParametricFit",
     "fit_parametric_lens",
     "compare_with_parametric",
     "plot_parametric_comparison",
 ]
+
+#: The default lenstronomy profiles of :func:`fit_parametric_lens` (and of
+#: ``lensdual run``'s ``[parametric]`` fit): an elliptical NFW halo and
+#: external shear.
+DEFAULT_MODEL = ("NFW_ELLIPSE_CSE", "SHEAR")
 
 # (lower, upper, init, log) per parameter; "R" in a string is replaced by the
 # data scale (median distance of the images from the frame origin, >= 1 arcsec).
@@ -309,7 +317,7 @@ def _residuals(lens_model, kwargs, theta, sigma, kind):
 # ---------------------------------------------------------------------- result
 
 
-@dataclass(kw_only=True, eq=False, repr=False)
+@dataclass(kw_only=True, eq=False, repr=False, frozen=True)
 class ParametricFit:
     """The result of :func:`fit_parametric_lens` (made by it, not by hand).
 
@@ -716,7 +724,7 @@ def _multi_start(resid, param, n_starts, max_nfev, rng):
     return best
 
 
-def fit_parametric_lens(pairs, *, model=("NFW_ELLIPSE_CSE", "SHEAR"), z_lens=None,
+def fit_parametric_lens(pairs, *, model=DEFAULT_MODEL, z_lens=None,
                         z_source=None, cosmology=None, sigma_pos=0.06 * u.arcsec, fixed=None,
                         fixed_params=None, bounds=None, init=None, n_starts=8, max_nfev=2000,
                         mcmc=False, n_mcmc=4000, n_walkers=None, n_samples=300, seed=None,
@@ -974,7 +982,7 @@ def fit_parametric_lens(pairs, *, model=("NFW_ELLIPSE_CSE", "SHEAR"), z_lens=Non
     tab.meta["dof"] = fit.dof
     if mcmc_info is not None:
         tab.meta["mcmc"] = mcmc_info
-    fit.predictions = tab
+    fit = dataclasses.replace(fit, predictions=tab)
     return fit
 
 
@@ -992,7 +1000,8 @@ def _ln_err(tab, name):
         return np.asarray(tab[f"{name}_err"], dtype=float) / value
 
 
-def compare_with_parametric(duality_table, fit, *, z_source=None, snr_threshold=3.0,
+def compare_with_parametric(duality_table, fit, *, z_source=None,
+                            snr_threshold=DEFAULT_SNR_THRESHOLD,
                             n_samples=300, seed=None):
     r"""Compare flux ratios with the size magnification and a parametric model.
 

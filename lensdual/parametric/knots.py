@@ -25,6 +25,7 @@ from astropy.table import QTable, Table
 
 from .._pairs_table import arc_xy
 from .._validation import as_angle_scalar, as_real
+from ..duality import DEFAULT_SNR_THRESHOLD
 
 __all__ = ["compare_size_with_models", "plot_size_vs_model"]
 
@@ -110,7 +111,7 @@ class _KwargsModel:
 
 
 def compare_size_with_models(pairs, models, *, sigma_pos, z_source=None, method="adaptive",
-                             snr_threshold=3.0):
+                             snr_threshold=DEFAULT_SNR_THRESHOLD):
     r"""Size magnification per pair beside one or several models' magnification ratios.
 
     Parameters

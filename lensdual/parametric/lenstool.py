@@ -67,6 +67,7 @@ from astropy.coordinates import SkyCoord
 from astropy.cosmology import FlatLambdaCDM, LambdaCDM, w0waCDM
 from astropy.table import QTable
 
+from .._frames import ARCSEC_PER_RAD as _ARCSEC_PER_RAD
 from .._validation import DEFAULT_COSMOLOGY, as_cosmology, as_int, as_positions, as_real
 from . import _kernels
 from ._multiplane import LenstoolMultiPlaneLensModel
@@ -74,7 +75,6 @@ from ._multiplane import LenstoolMultiPlaneLensModel
 __all__ = ["LenstoolModel", "LenstoolLensModel", "LenstoolMultiPlaneLensModel",
            "DPIELensModel", "LenstoolKeywordWarning", "read_lenstool", "read_lenstool_images"]
 
-_ARCSEC_PER_RAD = 180.0 / math.pi * 3600.0
 _C_KMS = const.c.to_value(u.km / u.s)
 #: Columns of the external-shear parameters (profile 14): x_centre, y_centre, theta
 #: (rad, angle_pos), gamma, kappa (both already multiplied by D_ls / D_s).
