@@ -32,6 +32,9 @@ from ._validation import as_angle_scalar, as_real
 from .duality import DEFAULT_SNR_THRESHOLD
 from .estimators import DEFAULT_METHOD, DEFAULT_N_BOOTSTRAP, estimate_sigma_pos
 
+# The seed of analyse (and of lensdual run's [analysis] seed): runs repeat.
+_DEFAULT_SEED = 0
+
 __all__ = [
     "Analysis",
     "PipelineError",
@@ -132,7 +135,8 @@ def _catalogue(images, psf, catalog=None, oversampling=None):
 
 
 def analyse(images, *, psf=None, estimator=DEFAULT_METHOD, sigma_pos="auto",
-            n_bootstrap=DEFAULT_N_BOOTSTRAP, snr_threshold=DEFAULT_SNR_THRESHOLD, seed=0,
+            n_bootstrap=DEFAULT_N_BOOTSTRAP, snr_threshold=DEFAULT_SNR_THRESHOLD,
+            seed=_DEFAULT_SEED,
             catalogs=None, manual_pairs=None, progress=None, null_realisations=0,
             oversampling=None):
     """Run the pipeline from images of two arcs to the duality table.

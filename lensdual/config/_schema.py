@@ -20,6 +20,7 @@ from astropy import units as u
 from ..duality import DEFAULT_SNR_THRESHOLD
 from ..estimators import DEFAULT_METHOD, DEFAULT_N_BOOTSTRAP, METHODS
 from ..parametric.fitting import DEFAULT_MODEL
+from ..pipeline import _DEFAULT_SEED
 from ._writer import _toml_string, _toml_value
 
 __all__ = ["Field", "FIELDS", "TABLES", "REQUIRED", "MIN_NULL_REALISATIONS", "table_keys",
@@ -207,7 +208,7 @@ FIELDS = (
        minimum=10),
     _F("analysis", "snr_threshold", "real", DEFAULT_SNR_THRESHOLD,
        "significance threshold of a duality violation", above=0),
-    _F("analysis", "seed", "integer", 0, "seed of the random numbers", minimum=0),
+    _F("analysis", "seed", "integer", _DEFAULT_SEED, "seed of the random numbers", minimum=0),
     _F("analysis", "null_realisations", "integer", 0,
        f"realisations of the null calibration: 0 (off) or >= {MIN_NULL_REALISATIONS}; "
        'needs estimator "adaptive"',
