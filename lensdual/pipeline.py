@@ -83,7 +83,7 @@ def _fmt(value, spec=".3f"):
 # ---------------------------------------------------------------------------
 
 
-@dataclass
+@dataclass(frozen=True)
 class Analysis:
     """What :func:`analyse` found.
 
