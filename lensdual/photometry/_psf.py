@@ -8,6 +8,7 @@ work lives in the modules beside this one: the PSF profiles
 (``_inputs``) and the fits (``_fitting``).
 """
 
+import textwrap
 import warnings
 
 import numpy as np
@@ -149,6 +150,171 @@ class _ImageReader:
         return fitdata, invalid, error, self.x - offset[0], self.y - offset[1], offset, box
 
 
+# Docstring parts shared by ArcPSFPhotometry, its __call__ and psf_photometry:
+# one text each, put in place of the "@name@" lines by _fill_doc.
+_DOC_PARTS = {
+    "image_positions": r"""
+image : `~astropy.nddata.CCDData`, `~astropy.nddata.NDData` or array
+    The image (a `~numpy.ndarray`, masked array or `~astropy.units.Quantity`
+    is accepted too). An NDData's ``mask`` (True = bad), ``uncertainty``
+    (`~astropy.nddata.StdDevUncertainty`, or a variance / inverse
+    variance, used as the 1-sigma pixel errors that weight the fit),
+    ``unit`` and ``wcs`` are used; NaN and infinite pixels, and pixels
+    whose error is not positive, are ignored. The input is not modified.
+positions : (N, 2) array, `~astropy.table.Table` or `~astropy.coordinates.SkyCoord`
+    Initial positions: (x, y) pixel coordinates (0-based, as in numpy
+    and photutils); a table with pixel columns (``x_centroid`` /
+    ``y_centroid`` as made by `~lensdual.detection.find_point_sources`,
+    or ``x`` / ``y``, ``x_init`` / ``y_init``, ``x_fit`` / ``y_fit``;
+    its ``id`` column is kept); or sky positions (needs a WCS). A
+    position off the image (or not finite) is not fitted: its row is NaN
+    and flagged ``OUTSIDE_IMAGE``.
+""",
+    "label": r"""
+label : str, optional
+    How messages name the image, e.g. ``"arc L1, band F150W"``; the file
+    in the image's ``meta['FILENAME']`` (or ``filename``, ``file``) is
+    added when present. Default ``"image"``.
+""",
+    "settings": r"""
+psf : `~astropy.units.Quantity`, float, 2-D array, `~photutils.psf.ImagePSF` or None, optional
+    The PSF: a circular Gaussian of this FWHM (an angle, which needs a
+    celestial WCS, a Quantity in ``u.pix``, or a number of pixels),
+    integrated over the pixels; a 2-D PSF image (any normalisation: it is
+    rescaled; centred on its central pixel; detector-sampled, or
+    oversampled with ``oversampling``); or a photutils
+    `~photutils.psf.ImagePSF` (used as it is, with its oversampling and
+    normalisation). None (default): a Gaussian whose FWHM is fitted
+    first to all sources (the inverse-variance weighted median of the
+    per-source FWHM), then held fixed; it is recorded in
+    ``meta['fwhm']``.
+fit_shape : int or (int, int), optional
+    Odd size (ny, nx) of the fitting box, >= 3. Default: 2 * ceil(2 *
+    FWHM) + 1 pixels (at least 9) for ``"ridge"``, 2 * ceil(1.5 * FWHM)
+    + 1 (at least 5) otherwise; the FWHM of an image PSF is the diameter
+    of its area above half maximum.
+background : str or `~photutils.background.LocalBackground`, optional
+    How the light of the arc under each source is handled:
+
+    * ``"ridge"`` (default): fit, with the PSF, an arc-aligned background
+      :math:`f(u) + g(u)\,v + c\,v^2`, where :math:`u` runs across the
+      arc and :math:`v` along it (directions from the image's structure
+      tensor at the box centre), :math:`f` and :math:`g` are
+      piecewise-linear on knots about 0.6 FWHM apart. The arc's cross
+      profile is free, its variation along the arc is linear (plus a
+      common curvature);
+    * ``"residual"``: fit the *high-pass filtered* image,
+      ``image - G * image`` with ``G`` a Gaussian of ``smooth_sigma``
+      pixels (the residual image of `~lensdual.detection.PointSourceFilter`,
+      without its clipping), with the *same filter applied to the PSF
+      model* (which makes the flux exact: the filter also removes part of
+      the source's own wings), plus a fitted constant;
+    * ``"residual-plane"``: the same with a fitted tilted plane;
+    * ``"plane"``, ``"quadratic"``, ``"constant"``: fit PSF plus a
+      polynomial of order 1, 2 or 0 in the pixel offsets to the image;
+    * ``"local"``: subtract the median in an annulus (photutils
+      `~photutils.background.LocalBackground`, radii ``local_radii``),
+      then fit the PSF alone; a `~photutils.background.LocalBackground`
+      instance can be given instead of the string;
+    * ``"none"``: fit the PSF alone (only for sources on an empty
+      background).
+smooth_sigma : float, optional
+    Sigma, in pixels, of the Gaussian of the high-pass filter (the
+    ``"residual"`` strategies); default 5, that of
+    `~lensdual.detection.PointSourceFilter`. Must be > 0.
+local_radii : (float, float), optional
+    Inner and outer radii (pixels) of the annulus of ``"local"``;
+    default (half the fit box + 1, that + 2 FWHM).
+xy_bounds : float or None, optional
+    Largest shift (pixels) of a fitted position from its initial one, in
+    x and in y. None (default): half the fitting box (a source must stay
+    in its box). Sources that end at the bound are flagged (``flags``
+    bit 32).
+group_radius : float, optional
+    Sources closer than this (pixels) to another are fitted jointly: all
+    their PSFs and one background over the union of their boxes (with
+    astropy's `~astropy.modeling.fitting.TRFLSQFitter`, as photutils
+    would). Default: 2 FWHM; 0 fits every source on its own.
+neighbour_passes : int, optional
+    Largest number of refinement passes in which every source that has
+    neighbours (sources whose fitting boxes or PSF wings overlap) is
+    refitted on the image minus the fitted PSFs of all the others; the
+    passes stop when no flux or position changes by more than 0.05
+    sigma. Default 10; 0 fits each source alone. Sources far from any
+    other are fitted once.
+maxiters : int, optional
+    Largest number of function evaluations of the least-squares fitter
+    per source.
+warn : bool, optional
+    Emit a `~lensdual.exceptions.LensdualWarning` when some fits are
+    flagged (default True). photutils' own warnings are never passed
+    on: they are summarised in that one warning.
+oversampling : int or (int, int), optional
+    Oversampling factor(s) (oy, ox) of a 2-D PSF image ``psf``: its
+    pixels per detector pixel, e.g. 4 for the ``OVERSAMP`` image (HDU 0)
+    of a WebbPSF/STPSF file (header keyword ``OVERSAMP``). The image is
+    used as an effective PSF, as photutils' ``ImagePSF(data,
+    oversampling=...)``. Default None: not oversampled. Only for a PSF
+    image (a ValueError otherwise, or when it contradicts an ImagePSF's
+    own).
+check_psf : bool, optional
+    With a PSF image (default True): fit a Gaussian FWHM to the (at most
+    6) brightest sources before the photometry, and refuse (ValueError) a
+    PSF more than 1.8 times wider than them (an oversampled PSF passed
+    without ``oversampling``), or 1.8 times narrower when an
+    ``oversampling`` was given; warn when it is narrower without one.
+""",
+    "returns": r"""
+table : `~astropy.table.QTable`
+    One row per position, in input order:
+
+    * ``id``: from the positions table, or 1, 2, ...;
+    * ``x_init``, ``y_init``: initial pixel position;
+    * ``x_fit``, ``y_fit``, ``x_err``, ``y_err``: fitted position and its
+      1-sigma errors (pixels, 0-based);
+    * ``flux``, ``flux_err``: total PSF flux and its 1-sigma error, in the
+      image unit (a Quantity when the image has one);
+    * ``bkg``: the fitted background at the source position (for the
+      ``"residual"`` strategies: in the filtered image; for ``"local"``:
+      the annulus estimate), image unit;
+    * ``sky``: `~astropy.coordinates.SkyCoord` of the fitted position
+      (only with a celestial WCS);
+    * ``group_size``: 1, or the number of sources fitted jointly with it;
+    * ``qfit``, ``cfit``, ``reduced_chi2``, ``n_pixels_fit``, ``flags``:
+      photutils' fit-quality columns and flags (see
+      `~photutils.psf.PSFPhotometry`; ``flags == 0`` is a clean fit; the
+      same definitions for jointly fitted groups, whose ``reduced_chi2``
+      is that of the whole group), plus lensdual's own bits: see
+      :class:`PhotometryFlag`;
+    * ``flag_note``: the flags in words (:func:`describe_flags`), "" for
+      a clean fit.
+
+    The errors come from the fit covariance, marginalised over the
+    background parameters: with pixel errors (an uncertainty) it is the
+    inverse Fisher matrix of the weighted fit; without, it is scaled by
+    the reduced chi-square. ``meta`` records the PSF, FWHM (pixels),
+    fit shape, background strategy and smoothing, the PSF image's
+    ``oversampling`` and ``input`` (how messages name the image).
+""",
+}
+
+
+def _fill_doc(obj):
+    """Replace every ``@name@`` line of ``obj``'s docstring by the part ``name``
+    of ``_DOC_PARTS``, indented as the line was; returns ``obj``."""
+    lines = []
+    for line in obj.__doc__.split("\n"):
+        name = line.strip()[1:-1]
+        if line.strip() == f"@{name}@" and name in _DOC_PARTS:
+            part = _DOC_PARTS[name].strip("\n")
+            lines.append(textwrap.indent(part, line[:line.index("@")]))
+        else:
+            lines.append(line)
+    obj.__doc__ = "\n".join(lines)
+    return obj
+
+
+@_fill_doc
 class ArcPSFPhotometry:
     r"""PSF photometry of point sources on a bright arc, set up once and called on images.
 
@@ -162,92 +328,7 @@ class ArcPSFPhotometry:
 
     Parameters
     ----------
-    psf : `~astropy.units.Quantity`, float, 2-D array, `~photutils.psf.ImagePSF` or None, optional
-        The PSF: a circular Gaussian of this FWHM (an angle, which needs a
-        celestial WCS, a Quantity in ``u.pix``, or a number of pixels),
-        integrated over the pixels; a 2-D PSF image (any normalisation: it is
-        rescaled; centred on its central pixel; detector-sampled, or
-        oversampled with ``oversampling``); or a photutils
-        `~photutils.psf.ImagePSF` (used as it is, with its oversampling and
-        normalisation). None (default): a Gaussian whose FWHM is fitted
-        first to all sources (the inverse-variance weighted median of the
-        per-source FWHM), then held fixed; it is recorded in
-        ``meta['fwhm']``.
-    fit_shape : int or (int, int), optional
-        Odd size (ny, nx) of the fitting box, >= 3. Default: 2 * ceil(2 *
-        FWHM) + 1 pixels (at least 9) for ``"ridge"``, 2 * ceil(1.5 * FWHM)
-        + 1 (at least 5) otherwise; the FWHM of an image PSF is the diameter
-        of its area above half maximum.
-    background : str or `~photutils.background.LocalBackground`, optional
-        How the light of the arc under each source is handled:
-
-        * ``"ridge"`` (default): fit, with the PSF, an arc-aligned background
-          :math:`f(u) + g(u)\,v + c\,v^2`, where :math:`u` runs across the
-          arc and :math:`v` along it (directions from the image's structure
-          tensor at the box centre), :math:`f` and :math:`g` are
-          piecewise-linear on knots about 0.6 FWHM apart. The arc's cross
-          profile is free, its variation along the arc is linear (plus a
-          common curvature);
-        * ``"residual"``: fit the *high-pass filtered* image,
-          ``image - G * image`` with ``G`` a Gaussian of ``smooth_sigma``
-          pixels (the residual image of `~lensdual.detection.PointSourceFilter`,
-          without its clipping), with the *same filter applied to the PSF
-          model* (which makes the flux exact: the filter also removes part of
-          the source's own wings), plus a fitted constant;
-        * ``"residual-plane"``: the same with a fitted tilted plane;
-        * ``"plane"``, ``"quadratic"``, ``"constant"``: fit PSF plus a
-          polynomial of order 1, 2 or 0 in the pixel offsets to the image;
-        * ``"local"``: subtract the median in an annulus (photutils
-          `~photutils.background.LocalBackground`, radii ``local_radii``),
-          then fit the PSF alone; a `~photutils.background.LocalBackground`
-          instance can be given instead of the string;
-        * ``"none"``: fit the PSF alone (only for sources on an empty
-          background).
-    smooth_sigma : float, optional
-        Sigma, in pixels, of the Gaussian of the high-pass filter (the
-        ``"residual"`` strategies); default 5, that of
-        `~lensdual.detection.PointSourceFilter`. Must be > 0.
-    local_radii : (float, float), optional
-        Inner and outer radii (pixels) of the annulus of ``"local"``;
-        default (half the fit box + 1, that + 2 FWHM).
-    xy_bounds : float or None, optional
-        Largest shift (pixels) of a fitted position from its initial one, in
-        x and in y. None (default): half the fitting box (a source must stay
-        in its box). Sources that end at the bound are flagged (``flags``
-        bit 32).
-    group_radius : float, optional
-        Sources closer than this (pixels) to another are fitted jointly: all
-        their PSFs and one background over the union of their boxes (with
-        astropy's `~astropy.modeling.fitting.TRFLSQFitter`, as photutils
-        would). Default: 2 FWHM; 0 fits every source on its own.
-    neighbour_passes : int, optional
-        Largest number of refinement passes in which every source that has
-        neighbours (sources whose fitting boxes or PSF wings overlap) is
-        refitted on the image minus the fitted PSFs of all the others; the
-        passes stop when no flux or position changes by more than 0.05
-        sigma. Default 10; 0 fits each source alone. Sources far from any
-        other are fitted once.
-    maxiters : int, optional
-        Largest number of function evaluations of the least-squares fitter
-        per source.
-    warn : bool, optional
-        Emit a `~lensdual.exceptions.LensdualWarning` when some fits are
-        flagged (default True). photutils' own warnings are never passed
-        on: they are summarised in that one warning.
-    oversampling : int or (int, int), optional
-        Oversampling factor(s) (oy, ox) of a 2-D PSF image ``psf``: its
-        pixels per detector pixel, e.g. 4 for the ``OVERSAMP`` image (HDU 0)
-        of a WebbPSF/STPSF file (header keyword ``OVERSAMP``). The image is
-        used as an effective PSF, as photutils' ``ImagePSF(data,
-        oversampling=...)``. Default None: not oversampled. Only for a PSF
-        image (a ValueError otherwise, or when it contradicts an ImagePSF's
-        own).
-    check_psf : bool, optional
-        With a PSF image (default True): fit a Gaussian FWHM to the (at most
-        6) brightest sources before the photometry, and refuse (ValueError) a
-        PSF more than 1.8 times wider than them (an oversampled PSF passed
-        without ``oversampling``), or 1.8 times narrower when an
-        ``oversampling`` was given; warn when it is narrower without one.
+    @settings@
 
     Raises
     ------
@@ -361,63 +442,18 @@ class ArcPSFPhotometry:
         settings = ", ".join(f"{k}={v!r:.60}" for k, v in self._given.items())
         return f"{type(self).__name__}({settings})"
 
+    @_fill_doc
     def __call__(self, image, positions, *, label=None):
         """Measure the point sources of one image.
 
         Parameters
         ----------
-        image : `~astropy.nddata.CCDData`, `~astropy.nddata.NDData` or array
-            The image (a `~numpy.ndarray`, masked array or `~astropy.units.Quantity`
-            is accepted too). An NDData's ``mask`` (True = bad), ``uncertainty``
-            (`~astropy.nddata.StdDevUncertainty`, or a variance / inverse
-            variance, used as the 1-sigma pixel errors that weight the fit),
-            ``unit`` and ``wcs`` are used; NaN and infinite pixels, and pixels
-            whose error is not positive, are ignored. The input is not modified.
-        positions : (N, 2) array, `~astropy.table.Table` or `~astropy.coordinates.SkyCoord`
-            Initial positions: (x, y) pixel coordinates (0-based, as in numpy
-            and photutils); a table with pixel columns (``x_centroid`` /
-            ``y_centroid`` as made by `~lensdual.detection.find_point_sources`,
-            or ``x`` / ``y``, ``x_init`` / ``y_init``, ``x_fit`` / ``y_fit``;
-            its ``id`` column is kept); or sky positions (needs a WCS). A
-            position off the image (or not finite) is not fitted: its row is NaN
-            and flagged ``OUTSIDE_IMAGE``.
-        label : str, optional
-            How messages name the image, e.g. ``"arc L1, band F150W"``; the file
-            in the image's ``meta['FILENAME']`` (or ``filename``, ``file``) is
-            added when present. Default ``"image"``.
+        @image_positions@
+        @label@
 
         Returns
         -------
-        table : `~astropy.table.QTable`
-            One row per position, in input order:
-
-            * ``id``: from the positions table, or 1, 2, ...;
-            * ``x_init``, ``y_init``: initial pixel position;
-            * ``x_fit``, ``y_fit``, ``x_err``, ``y_err``: fitted position and its
-              1-sigma errors (pixels, 0-based);
-            * ``flux``, ``flux_err``: total PSF flux and its 1-sigma error, in the
-              image unit (a Quantity when the image has one);
-            * ``bkg``: the fitted background at the source position (for the
-              ``"residual"`` strategies: in the filtered image; for ``"local"``:
-              the annulus estimate), image unit;
-            * ``sky``: `~astropy.coordinates.SkyCoord` of the fitted position
-              (only with a celestial WCS);
-            * ``group_size``: 1, or the number of sources fitted jointly with it;
-            * ``qfit``, ``cfit``, ``reduced_chi2``, ``n_pixels_fit``, ``flags``:
-              photutils' fit-quality columns and flags (see
-              `~photutils.psf.PSFPhotometry`; ``flags == 0`` is a clean fit; the
-              same definitions for jointly fitted groups, whose ``reduced_chi2``
-              is that of the whole group), plus lensdual's own bits: see
-              :class:`PhotometryFlag`;
-            * ``flag_note``: the flags in words (:func:`describe_flags`), "" for
-              a clean fit.
-
-            The errors come from the fit covariance, marginalised over the
-            background parameters: with pixel errors (an uncertainty) it is the
-            inverse Fisher matrix of the weighted fit; without, it is scaled by
-            the reduced chi-square. ``meta`` records the PSF, FWHM (pixels),
-            fit shape, background strategy and smoothing, the PSF image's
-            ``oversampling`` and ``input`` (how messages name the image).
+        @returns@
 
         Raises
         ------
@@ -701,6 +737,7 @@ def _warn_flagged(out, caught, failed, positions, shape, where):
     warnings.warn(text, LensdualWarning, stacklevel=4)
 
 
+@_fill_doc
 def psf_photometry(
     image,
     positions,
@@ -729,144 +766,13 @@ def psf_photometry(
 
     Parameters
     ----------
-    image : `~astropy.nddata.CCDData`, `~astropy.nddata.NDData` or array
-        The image (a `~numpy.ndarray`, masked array or `~astropy.units.Quantity`
-        is accepted too). An NDData's ``mask`` (True = bad), ``uncertainty``
-        (`~astropy.nddata.StdDevUncertainty`, or a variance / inverse
-        variance, used as the 1-sigma pixel errors that weight the fit),
-        ``unit`` and ``wcs`` are used; NaN and infinite pixels, and pixels
-        whose error is not positive, are ignored. The input is not modified.
-    positions : (N, 2) array, `~astropy.table.Table` or `~astropy.coordinates.SkyCoord`
-        Initial positions: (x, y) pixel coordinates (0-based, as in numpy
-        and photutils); a table with pixel columns (``x_centroid`` /
-        ``y_centroid`` as made by `~lensdual.detection.find_point_sources`,
-        or ``x`` / ``y``, ``x_init`` / ``y_init``, ``x_fit`` / ``y_fit``;
-        its ``id`` column is kept); or sky positions (needs a WCS). A
-        position off the image (or not finite) is not fitted: its row is NaN
-        and flagged ``OUTSIDE_IMAGE``.
-    psf : `~astropy.units.Quantity`, float, 2-D array, `~photutils.psf.ImagePSF` or None, optional
-        The PSF: a circular Gaussian of this FWHM (an angle, which needs a
-        celestial WCS, a Quantity in ``u.pix``, or a number of pixels),
-        integrated over the pixels; a 2-D PSF image (any normalisation: it is
-        rescaled; centred on its central pixel; detector-sampled, or
-        oversampled with ``oversampling``); or a photutils
-        `~photutils.psf.ImagePSF` (used as it is, with its oversampling and
-        normalisation). None (default): a Gaussian whose FWHM is fitted
-        first to all sources (the inverse-variance weighted median of the
-        per-source FWHM), then held fixed; it is recorded in
-        ``meta['fwhm']``.
-    fit_shape : int or (int, int), optional
-        Odd size (ny, nx) of the fitting box, >= 3. Default: 2 * ceil(2 *
-        FWHM) + 1 pixels (at least 9) for ``"ridge"``, 2 * ceil(1.5 * FWHM)
-        + 1 (at least 5) otherwise; the FWHM of an image PSF is the diameter
-        of its area above half maximum.
-    background : str or `~photutils.background.LocalBackground`, optional
-        How the light of the arc under each source is handled:
-
-        * ``"ridge"`` (default): fit, with the PSF, an arc-aligned background
-          :math:`f(u) + g(u)\,v + c\,v^2`, where :math:`u` runs across the
-          arc and :math:`v` along it (directions from the image's structure
-          tensor at the box centre), :math:`f` and :math:`g` are
-          piecewise-linear on knots about 0.6 FWHM apart. The arc's cross
-          profile is free, its variation along the arc is linear (plus a
-          common curvature);
-        * ``"residual"``: fit the *high-pass filtered* image,
-          ``image - G * image`` with ``G`` a Gaussian of ``smooth_sigma``
-          pixels (the residual image of `~lensdual.detection.PointSourceFilter`,
-          without its clipping), with the *same filter applied to the PSF
-          model* (which makes the flux exact: the filter also removes part of
-          the source's own wings), plus a fitted constant;
-        * ``"residual-plane"``: the same with a fitted tilted plane;
-        * ``"plane"``, ``"quadratic"``, ``"constant"``: fit PSF plus a
-          polynomial of order 1, 2 or 0 in the pixel offsets to the image;
-        * ``"local"``: subtract the median in an annulus (photutils
-          `~photutils.background.LocalBackground`, radii ``local_radii``),
-          then fit the PSF alone; a `~photutils.background.LocalBackground`
-          instance can be given instead of the string;
-        * ``"none"``: fit the PSF alone (only for sources on an empty
-          background).
-    smooth_sigma : float, optional
-        Sigma, in pixels, of the Gaussian of the high-pass filter (the
-        ``"residual"`` strategies); default 5, that of
-        `~lensdual.detection.PointSourceFilter`. Must be > 0.
-    local_radii : (float, float), optional
-        Inner and outer radii (pixels) of the annulus of ``"local"``;
-        default (half the fit box + 1, that + 2 FWHM).
-    xy_bounds : float or None, optional
-        Largest shift (pixels) of a fitted position from its initial one, in
-        x and in y. None (default): half the fitting box (a source must stay
-        in its box). Sources that end at the bound are flagged (``flags``
-        bit 32).
-    group_radius : float, optional
-        Sources closer than this (pixels) to another are fitted jointly: all
-        their PSFs and one background over the union of their boxes (with
-        astropy's `~astropy.modeling.fitting.TRFLSQFitter`, as photutils
-        would). Default: 2 FWHM; 0 fits every source on its own.
-    neighbour_passes : int, optional
-        Largest number of refinement passes in which every source that has
-        neighbours (sources whose fitting boxes or PSF wings overlap) is
-        refitted on the image minus the fitted PSFs of all the others; the
-        passes stop when no flux or position changes by more than 0.05
-        sigma. Default 10; 0 fits each source alone. Sources far from any
-        other are fitted once.
-    maxiters : int, optional
-        Largest number of function evaluations of the least-squares fitter
-        per source.
-    warn : bool, optional
-        Emit a `~lensdual.exceptions.LensdualWarning` when some fits are
-        flagged (default True). photutils' own warnings are never passed
-        on: they are summarised in that one warning.
-    oversampling : int or (int, int), optional
-        Oversampling factor(s) (oy, ox) of a 2-D PSF image ``psf``: its
-        pixels per detector pixel, e.g. 4 for the ``OVERSAMP`` image (HDU 0)
-        of a WebbPSF/STPSF file (header keyword ``OVERSAMP``). The image is
-        used as an effective PSF, as photutils' ``ImagePSF(data,
-        oversampling=...)``. Default None: not oversampled. Only for a PSF
-        image (a ValueError otherwise, or when it contradicts an ImagePSF's
-        own).
-    check_psf : bool, optional
-        With a PSF image (default True): fit a Gaussian FWHM to the (at most
-        6) brightest sources before the photometry, and refuse (ValueError) a
-        PSF more than 1.8 times wider than them (an oversampled PSF passed
-        without ``oversampling``), or 1.8 times narrower when an
-        ``oversampling`` was given; warn when it is narrower without one.
-    label : str, optional
-        How messages name the image, e.g. ``"arc L1, band F150W"``; the file
-        in the image's ``meta['FILENAME']`` (or ``filename``, ``file``) is
-        added when present. Default ``"image"``.
+    @image_positions@
+    @settings@
+    @label@
 
     Returns
     -------
-    table : `~astropy.table.QTable`
-        One row per position, in input order:
-
-        * ``id``: from the positions table, or 1, 2, ...;
-        * ``x_init``, ``y_init``: initial pixel position;
-        * ``x_fit``, ``y_fit``, ``x_err``, ``y_err``: fitted position and its
-          1-sigma errors (pixels, 0-based);
-        * ``flux``, ``flux_err``: total PSF flux and its 1-sigma error, in the
-          image unit (a Quantity when the image has one);
-        * ``bkg``: the fitted background at the source position (for the
-          ``"residual"`` strategies: in the filtered image; for ``"local"``:
-          the annulus estimate), image unit;
-        * ``sky``: `~astropy.coordinates.SkyCoord` of the fitted position
-          (only with a celestial WCS);
-        * ``group_size``: 1, or the number of sources fitted jointly with it;
-        * ``qfit``, ``cfit``, ``reduced_chi2``, ``n_pixels_fit``, ``flags``:
-          photutils' fit-quality columns and flags (see
-          `~photutils.psf.PSFPhotometry`; ``flags == 0`` is a clean fit; the
-          same definitions for jointly fitted groups, whose ``reduced_chi2``
-          is that of the whole group), plus lensdual's own bits: see
-          :class:`PhotometryFlag`;
-        * ``flag_note``: the flags in words (:func:`describe_flags`), "" for
-          a clean fit.
-
-        The errors come from the fit covariance, marginalised over the
-        background parameters: with pixel errors (an uncertainty) it is the
-        inverse Fisher matrix of the weighted fit; without, it is scaled by
-        the reduced chi-square. ``meta`` records the PSF, FWHM (pixels),
-        fit shape, background strategy and smoothing, the PSF image's
-        ``oversampling`` and ``input`` (how messages name the image).
+    @returns@
 
     Raises
     ------
