@@ -38,7 +38,7 @@ import numpy as np
 from astropy import units as u
 from scipy.stats import beta as beta_dist
 
-from lensdual.duality import duality_significance, gaussian_p_value
+from lensdual.duality import _snr_dof, duality_significance, gaussian_p_value
 from lensdual.estimators import TESTABLE_STATUS, size_magnification
 from lensdual.simulation import FAMILIES, clean_constellation
 
@@ -80,9 +80,7 @@ def run_cell(constellations, sigma_mas, method, n_noise, seed=0):
     ln_flux_noise = flux_sd * rng.standard_normal(err.size)
     tested = np.isin(status, TESTABLE_STATUS)
     tot = np.hypot(sd, flux_sd)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        # Welch-Satterthwaite degrees of freedom of the total error, as check_duality
-        tot_dof = np.where(dof < np.inf, tot**4 * dof / sd**4, np.inf)
+    tot_dof = _snr_dof(tot, sd, dof)  # the total error's degrees of freedom, as check_duality
     tested &= ~(tot_dof <= 0)
 
     def flagged(snr):

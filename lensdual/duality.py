@@ -172,6 +172,17 @@ def _t_p_value(snr, dof):
     return p
 
 
+def _snr_dof(ln_total, ln_size_err, size_dof):
+    """Welch-Satterthwaite degrees of freedom of a duality SNR's error.
+
+    ``ln_total`` is ``hypot(ln flux error, ln_size_err)``: the flux error is
+    known, the size error estimated from ``size_dof`` residuals (infinite:
+    known too, and so is the total).
+    """
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(size_dof < np.inf, ln_total**4 * size_dof / ln_size_err**4, np.inf)
+
+
 def duality_significance(snr, dof=np.inf):
     """Gaussian-equivalent significance of a duality SNR whose error has ``dof``
     degrees of freedom.
@@ -525,12 +536,7 @@ def check_duality(
         rel_size_err = np.asarray(size["mu_size_err"]) / mu_size
         snr_paper = np.abs(ratio - 1.0) / (ratio * rel_size_err)
         size_dof = np.asarray(size["ln_mu_size_err_dof"], dtype=float)
-        if snr_definition == "log":
-            # Welch-Satterthwaite: the flux error is known, the size error
-            # may be estimated from size_dof residuals
-            dof = np.where(size_dof < np.inf, ln_total**4 * size_dof / ln_size_err**4, np.inf)
-        else:
-            dof = size_dof
+        dof = _snr_dof(ln_total, ln_size_err, size_dof) if snr_definition == "log" else size_dof
     tab["ln_mu_size_err_dof"] = size_dof
     tab["duality_ratio"] = ratio
     tab["duality_ratio_err"] = ratio * ln_total
@@ -627,7 +633,7 @@ def _null_block(task):
     with np.errstate(divide="ignore", invalid="ignore"):
         total = np.hypot(ln_flux_err[None, :], ln_sd)
         snr = np.abs(ln_flux - np.log(mu_size)) / total
-        dof = np.where(size_dof < np.inf, total**4 * size_dof / ln_sd**4, np.inf)
+        dof = _snr_dof(total, ln_sd, size_dof)
         ok = ok & np.isfinite(snr) & (dof > 0)
         signif = duality_significance(np.where(ok, snr, 0.0), np.where(ok, dof, np.inf))
     return np.where(ok, signif, np.nan)
