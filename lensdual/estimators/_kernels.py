@@ -579,8 +579,7 @@ def _slope_covariance(L, p, scale, work, out):
 @njit(**JIT_OPTIONS)
 def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_extra,  # noqa: C901, PLR0915
                    min_candidates, lookahead, k_dense, order, dsort, U, Yr, W, A, rhs, L, scale,
-                   beta,
-                   work, jac_out):
+                   beta, work, jac_out):
     """Adaptive local-polynomial Jacobian at pair ``a``; returns (ln_sd, status, dof).
 
     The points are those of the neighbour ``row`` of ``a`` (``a`` included).
@@ -875,8 +874,7 @@ def adaptive_jacobians_knn(t1, t2, nbr, s1, s2, chi2_crit, min_extra, report_ext
 @njit(**JIT_OPTIONS)
 def adaptive_range_knn(t1, t2, nbr, s1, s2, chi2_crit, min_extra, report_extra,
                        min_candidates, lookahead, k_dense, n_pass, weight_power, cond_max,
-                       start, stop,
-                       jac, ln_sd, status, dof):
+                       start, stop, jac, ln_sd, status, dof):
     """:func:`adaptive_jacobians_knn` for the pairs ``start <= a < stop`` only.
 
     Each pair's estimate depends on its own row and pilot only, so disjoint
@@ -934,8 +932,7 @@ def adaptive_range_knn(t1, t2, nbr, s1, s2, chi2_crit, min_extra, report_extra,
 @njit(**JIT_OPTIONS)
 def adaptive_jacobians(t1, t2, s1, s2, chi2_crit, min_extra, report_extra,
                        min_candidates, lookahead, k_dense, n_pass, weight_power, cond_max, jac,
-                       ln_sd,
-                       status, dof):
+                       ln_sd, status, dof):
     """:func:`adaptive_jacobians_knn` with every point for every pair (no cap)."""
     adaptive_jacobians_knn(t1, t2, all_rows(t1.shape[0]), s1, s2, chi2_crit, min_extra,
                            report_extra, min_candidates, lookahead, k_dense, n_pass, weight_power,
@@ -945,8 +942,7 @@ def adaptive_jacobians(t1, t2, s1, s2, chi2_crit, min_extra, report_extra,
 @njit(**JIT_OPTIONS)
 def adaptive_batch_knn(t1, t2, nbr, noise1, noise2, s1, s2, chi2_crit, min_extra,
                        report_extra, min_candidates, lookahead, k_dense, n_pass, weight_power,
-                       cond_max,
-                       det_out, ln_sd_out, status_out, dof_out):
+                       cond_max, det_out, ln_sd_out, status_out, dof_out):
     """The adaptive estimator on ``B`` noisy copies of a constellation.
 
     ``noise1``, ``noise2`` are (B, N, 2) offsets; ``det_out``, ``ln_sd_out``,
@@ -969,8 +965,7 @@ def adaptive_batch_knn(t1, t2, nbr, noise1, noise2, s1, s2, chi2_crit, min_extra
                 p2[i, d] = t2[i, d] + noise2[k, i, d]
         adaptive_jacobians_knn(p1, p2, nbr, s1, s2, chi2_crit, min_extra, report_extra,
                                min_candidates, lookahead, k_dense, n_pass, weight_power, cond_max,
-                               jac,
-                               sd, st, df)
+                               jac, sd, st, df)
         for i in range(n):
             det_out[k, i] = jac[i, 0, 0] * jac[i, 1, 1] - jac[i, 0, 1] * jac[i, 1, 0]
             ln_sd_out[k, i] = sd[i]
