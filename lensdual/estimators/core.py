@@ -301,11 +301,12 @@ def _chi2_critical(n, alpha=None):
     return crit
 
 
-def _adaptive_settings(n, wp, capped=False):
-    """The adaptive kernels' settings after the errors, for ``n`` points per fit
-    (``capped``: rows of ``n`` nearest neighbours out of more points)."""
-    k_dense = _ADAPTIVE_K_DENSE if capped else n
-    return (_chi2_critical(n), _ADAPTIVE_MIN_EXTRA, _ADAPTIVE_REPORT_EXTRA,
+def _adaptive_settings(nbr, n_points, wp):
+    """The adaptive kernels' settings after the errors, for the neighbour rows
+    ``nbr`` of ``n_points`` points (capped when the rows are shorter)."""
+    k = nbr.shape[1]
+    k_dense = _ADAPTIVE_K_DENSE if k < n_points else k
+    return (_chi2_critical(k), _ADAPTIVE_MIN_EXTRA, _ADAPTIVE_REPORT_EXTRA,
             _ADAPTIVE_MIN_CANDIDATES, _ADAPTIVE_LOOKAHEAD, k_dense, _ADAPTIVE_PASSES,
             float(wp), _COND_MAX)
 
@@ -319,7 +320,7 @@ def _adaptive(t1, t2, sigma, wp, max_neighbours=DEFAULT_MAX_NEIGHBOURS):
     ln_sd = np.empty(n)
     status = np.empty(n, dtype=np.int64)
     dof = np.empty(n)
-    settings = _adaptive_settings(nbr.shape[1], wp, nbr.shape[1] < n)
+    settings = _adaptive_settings(nbr, n, wp)
     threads = min(_MAX_THREADS, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
                   else (os.cpu_count() or 1))
     if n < _THREAD_MIN_PAIRS or threads < 2:
@@ -355,8 +356,7 @@ def _adaptive_batch(t1, t2, noise1, noise2, sigma, wp=2.0,
     status = np.empty((b, n), dtype=np.int64)
     dof = np.empty((b, n))
     _kernels.adaptive_batch_knn(t1, t2, nbr, noise1, noise2, sigma[0], sigma[1],
-                                *_adaptive_settings(nbr.shape[1], wp, nbr.shape[1] < n), det,
-                                ln_sd, status, dof)
+                                *_adaptive_settings(nbr, n, wp), det, ln_sd, status, dof)
     testable = (status == _kernels.ADAPTIVE_OK) | (status == _kernels.ADAPTIVE_MISFIT)
     return np.abs(det), ln_sd, testable, dof
 
