@@ -17,6 +17,7 @@ spurious. See the "Pairing" page of the documentation for the algorithm and
 its measured accuracy.
 """
 
+import warnings
 from dataclasses import dataclass
 from itertools import combinations
 
@@ -25,9 +26,10 @@ from astropy import units as u
 from astropy.coordinates import SkyCoord
 from astropy.table import QTable, Table
 from scipy.optimize import linear_sum_assignment
-from scipy.spatial import cKDTree
+from scipy.spatial import ConvexHull, QhullError, cKDTree
 from scipy.special import fdtri
 
+from . import _pairing_kernels
 from ._frames import mean_direction, tangent_xy
 from ._knots import KnotPairs, pairs_from_knots, read_macro_images
 from ._pairs_table import (
@@ -96,15 +98,30 @@ _TRIM_RMS = 4.0
 _TRIM_FLOOR = 0.25
 #: Fewest consistent pairs the automatic search accepts.
 _MIN_AUTO_PAIRS = 4
+#: The gate of a pair is never narrowed by the chance density below this many
+#: standard deviations of the residual per axis.
+_CHANCE_GATE_FLOOR = 2.0
+#: ... and not at all where the tail of true pairs' residuals (this fraction of
+#: them, spread evenly over the gate) is denser than the chance coincidences.
+_TAIL_FRACTION = 0.2
+#: When the best map leaves most points unmatched, the search is repeated on
+#: this many decoys of catalogue 2 (its points scrambled), and the map is
+#: only accepted with at least _DECOY_MARGIN times the decoys' most inliers.
+_N_DECOYS = 2
+_DECOY_MARGIN = 1.3
 #: Hypotheses scored per chunk (bounds the memory of the distance cubes) ...
 _CHUNK = 1024
 #: ... and at most this many (hypothesis x point x point) distances per chunk
 #: (2**21 doubles: 16 MB per array of the chunk), whatever the catalogue sizes.
 _CHUNK_ENTRIES = 2**21
-#: Scoring costs (hypotheses x N1 x N2) distances; above this many, the
-#: hypotheses are drawn (with the seed) down to the number that fits. Small
-#: catalogues (30 x 30 points: 9e2 x 3e4 = 2.7e7) are far below it.
-_MAX_SCORE_WORK = 4e8
+#: Scoring costs about (hypotheses x (N1 + N2)) operations (a sorted strip
+#: per mapped point, ``lensdual._pairing_kernels``); above this many, the
+#: hypotheses are drawn (with the seed) down to the number that fits: all
+#: _MAX_HYPOTHESES up to 500 points per catalogue.
+_MAX_SCORE_WORK = 3e7
+#: With flux columns, hypotheses are also drawn from the triangles of the
+#: this many brightest points of each catalogue (scored first).
+_N_BRIGHT = 24
 #: Triangles whose descriptors are computed at once (bounds the (T, N, 3) arrays).
 _TRIANGLE_CHUNK = 512
 
@@ -297,7 +314,8 @@ def _rows_of(ids, wanted, name, cat_name):
 
 
 def _colours(catalog, flux_columns, name, units):
-    """(N, K-1) colours in mag, -2.5 log10(f_k / f_0); NaN where a flux is not > 0."""
+    """Colours (N, K-1) in mag, -2.5 log10(f_k / f_0), NaN where a flux is not > 0,
+    and the mean magnitude (N,) over the bands with a flux (NaN without any)."""
     if not isinstance(catalog, Table):
         raise TypeError(f"flux_columns needs {name} to be a table, got {type(catalog).__name__}")
     fluxes = []
@@ -323,7 +341,10 @@ def _colours(catalog, flux_columns, name, units):
     with np.errstate(divide="ignore", invalid="ignore"):
         ok = np.isfinite(f) & (f > 0)
         mag = np.where(ok, -2.5 * np.log10(np.where(ok, f, 1.0)), np.nan)
-    return mag[:, 1:] - mag[:, :1]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN rows: NaN
+        mean_mag = np.nanmean(mag, axis=1)
+    return mag[:, 1:] - mag[:, :1], mean_mag
 
 
 def _check_flux_columns(flux_columns):
@@ -427,16 +448,6 @@ def _leverage(coef, q, q_fit, centre):
     return np.einsum("nk,kl,nl->n", phi, cov, phi)
 
 
-def _mutual(d2, tau2):
-    """Mutual nearest neighbours closer than sqrt(tau2): rows i (cat 1), j (cat 2)."""
-    n2 = d2.shape[1]
-    best_i = np.argmin(d2, axis=0)
-    best_j = np.argmin(d2, axis=1)
-    j = np.arange(n2)
-    ok = (best_j[best_i] == j) & (d2[best_i, j] < tau2)
-    return best_i[ok], j[ok]
-
-
 # ---------------------------------------------------------------------------
 # hypotheses
 # ---------------------------------------------------------------------------
@@ -478,8 +489,9 @@ def _barycentric_triangles(x, rng):
     if n_tri <= _MAX_TRIANGLES:
         tri = np.array(list(combinations(range(n), 3)), dtype=np.int64)
     else:
-        draws = np.argsort(rng.random((_MAX_TRIANGLES, n)), axis=1)[:, :3]
-        tri = np.unique(np.sort(draws, axis=1), axis=0)
+        draws = np.sort(rng.integers(0, n, (_MAX_TRIANGLES, 3)), axis=1)
+        distinct = (draws[:, 0] < draws[:, 1]) & (draws[:, 1] < draws[:, 2])
+        tri = np.unique(draws[distinct], axis=0)
     # leave out (nearly) collinear triplets, judged in the catalogue's whitened frame
     c, w = _whitening(x)
     v = ((x - c) @ w.T)[tri]
@@ -502,13 +514,14 @@ def _barycentric_triangles(x, rng):
         bary = np.stack([1.0 - lam1 - lam2, lam1, lam2], axis=2)  # (T, N, 3)
         dist = ((bary - 1.0 / 3.0) ** 2).sum(axis=2)
         dist[np.arange(len(sub))[:, None], sub] = np.inf
-        near = np.argsort(dist, axis=1, kind="stable")[:, :_N_DESC_POINTS]
+        kth = np.arange(_N_DESC_POINTS)
+        near = np.argpartition(dist, kth, axis=1)[:, :_N_DESC_POINTS]
         desc[start:start + len(sub)] = np.take_along_axis(bary, near[:, :, None], axis=1)
     return tri, desc
 
 
-def _hypotheses(p, q, parity, rng):
-    """Affine maps (A (H, 2, 2), b (H, 2)) from matched triangles, x1 = A x2 + b.
+def _triangle_matches(p, q, rng):
+    """Matched triangles: vertex rows (H, 3) of catalogue 2 and, in order, of catalogue 1.
 
     Triangles of catalogue 2 are matched to ordered triangles of catalogue 1
     by the barycentric coordinates of their nearest points, which any affine
@@ -517,7 +530,7 @@ def _hypotheses(p, q, parity, rng):
     tri1, d1 = _barycentric_triangles(p, rng)
     tri2, d2 = _barycentric_triangles(q, rng)
     if len(tri1) == 0 or len(tri2) == 0:
-        return np.empty((0, 2, 2)), np.empty((0, 2))
+        return np.empty((0, 3), dtype=np.int64), np.empty((0, 3), dtype=np.int64)
     # all 6 vertex orders of catalogue 1: descriptor = coordinates 1 and 2 in that order
     perm = _PERMUTATIONS
     key1 = np.stack([d1[:, :, perm[o, 1:]] for o in range(len(perm))], axis=1)  # (T1, 6, nd, 2)
@@ -528,11 +541,37 @@ def _hypotheses(p, q, parity, rng):
     idx = idx.reshape(len(tri2), k)
     t2 = np.repeat(np.arange(len(tri2)), k)
     t1, o = np.divmod(idx.ravel(), len(perm))
-    src = tri2[t2]
-    dst = np.take_along_axis(tri1[t1], perm[o], axis=1)
-    max_hyp = min(_MAX_HYPOTHESES, max(_N_REFINE, int(_MAX_SCORE_WORK / (len(p) * len(q)))))
+    return tri2[t2], np.take_along_axis(tri1[t1], perm[o], axis=1)
+
+
+def _brightest(mag, n):
+    """Rows of the ``n`` brightest points (smallest magnitude; NaN last)."""
+    return np.argsort(np.where(np.isfinite(mag), mag, np.inf), kind="stable")[:n]
+
+
+def _hypotheses(p, q, parity, rng, mags=None):
+    """Affine maps (A (H, 2, 2), b (H, 2)) from matched triangles, x1 = A x2 + b.
+
+    The triangles are those of all points (:func:`_triangle_matches`) and,
+    with ``mags`` (the mean magnitudes of both catalogues), those of the
+    ``_N_BRIGHT`` brightest points of each catalogue, described by each
+    other only: in a catalogue crowded with faint spurious detections, these
+    are the triangles most likely made of true counterparts. The bright
+    hypotheses are kept first when the hypotheses must be drawn down.
+    """
+    src, dst = _triangle_matches(p, q, rng)
+    n_first = 0
+    if mags is not None and max(len(p), len(q)) > _N_BRIGHT:
+        b1, b2 = _brightest(mags[0], _N_BRIGHT), _brightest(mags[1], _N_BRIGHT)
+        src_b, dst_b = _triangle_matches(p[b1], q[b2], rng)
+        src, dst = np.vstack([b2[src_b], src]), np.vstack([b1[dst_b], dst])
+        n_first = len(src_b)
+    max_hyp = min(_MAX_HYPOTHESES,
+                  max(_N_REFINE, int(_MAX_SCORE_WORK / (len(p) + len(q)))))
     if len(dst) > max_hyp:
-        keep = np.sort(rng.choice(len(dst), max_hyp, replace=False))
+        first = np.arange(min(n_first, max_hyp))
+        rest = n_first + rng.choice(len(dst) - n_first, max_hyp - len(first), replace=False)
+        keep = np.concatenate([first, np.sort(rest)])
         dst, src = dst[keep], src[keep]
     m = np.concatenate([q[src], np.ones(src.shape + (1,))], axis=2)  # (H, 3, 3)
     det_m = np.linalg.det(m)
@@ -553,40 +592,35 @@ def _hypotheses(p, q, parity, rng):
     return a[ok], b[ok]
 
 
-def _score(a, b, p, q, tau2, colour_ok):
-    """Inlier counts and MSAC scores (sum over the inliers of 1 - d^2 / tau^2) of hypotheses."""
-    n_hyp = len(a)
-    counts = np.zeros(n_hyp, dtype=np.int64)
-    score = np.zeros(n_hyp)
-    n2 = len(q)
-    chunk = max(1, min(_CHUNK, _CHUNK_ENTRIES // (len(p) * n2)))
-    for start in range(0, n_hyp, chunk):
-        sl = slice(start, start + chunk)
-        ah, bh = a[sl], b[sl]
-        minv = _metric(ah, normalise=True)  # (h, 2, 2)
-        # factor minv = L L^T so that r^T minv r = |L^T r|^2
-        chol = np.linalg.cholesky(minv)
-        t = np.swapaxes(chol, 1, 2)  # L^T
-        # transform both catalogues by L^T (catalogue 2 after the map): plain distances
-        tq = t @ ah  # (h, 2, 2)
-        off = (t @ bh[:, :, None])[:, :, 0]  # (h, 2)
-        pt = p @ np.swapaxes(t, 1, 2)  # (h, N1, 2)
-        qt = q @ np.swapaxes(tq, 1, 2) + off[:, None, :]  # (h, N2, 2)
-        dx = pt[:, :, None, 0] - qt[:, None, :, 0]
-        d2 = dx * dx
-        dy = pt[:, :, None, 1] - qt[:, None, :, 1]
-        d2 += dy * dy  # (h, N1, N2)
-        if colour_ok is not None:
-            d2[:, ~colour_ok] = np.inf
-        best_i = np.argmin(d2, axis=1)  # (h, N2)
-        best_j = np.argmin(d2, axis=2)  # (h, N1)
-        hh = np.arange(len(ah))[:, None]
-        jj = np.arange(n2)[None, :]
-        dmin = d2[hh, best_i, jj]
-        inl = (best_j[hh, best_i] == jj) & (dmin < tau2)
-        counts[sl] = inl.sum(axis=1)
-        score[sl] = np.where(inl, 1.0 - dmin / tau2, 0.0).sum(axis=1)
-    return counts, score
+class _Inliers:
+    """Inliers of maps from catalogue 2 onto catalogue 1 (numba kernels on a grid of catalogue 1).
+
+    Inliers are mutual nearest neighbours closer than ``sqrt(tau2)`` in the
+    normalised noise metric (:func:`_metric`) and, with ``colour_ok``
+    (N1, N2), with compatible colours.
+    """
+
+    def __init__(self, p, tau2, colour_ok):
+        self.p = np.ascontiguousarray(p, dtype=float)
+        self.tau2 = float(tau2)
+        self.grid = _pairing_kernels.grid(self.p, np.sqrt(self.tau2))
+        self.use_colour = colour_ok is not None
+        self.colour_ok = (np.ascontiguousarray(colour_ok) if self.use_colour
+                          else np.ones((1, 1), dtype=bool))
+
+    def score(self, a, b, q):
+        """Inlier counts and MSAC scores (sum of 1 - d^2 / tau^2) of affine hypotheses."""
+        return _pairing_kernels.score_hypotheses(
+            np.ascontiguousarray(a, dtype=float), np.ascontiguousarray(b, dtype=float),
+            np.ascontiguousarray(q, dtype=float), self.tau2, self.p, *self.grid,
+            self.colour_ok, self.use_colour)
+
+    def of_map(self, coef, q, centre):
+        """Inliers (i, j, squared metric distances) of the map ``coef`` (sorted by j)."""
+        qm = np.ascontiguousarray(_apply(coef, q, centre))
+        minv = np.ascontiguousarray(_metric(_jacobians(coef, q, centre), normalise=True))
+        return _pairing_kernels.mutual_inliers(qm, minv, self.tau2, self.p, *self.grid,
+                                               self.colour_ok, self.use_colour)
 
 
 def _choose_order(p, q, centre, order):
@@ -672,32 +706,27 @@ def _eliminate(pi, qj, centre, order, floor, keep=None):
     return coef, keep, rms_rob, rms
 
 
-def _refine(i, j, p, q, centre, order, tau2, colour_ok):
+def _refine(i, j, p, q, centre, order, inliers):
     """Local optimisation: robust refit on the inliers and re-selection until stable.
 
     With ``order=None``, when the affine map is chosen, the quadratic map
     fitted to its inliers is tried as well: it is taken when it brings more
     points within the tolerance and an F-test prefers it on those.
+    ``inliers`` is the :class:`_Inliers` of the search.
     Returns the inliers (i, j), their squared residuals and robust rms.
     """
-    floor = _TRIM_FLOOR * np.sqrt(tau2)
-
-    def inliers(coef):
-        d2 = _residuals2(coef, p, q, centre, normalise=True)
-        if colour_ok is not None:
-            d2 = np.where(colour_ok, d2, np.inf)
-        i, j = _mutual(d2, tau2)
-        return i, j, d2
+    floor = _TRIM_FLOOR * np.sqrt(inliers.tau2)
+    d2 = None
 
     current = None
     for _ in range(_REFINE_ITER):
         if len(i) < 3:
             return None
         coef = _robust_fit(p, q, i, j, centre, order, floor)[0]
-        i, j, d2 = inliers(coef)
+        i, j, d2 = inliers.of_map(coef, q, centre)
         if order is None and len(coef) == 3 and len(i) >= _QUADRATIC_MIN_PAIRS:
             coef_q = _eliminate(p[i], q[j], centre, 2, floor)[0]
-            iq, jq, d2q = inliers(coef_q)
+            iq, jq, d2q = inliers.of_map(coef_q, q, centre)
             if len(iq) > len(i) and _choose_order(p[iq], q[jq], centre, None) == 2:
                 i, j, d2 = iq, jq, d2q
         key = (tuple(i), tuple(j))
@@ -706,17 +735,19 @@ def _refine(i, j, p, q, centre, order, tau2, colour_ok):
         current = key
     if len(i) < 3:
         return None
-    d2 = d2[i, j]
     return i, j, d2, _robust_rms(d2, 2 * len(coef))[0]
 
 
-def _search(p, q, parity, tau2, colour_ok, order, rng):
+def _search(p, q, parity, tau2, colours, order, rng):
     """Best inlier correspondences (i, j) of the automatic search, and the hypothesis count."""
-    a, b = _hypotheses(p, q, parity, rng)
+    colour_ok = colours.ok
+    mags = None if colours.mag1 is None else (colours.mag1, colours.mag2)
+    a, b = _hypotheses(p, q, parity, rng, mags)
     n_hyp = len(a)
     if n_hyp == 0:
         return None, 0
-    counts, score = _score(a, b, p, q, tau2, colour_ok)
+    inliers = _Inliers(p, tau2, colour_ok)
+    counts, score = inliers.score(a, b, q)
     rank = np.argsort(-score, kind="stable")
     centre = q.mean(axis=0)
     refined = []
@@ -728,16 +759,13 @@ def _search(p, q, parity, tau2, colour_ok, order, rng):
         if counts[h] < 3:
             continue
         coef = np.vstack([b[h] + a[h] @ centre, a[h].T])
-        d2 = _residuals2(coef, p, q, centre, normalise=True)
-        if colour_ok is not None:
-            d2 = np.where(colour_ok, d2, np.inf)
-        i, j = _mutual(d2, tau2)
+        i, j, _ = inliers.of_map(coef, q, centre)
         key = (tuple(i), tuple(j))
         if key in seen:
             continue
         seen.add(key)
         tried += 1
-        res = _refine(i, j, p, q, centre, order, tau2, colour_ok)
+        res = _refine(i, j, p, q, centre, order, inliers)
         if res is not None:
             refined.append(res)
     if not refined:
@@ -882,18 +910,35 @@ class _Pairing:
     max_residual: float | None
 
 
+@dataclass(frozen=True)
+class _Colours:
+    """Colour evidence of all combinations (catalogue 1 rows x catalogue 2 columns).
+
+    ``chi2`` (N1, N2) of the colour differences (zeros without flux columns),
+    ``diff`` the largest colour difference and ``ok`` the colour gate (None
+    without flux columns), ``mag1`` and ``mag2`` the mean magnitudes of the
+    points (None without flux columns).
+    """
+
+    chi2: np.ndarray
+    diff: np.ndarray | None = None
+    ok: np.ndarray | None = None
+    mag1: np.ndarray | None = None
+    mag2: np.ndarray | None = None
+
+
 def _colour_terms(catalog1, catalog2, cols, csig, n1, n2):
-    """(chi2 (N1, N2), largest colour difference or None, colour gate or None)."""
+    """The :class:`_Colours` of two catalogues for the flux columns ``cols`` (or None)."""
     if cols is None:
-        return np.zeros((n1, n2)), None, None
+        return _Colours(np.zeros((n1, n2)))
     units = [None] * len(cols)
-    col1 = _colours(catalog1, cols, "catalog1", units)
-    col2 = _colours(catalog2, cols, "catalog2", units)
+    col1, mag1 = _colours(catalog1, cols, "catalog1", units)
+    col2, mag2 = _colours(catalog2, cols, "catalog2", units)
     dcol = col1[:, None, :] - col2[None, :, :]  # (N1, N2, K-1)
     dcol = np.where(np.isfinite(dcol), dcol, 0.0)
     colour_chi2 = (dcol**2).sum(axis=2) / csig**2
     colour_diff = np.abs(dcol).max(axis=2)
-    return colour_chi2, colour_diff, colour_diff <= _COLOUR_GATE * csig
+    return _Colours(colour_chi2, colour_diff, colour_diff <= _COLOUR_GATE * csig, mag1, mag2)
 
 
 def _tolerances(p, q, tolerance):
@@ -924,13 +969,70 @@ def _manual_pairing(ids, ids1, ids2, p, q, centre, order, max_residual):
     return _Pairing(i, j, fit, n_hypotheses=0, n_inliers=len(i), max_residual=None)
 
 
+def _chance_gate2(coef, p, q, centre, rms_rob, n_pairs, colour_ok, gate2):
+    """The squared gates ``gate2`` (N2,), narrowed to where a chance coincidence is likelier.
+
+    A true pair's L1 position scatters about the mapped L2 one as a Gaussian
+    of per-axis variance ``s2 = rms_rob^2 / 2`` in the metric, plus a tail: a
+    fraction ``_TAIL_FRACTION`` of true pairs spread evenly over the gate
+    (map misfit, centroid outliers). The ellipse ``d < g`` covers
+    ``pi g^2 sqrt(det C)`` arcsec^2 of arc L1. A chance coincidence is a
+    point of catalogue 1 without counterpart, of density ``rho`` (those
+    points over the area of the convex hull of catalogue 1) with compatible
+    colours (the fraction ``f`` of combinations that pass the colour gate).
+    With the prior fraction ``pi_t = n_pairs / N2`` of true pairs: where the
+    tail alone is denser than chance, the gate stays; elsewhere a pair is
+    likelier true than chance while
+    ``d^2 < 2 s2 ln(pi_t / (2 pi s2 sqrt(det C) rho f))``, never below
+    ``_CHANCE_GATE_FLOOR`` standard deviations.
+    """
+    n1, n2 = len(p), len(q)
+    s2 = max(rms_rob, 1e-12) ** 2 / 2.0
+    try:
+        area = ConvexHull(p).volume
+    except QhullError:  # collinear or too few points: no area, no chance density
+        return gate2
+    chance = max(n1 - n_pairs, 0.5) / max(area, 1e-300)
+    if colour_ok is not None:
+        chance *= max(float(colour_ok.mean()), 1.0 / colour_ok.size)
+    jac = _jacobians(coef, q, centre)
+    sqrt_det = np.sqrt(np.linalg.det(0.5 * (np.eye(2) + jac @ np.swapaxes(jac, 1, 2))))
+    prior = min(max(n_pairs, 1) / n2, 1.0)
+    tail = _TAIL_FRACTION * prior / (np.pi * gate2 * sqrt_det)
+    log_ratio = np.log(prior / (2.0 * np.pi * s2 * sqrt_det * chance))
+    narrow = 2.0 * s2 * np.maximum(log_ratio, 0.5 * _CHANCE_GATE_FLOOR**2)
+    return np.where(tail >= chance, gate2, np.minimum(gate2, narrow))
+
+
+def _decoy_inliers(p, q, parity, tol, colours, order, rng, n_inliers):
+    """Most inliers the search finds on decoys of catalogue 2, or None when not needed.
+
+    Run only when the best map leaves most points of the smaller catalogue
+    unmatched (a crowded catalogue, where a chance map may beat the true
+    one). A decoy moves every point of catalogue 2 by 1-2 of its median
+    nearest-neighbour distances in a random direction: the same numbers of
+    points, spread and colours, but no constellation.
+    """
+    if 2 * n_inliers >= min(len(p), len(q)):
+        return None
+    nn = np.median(cKDTree(q).query(q, k=2)[0][:, 1])
+    best = 0
+    for _ in range(_N_DECOYS):
+        angle = rng.uniform(0.0, 2.0 * np.pi, len(q))
+        step = nn * (1.0 + rng.random(len(q)))
+        decoy = q + step[:, None] * np.column_stack([np.cos(angle), np.sin(angle)])
+        res, _ = _search(p, decoy, parity, tol**2, colours, order, rng)
+        best = max(best, 0 if res is None else len(res[0]))
+    return best
+
+
 def _automatic_pairing(p, q, centre, *, parity, order, tol, cap, max_residual, colours, rng):
     """Search for the map, then assign the pairs one to one along it (twice)."""
-    colour_chi2, _, colour_ok = colours
+    colour_chi2, colour_ok = colours.chi2, colours.ok
     n2 = len(q)
     maxres_user = None if max_residual is None else as_angle_scalar(
         max_residual, "max_residual", allow_zero=False)
-    best, n_hyp = _search(p, q, parity, tol**2, colour_ok, order, rng)
+    best, n_hyp = _search(p, q, parity, tol**2, colours, order, rng)
     if best is None or len(best[0]) < _MIN_AUTO_PAIRS:
         found = 0 if best is None else len(best[0])
         raise ValueError(
@@ -940,6 +1042,16 @@ def _automatic_pairing(p, q, centre, *, parity, order, tol, cap, max_residual, c
         )
     i, j = best[0], best[1]
     n_inliers = len(i)
+    n_decoy = _decoy_inliers(p, q, parity, tol, colours, order, rng, n_inliers)
+    if n_decoy is not None and n_inliers < _DECOY_MARGIN * n_decoy:
+        raise ValueError(
+            f"the best map brings {n_inliers} of the {len(q)} points of catalog2 onto "
+            f"catalog1 ({len(p)} points), and the same search on a decoy (catalog2 with "
+            f"its points scrambled) brings {n_decoy}: the pairing is not distinguishable "
+            "from chance. Remove spurious candidates (e.g. by signal-to-noise), give "
+            "flux_columns (colours, and the brightest points for the search), or pair "
+            "manually with ids="
+        )
     for _ in range(2):
         coef, keep, rms_rob, rms = _robust_fit(p, q, i, j, centre, order, _TRIM_FLOOR * tol)
         if maxres_user is None:
@@ -951,6 +1063,8 @@ def _automatic_pairing(p, q, centre, *, parity, order, tol, cap, max_residual, c
         if maxres_user is None:
             # prediction interval: wider where the map extrapolates
             gate2 = np.minimum(gate2 * (1.0 + _leverage(coef, q, q[j[keep]], centre)), cap**2)
+            # crowded catalogues: no wider than where a chance coincidence becomes likelier
+            gate2 = _chance_gate2(coef, p, q, centre, rms_rob, len(i), colour_ok, gate2)
         allowed = d2_all <= gate2
         cost = d2_all / gate2
         if colour_ok is not None:
@@ -1006,7 +1120,10 @@ def pair_constellations(
        nearest descriptors, and each match gives the affine map that is
        exact on its 3 points. Maps with ``|det A|`` outside 1/20-20, a
        stretch (ratio of singular values) above 20 or the wrong ``parity``
-       are discarded.
+       are discarded. With ``flux_columns``, the triangles of the 24
+       brightest points of each catalogue, described by each other only,
+       give hypotheses as well (scored first): in a catalogue crowded with
+       faint spurious detections, the bright points are mostly true sources.
     2. *Scoring.* Each map scores its inliers (mutual nearest neighbours
        closer than ``tolerance`` in the noise metric below, normalised to
        the same area for every map, with compatible colours) by MSAC, the
@@ -1018,14 +1135,24 @@ def pair_constellations(
        F-test prefers it (p < 0.01, from 8 pairs on). The refined
        hypotheses are compared by their MSAC score at 4 times the smallest
        robust rms among them (between half and all of ``tolerance``).
-    4. *Assignment.* The map is refitted and the pairs assigned one to one
+    4. *Chance.* When the best map leaves most points of the smaller
+       catalogue unmatched, the search is repeated on two decoys of
+       catalogue 2 (every point moved by 1-2 median nearest-neighbour
+       distances in a random direction); the pairing is refused
+       (``ValueError``) unless the map brings at least 1.3 times as many
+       points onto catalogue 1 as the better decoy.
+    5. *Assignment.* The map is refitted and the pairs assigned one to one
        with the Hungarian algorithm (`scipy.optimize.linear_sum_assignment`),
        minimising ``(d / gate)^2`` (plus ``(colour difference / (5
        colour_sigma))^2``), where leaving a point unmatched costs 0.5; a pair
        beyond its gate (or with a colour difference above 5
        ``colour_sigma``) is never formed. The gate is ``max_residual``,
-       widened by ``sqrt(1 + leverage)`` where the map extrapolates. The map
-       is refitted on the pairs and the assignment repeated once.
+       widened by ``sqrt(1 + leverage)`` where the map extrapolates, and
+       narrowed in a crowded catalogue to where a true pair (Gaussian
+       residuals of the fitted rms) is likelier than a chance coincidence
+       (the density of unmatched points of catalogue 1 with compatible
+       colours). The map is refitted on the pairs and the assignment
+       repeated once.
 
     Parameters
     ----------
@@ -1083,8 +1210,9 @@ def pair_constellations(
     seed : int, `numpy.random.Generator` or None
         Seed of the random subsets of triangles and hypotheses, drawn only
         for large catalogues (more than 6000 triangles or 30000
-        hypotheses); the result is otherwise deterministic, and always is
-        for a given seed.
+        hypotheses), and of the decoys (only when the best map leaves most
+        points unmatched); the result is otherwise deterministic, and
+        always is for a given seed.
 
     Returns
     -------
@@ -1125,8 +1253,9 @@ def pair_constellations(
         Positions without angular units, a catalogue of the wrong type.
     ValueError
         Fewer than 3 points in a catalogue, repeated positions or ids,
-        unknown ids, no map relating at least 4 points (automatic pairing),
-        bad parameters.
+        unknown ids, no map relating at least 4 points, or a best map no
+        better than on decoys ("not distinguishable from chance"; automatic
+        pairing), bad parameters.
 
     See Also
     --------
@@ -1171,7 +1300,7 @@ def pair_constellations(
         check_unique_rows(xy, name)
     rng = np.random.default_rng(seed)
     colours = _colour_terms(catalog1, catalog2, cols, csig, len(p), len(q))
-    colour_chi2, colour_diff, _ = colours
+    colour_chi2, colour_diff = colours.chi2, colours.diff
     tol, cap = _tolerances(p, q, tolerance)
     centre = q.mean(axis=0)
 

@@ -75,6 +75,40 @@ def make_system(seed, m=12, unmatched=0.2, noise=0.005, quad=0.0, **map_kwargs):
     return c1[p1] * u.arcsec, c2[p2] * u.arcsec, truth, a_mat
 
 
+def crowded_system(seed, n_spurious, m=24):
+    """``make_system`` (no unmatched points) buried in uniform spurious candidates, with fluxes.
+
+    Both catalogues are QTables (``x``, ``y`` in arcsec; fluxes ``f1`` and
+    ``f2`` in two bands). True sources: L2 flux log-uniform 20-500 (units of
+    the detection noise), colour N(0, 0.3) mag; on L1 the flux times
+    ``|det A|`` with 5 % scatter, and 0.03 mag of colour noise per arc.
+    Spurious candidates, drawn uniformly over each arc's bounding box widened
+    by 10 %: flux from N(>f) ~ f^-1.5 above 5 (the detection threshold),
+    colour N(0, 0.5) mag. Returns (table 1, table 2, truth {row1: row2}).
+    """
+    c1, c2, truth, a_mat = make_system(seed, m=m, unmatched=0.0)
+    rng = np.random.default_rng(10_000 + seed)
+    pairs = sorted(truth.items())  # source k: rows (r1, r2)
+    source = ({r1: k for k, (r1, _) in enumerate(pairs)},
+              {r2: k for k, (_, r2) in enumerate(pairs)})
+    flux2 = np.exp(rng.uniform(np.log(20), np.log(500), m))
+    colour = rng.normal(0, 0.3, m)
+    det = abs(np.linalg.det(a_mat))
+    cats = []
+    for arc, c in ((1, c1.to_value(u.arcsec)), (2, c2.to_value(u.arcsec))):
+        lo, hi = c.min(axis=0), c.max(axis=0)
+        pad = 0.05 * (hi - lo)
+        xy = np.vstack([c, rng.uniform(lo - pad, hi + pad, (n_spurious, 2))])
+        k = np.array([source[arc - 1][r] for r in range(len(c))])
+        f = flux2[k] * (det * (1 + rng.normal(0, 0.05, len(c))) if arc == 1 else 1.0)
+        col = colour[k] + rng.normal(0, 0.03, len(c))
+        band1 = np.r_[f, 5.0 * rng.random(n_spurious) ** (-1 / 1.5)]
+        band2 = band1 * 10 ** (-0.4 * np.r_[col, rng.normal(0, 0.5, n_spurious)])
+        cats.append(QTable({"x": xy[:, 0] * u.arcsec, "y": xy[:, 1] * u.arcsec,
+                            "f1": band1, "f2": band2}))
+    return cats[0], cats[1], truth
+
+
 def score(result, truth):
     """(correct, wrong) pairs of a result with 0-based row ids."""
     found = dict(zip(np.asarray(result["id1"]).tolist(), np.asarray(result["id2"]).tolist(),
@@ -128,10 +162,121 @@ def test_parity_restriction():
     c1, c2, truth, a_mat = make_system(7, parity=-1)
     result = pair_constellations(c1, c2, id_column=None, parity=-1)
     assert score(result, truth) == (len(truth), 0)
-    # forcing the wrong parity finds at most a chance alignment of a few points
-    wrong = pair_constellations(c1, c2, id_column=None, parity=1)
-    assert wrong.meta["map"]["parity"] == 1
-    assert len(wrong) <= len(truth) // 2
+    # forcing the wrong parity finds at most a chance alignment of a few points,
+    # which a decoy catalogue matches as well: refused, never returned as pairs
+    with pytest.raises(ValueError, match="not distinguishable from chance"):
+        pair_constellations(c1, c2, id_column=None, parity=1)
+
+
+def _dense_inliers(qm, minv, p, tau2, colour_ok):
+    """Plain numpy reference: mutual nearest neighbours over all (N1, N2) distances."""
+    r = p[:, None, :] - qm[None, :, :]
+    d2 = np.einsum("ijk,jkl,ijl->ij", r, minv, r)
+    if colour_ok is not None:
+        d2 = np.where(colour_ok, d2, np.inf)
+    best_i = np.argmin(d2, axis=0)
+    best_j = np.argmin(d2, axis=1)
+    j = np.arange(len(qm))
+    ok = (best_j[best_i] == j) & (d2[best_i, j] < tau2)
+    return best_i[ok], j[ok], d2[best_i[ok], j[ok]]
+
+
+@pytest.mark.parametrize("colours", [False, True])
+def test_inlier_kernels_match_all_distances(colours):
+    """The grid kernels of the search equal mutual nearest neighbours over all distances."""
+    from lensdual import _pairing_kernels as kern
+    from lensdual.pairing import _apply, _jacobians, _metric
+
+    rng = np.random.default_rng(5)
+    c1, c2, _ = crowded_system(3, 150)
+    p = np.column_stack([c1["x"].value, c1["y"].value])
+    q = np.column_stack([c2["x"].value, c2["y"].value])
+    colour_ok = rng.random((len(p), len(q))) < 0.6 if colours else None
+    tau2 = 0.03**2
+    grid = kern.grid(p, np.sqrt(tau2))
+    flag = np.ones((1, 1), bool) if colour_ok is None else colour_ok
+    # affine hypotheses: the true map and random perturbations of it
+    centre = q.mean(axis=0)
+    truth_pairs = [(k, v) for k, v in sorted(make_system(3, m=24, unmatched=0.0)[2].items())]
+    coef = np.linalg.lstsq(np.column_stack([np.ones(24), q[[v for _, v in truth_pairs]]]),
+                           p[[k for k, _ in truth_pairs]], rcond=None)[0]
+    a = coef[1:].T[None] * (1 + 0.05 * rng.normal(size=(40, 2, 2)))
+    b = coef[0][None] + 0.02 * rng.normal(size=(40, 2))
+    a[0], b[0] = coef[1:].T, coef[0]
+    counts, scores = kern.score_hypotheses(a, b, q, tau2, p, *grid, flag, colours)
+    for h in range(len(a)):
+        qm = q @ a[h].T + b[h]
+        minv = np.broadcast_to(_metric(a[h], normalise=True), (len(q), 2, 2))
+        i, j, d2 = _dense_inliers(qm, minv, p, tau2, colour_ok)
+        assert counts[h] == len(i)
+        assert scores[h] == pytest.approx((1 - d2 / tau2).sum(), rel=1e-12, abs=1e-12)
+    if not colours:  # the true map has the most inliers (random colour gates cut it)
+        assert counts[0] >= 20 and counts.max() == counts[0]
+    # a quadratic map about the centre: one metric per mapped point
+    quad = np.vstack([coef[0] + centre @ coef[1:], coef[1:], 0.002 * rng.normal(size=(3, 2))])
+    qm = np.ascontiguousarray(_apply(quad, q, centre))
+    minv = np.ascontiguousarray(_metric(_jacobians(quad, q, centre), normalise=True))
+    got = kern.mutual_inliers(qm, minv, tau2, p, *grid, flag, colours)
+    want = _dense_inliers(qm, minv, p, tau2, colour_ok)
+    assert len(want[0]) >= 5
+    np.testing.assert_array_equal(got[0], want[0])
+    np.testing.assert_array_equal(got[1], want[1])
+    np.testing.assert_allclose(got[2], want[2], rtol=1e-12)
+
+
+def test_crowded_catalogues_without_colours_are_refused():
+    """300 spurious candidates per arc for 24 true pairs, positions only: chance maps
+    match as many points as the true one; the pairing says so instead of pairing."""
+    c1, c2, _ = crowded_system(0, 300)
+    with pytest.raises(ValueError, match="not distinguishable from chance.*flux_columns"):
+        pair_constellations(c1, c2, id_column=None, seed=0)
+
+
+def test_crowded_catalogues_with_colours():
+    """100 faint spurious candidates per arc with random colours: the brightest points
+    give the hypotheses, colours and the chance density the pairs."""
+    n_true = n_correct = n_wrong = 0
+    for seed in range(3):
+        c1, c2, truth = crowded_system(seed, 100)
+        result = pair_constellations(c1, c2, id_column=None, seed=0, flux_columns=["f1", "f2"])
+        correct, bad = score(result, truth)
+        n_true += len(truth)
+        n_correct += correct
+        n_wrong += bad
+    assert n_correct >= 0.95 * n_true
+    assert n_wrong <= 6
+
+
+def test_chance_gate_closed_form():
+    """The gate where a chance coincidence becomes likelier than a true pair."""
+    from scipy.spatial import ConvexHull
+
+    from lensdual.pairing import _chance_gate2
+
+    rng = np.random.default_rng(2)
+    p = rng.uniform(0, 2, (400, 2))
+    q = rng.uniform(0, 2, (400, 2))
+    coef = np.vstack([[0.0, 0.0], rotation(0.7).T])  # a rotation: sqrt(det C) = 1
+    rms, n_pairs = 0.004, 30
+    gate2 = np.full(400, (5 * rms) ** 2)
+    got = _chance_gate2(coef, p, q, q.mean(axis=0), rms, n_pairs, None, gate2)
+    s2 = rms**2 / 2
+    rho = (400 - n_pairs) / ConvexHull(p).volume
+    want = 2 * s2 * np.log((n_pairs / 400) / (2 * np.pi * s2 * rho))
+    assert 0.2 * (n_pairs / 400) / (np.pi * gate2[0]) < rho  # the tail does not protect
+    np.testing.assert_allclose(got, want, rtol=1e-12)
+    # half the combinations pass the colour gate: half the chance density
+    half = np.zeros((400, 400), bool)
+    half[:, ::2] = True
+    got_c = _chance_gate2(coef, p, q, q.mean(axis=0), rms, n_pairs, half, gate2)
+    np.testing.assert_allclose(got_c, want + 2 * s2 * np.log(2), rtol=1e-12)
+    # never below the floor of 2 standard deviations per axis
+    wide = _chance_gate2(coef, p, q, q.mean(axis=0), 0.1, n_pairs, None, np.full(400, 1.0))
+    np.testing.assert_allclose(wide, 2 * (0.1**2 / 2) * 2.0, rtol=1e-12)
+    # a sparse catalogue (30 of 40 points paired): the tail is denser than chance
+    sparse = _chance_gate2(coef, p[:40], q[:40], q[:40].mean(axis=0), rms, 30, None,
+                           gate2[:40])
+    np.testing.assert_array_equal(sparse, gate2[:40])
 
 
 def test_mildly_non_linear_map():
