@@ -1048,9 +1048,10 @@ def _automatic_pairing(p, q, centre, *, parity, order, tol, cap, max_residual, c
             f"the best map brings {n_inliers} of the {len(q)} points of catalog2 onto "
             f"catalog1 ({len(p)} points), and the same search on a decoy (catalog2 with "
             f"its points scrambled) brings {n_decoy}: the pairing is not distinguishable "
-            "from chance. Remove spurious candidates (e.g. by signal-to-noise), give "
-            "flux_columns (colours, and the brightest points for the search), or pair "
-            "manually with ids="
+            "from chance. Remove spurious candidates (e.g. by signal-to-noise), "
+            + ("give flux_columns (colours, and the brightest points for the search), "
+               if colour_ok is None else "")
+            + "or pair manually with ids="
         )
     for _ in range(2):
         coef, keep, rms_rob, rms = _robust_fit(p, q, i, j, centre, order, _TRIM_FLOOR * tol)
