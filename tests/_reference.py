@@ -167,6 +167,13 @@ def adaptive(t1, t2, s1, s2, pilot, chi2_crit, min_extra=1, report_extra=1, min_
     dofs = np.zeros(n)
     for a in range(n):
         order = np.argsort(((t2 - t2[a]) ** 2).sum(axis=1), kind="stable")
+        # passing fits are ranked by the variance of ln|det J| along the pilot's
+        # gradient (their own errors where the pilot is singular)
+        p_det = np.linalg.det(pilot[a])
+        g_pilot = None
+        if np.isfinite(p_det) and p_det != 0.0:
+            p = pilot[a]
+            g_pilot = np.array([p[1, 1], -p[1, 0], -p[0, 1], p[0, 0]]) / p_det
         best = fallback = worst = None
         consistent = []
         reported = {}  # (degree, k) -> ln|det J| of every reported fit
@@ -181,8 +188,9 @@ def adaptive(t1, t2, s1, s2, pilot, chi2_crit, min_extra=1, report_extra=1, min_
                 s = np.sqrt(g @ cj @ g)
                 reported[(dr, k)] = (np.log(abs(det)), s**2)
                 if chi2 <= chi2_crit[dof]:
-                    if best is None or s < best[1]:
-                        best = (j, s)
+                    rank = s**2 if g_pilot is None else g_pilot @ cj @ g_pilot
+                    if best is None or rank < best[2]:
+                        best = (j, s, rank)
                     continue
                 sf = s * np.sqrt(max(1.0, _press_ratio(t1, t2, a, idx, dr, s1, s2, pilot[a])))
                 if chi2_r <= chi2_crit[dof_r]:

@@ -593,7 +593,12 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
     for that neighbourhood is the fit of degree ``d + report_extra`` on the
     same points, whose truncation bias is one order smaller (robust bias
     correction). Among the neighbourhoods that pass the test, the one whose
-    reported fit has the smallest error wins (``ADAPTIVE_OK``).
+    reported fit has the smallest error of ``ln|det J|`` *along the pilot's
+    gradient* wins (``ADAPTIVE_OK``), and its own error is returned. The
+    ranking uses the fits' covariances (their designs) and the common pilot,
+    not each fit's own noisy ``det J``: ranked by their own errors, which
+    scale as ``1 / |det J|``, fits whose noise raised ``|det J|`` would win
+    (a selection bias towards over-estimates).
 
     If none passes, the reported fits that pass the chi-square test on their
     own are used: the one with the smallest error scaled by its
@@ -615,7 +620,8 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
 
     The reported fit's chi-square and PRESS (a pass over the points with
     the leverages, the costly part) are computed only while no neighbourhood
-    has passed: once one has, only a smaller error can change the result.
+    has passed: once one has, only a better-ranked passing fit can change
+    the result.
     """
     n = row.shape[0]
     # pilot effective-variance frame
@@ -665,7 +671,22 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
             for j in range(_ADAPTIVE_NCOEF_MAX):
                 A[comp, i, j] = 0.0
 
+    # gradient of ln|det| at the pilot, in the rotated frame (P' = R^T P): it ranks
+    # the passing fits (see above); a singular pilot ranks by the fits' own errors
+    pr00 = c * pilot[0, 0] + s * pilot[1, 0]
+    pr01 = c * pilot[0, 1] + s * pilot[1, 1]
+    pr10 = -s * pilot[0, 0] + c * pilot[1, 0]
+    pr11 = -s * pilot[0, 1] + c * pilot[1, 1]
+    pdet = pr00 * pr11 - pr01 * pr10
+    pilot_ranks = np.isfinite(pdet) and pdet != 0.0
+    q00 = q01 = q10 = q11 = 0.0
+    if pilot_ranks:
+        q00 = pr11 / pdet
+        q01 = -pr10 / pdet
+        q10 = -pr01 / pdet
+        q11 = pr00 / pdet
     best_sd = np.inf
+    best_rank = np.inf
     best_fb = np.inf
     best_un = np.inf
     found = False
@@ -745,7 +766,7 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
             dof = 2 * (kk - pt)
             passed = chi2 <= chi2_crit[dof]
             if found and not passed:
-                continue  # only a passing fit with a smaller error can change the result
+                continue  # only a better-ranked passing fit can change the result
             # reported fit: degree dt + report_extra on the same points, with
             # its covariance
             if n_fac < pr:
@@ -773,7 +794,16 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
                 continue
             sd = np.sqrt(var_ln)
             if passed:
-                if sd < best_sd:
+                rank = var_ln
+                if pilot_ranks:
+                    rank = ((q00 * q00 * cov[0, 0] + 2.0 * q00 * q01 * cov[0, 1]
+                             + q01 * q01 * cov[0, 2])
+                            + (q10 * q10 * cov[1, 0] + 2.0 * q10 * q11 * cov[1, 1]
+                               + q11 * q11 * cov[1, 2])) / (hmax * hmax)
+                    if not rank > 0.0:
+                        rank = var_ln
+                if rank < best_rank:
+                    best_rank = rank
                     best_sd = sd
                     found = True
                     _rotate_back(c, s, jr00, jr01, jr10, jr11, jb)
