@@ -150,8 +150,30 @@ def _press_ratio(t1, t2, a, idx, degree, s1, s2, pilot):
     return num / den
 
 
+def _curvature(t1, t2, a, idx, degree, s1, s2, pilot):
+    """Largest change of ln|det J| over the points ``idx`` that a fit's
+    second-order terms predict: max |tr(J^-1 dJ(u))|, dJ(u) = H u."""
+    if degree < 2:
+        return 0.0
+    u = t2[idx] - t2[a]
+    x = _monomials(u, degree)
+    y = t1[idx] - t1[a]
+    cov = s1[idx, None, None] ** 2 * np.eye(2) + s2[idx, None, None] ** 2 * (pilot @ pilot.T)
+    w = np.linalg.inv(cov)
+    p = x.shape[1]
+    normal = np.einsum("bi,bj,bkl->kilj", x, x, w).reshape(2 * p, 2 * p)
+    rhs = np.einsum("bi,bkl,bl->ki", x, w, y).reshape(2 * p)
+    beta = np.linalg.solve(normal, rhs).reshape(2, p)
+    jinv = np.linalg.inv(beta[:, 1:3])
+    out = 0.0
+    for ux, uy in u:
+        dj = np.array([[2 * c[3] * ux + c[4] * uy, c[4] * ux + 2 * c[5] * uy] for c in beta])
+        out = max(out, abs(np.trace(jinv @ dj)))
+    return out
+
+
 def adaptive(t1, t2, s1, s2, pilot, chi2_crit, min_extra=1, report_extra=1, min_candidates=2,
-             lookahead=5):
+             lookahead=5, curv_coef=0.1):
     """One pass of the adaptive estimator given pilot Jacobians (N, 2, 2).
 
     Returns J (N, 2, 2), the error of ln|det J|, the status (0 ok,
@@ -196,17 +218,19 @@ def adaptive(t1, t2, s1, s2, pilot, chi2_crit, min_extra=1, report_extra=1, min_
                 if chi2_r <= chi2_crit[dof_r]:
                     consistent.append((np.log(abs(det)), s**2))
                     if fallback is None or sf < fallback[1]:
-                        fallback = (j, sf, np.log(abs(det)), dr, k, dof_r)
+                        curv = _curvature(t1, t2, a, idx, dr, s1, s2, pilot[a])
+                        fallback = (j, sf, np.log(abs(det)), dr, k, dof_r, curv)
                 elif worst is None or sf < worst[1]:
                     worst = (j, sf, dof_r)
         if best is not None:
             jac[a], sd[a], status[a], dofs[a] = best[0], best[1], 0, np.inf
         elif fallback is not None and len(consistent) >= min_candidates:
-            _, _, l_best, d_best, k_best, dofs[a] = fallback
+            _, _, l_best, d_best, k_best, dofs[a], curv = fallback
             near = [v for (d, k), v in reported.items()
                     if d == d_best and k_best < k <= k_best + lookahead]
             spread = max(max((c - l_best) ** 2 - v for c, v in consistent + near), 0.0)
-            jac[a], sd[a], status[a] = fallback[0], np.hypot(fallback[1], np.sqrt(spread)), 1
+            trunc = curv_coef * curv**3
+            jac[a], sd[a], status[a] = fallback[0], np.sqrt(fallback[1] ** 2 + spread + trunc**2), 1
         elif fallback is not None:
             jac[a], sd[a], status[a], dofs[a] = fallback[0], fallback[1], 3, fallback[5]
         elif worst is not None:
