@@ -104,11 +104,12 @@ def _monomials(u, degree):
     return np.column_stack(cols)
 
 
-def _gls_fit(t1, t2, a, idx, degree, s1, s2, pilot):
+def _gls_beta(t1, t2, a, idx, degree, s1, s2, pilot):
     """Generalised least squares of theta1 on a polynomial of theta2 - theta2[a].
 
     Each point's 2x2 covariance is s1^2 I + s2^2 P P^T (no rotation trick:
-    the full 2p x 2p normal system). Returns J, its 4x4 covariance, chi2, dof.
+    the full 2p x 2p normal system). Returns the offsets u, the design, the
+    data, the weights, the coefficients (2, p) and their covariance.
     """
     u = t2[idx] - t2[a]
     x = _monomials(u, degree)
@@ -119,7 +120,13 @@ def _gls_fit(t1, t2, a, idx, degree, s1, s2, pilot):
     normal = np.einsum("bi,bj,bkl->kilj", x, x, w).reshape(2 * p, 2 * p)
     rhs = np.einsum("bi,bkl,bl->ki", x, w, y).reshape(2 * p)
     cinv = np.linalg.inv(normal)
-    beta = (cinv @ rhs).reshape(2, p)
+    return u, x, y, w, (cinv @ rhs).reshape(2, p), cinv
+
+
+def _gls_fit(t1, t2, a, idx, degree, s1, s2, pilot):
+    """The GLS fit (:func:`_gls_beta`): J, its 4x4 covariance, chi2, dof."""
+    _, x, y, w, beta, cinv = _gls_beta(t1, t2, a, idx, degree, s1, s2, pilot)
+    p = x.shape[1]
     r = y - x @ beta.T
     chi2 = np.einsum("bk,bkl,bl->", r, w, r)
     sel = [1, 2, p + 1, p + 2]
@@ -155,15 +162,7 @@ def _curvature(t1, t2, a, idx, degree, s1, s2, pilot):
     second-order terms predict: max |tr(J^-1 dJ(u))|, dJ(u) = H u."""
     if degree < 2:
         return 0.0
-    u = t2[idx] - t2[a]
-    x = _monomials(u, degree)
-    y = t1[idx] - t1[a]
-    cov = s1[idx, None, None] ** 2 * np.eye(2) + s2[idx, None, None] ** 2 * (pilot @ pilot.T)
-    w = np.linalg.inv(cov)
-    p = x.shape[1]
-    normal = np.einsum("bi,bj,bkl->kilj", x, x, w).reshape(2 * p, 2 * p)
-    rhs = np.einsum("bi,bkl,bl->ki", x, w, y).reshape(2 * p)
-    beta = np.linalg.solve(normal, rhs).reshape(2, p)
+    u, _, _, _, beta, _ = _gls_beta(t1, t2, a, idx, degree, s1, s2, pilot)
     jinv = np.linalg.inv(beta[:, 1:3])
     out = 0.0
     for ux, uy in u:
