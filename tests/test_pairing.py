@@ -232,6 +232,26 @@ def test_crowded_catalogues_without_colours_are_refused():
         pair_constellations(c1, c2, id_column=None, seed=0)
 
 
+def test_crowded_refusal_with_colours_does_not_ask_for_them():
+    """300 spurious candidates per arc, colours given, seed 0 (the map is not found):
+    refused, and the advice is to cut candidates or pair by hand, not to give colours."""
+    c1, c2, _ = crowded_system(0, 300)
+    with pytest.raises(ValueError, match="not distinguishable from chance") as info:
+        pair_constellations(c1, c2, id_column=None, seed=0, flux_columns=["f1", "f2"])
+    assert "flux_columns" not in str(info.value)
+    assert "signal-to-noise" in str(info.value) and "ids=" in str(info.value)
+
+
+def test_crowded_pairing_is_reproducible_for_a_seed():
+    """Sampled triangles, hypotheses and decoys all come from ``seed``."""
+    c1, c2, _ = crowded_system(1, 100)
+    runs = [pair_constellations(c1, c2, id_column=None, seed=3, flux_columns=["f1", "f2"])
+            for _ in range(2)]
+    for name in ("id1", "id2", "residual", "confidence"):
+        np.testing.assert_array_equal(np.asarray(runs[0][name]), np.asarray(runs[1][name]))
+    assert runs[0].meta["n_hypotheses"] == runs[1].meta["n_hypotheses"]
+
+
 def test_crowded_catalogues_with_colours():
     """100 faint spurious candidates per arc with random colours: the brightest points
     give the hypotheses, colours and the chance density the pairs."""
