@@ -28,21 +28,37 @@ def grid(p, tau):
 
     Cells are squares of side ``cell >= tau``; ``starts`` has ``nx * ny + 1``
     entries (rows ``order[starts[c]:starts[c + 1]]`` lie in cell ``c = iy *
-    nx + ix``).
+    nx + ix``). The grid covers the 1-99 % quantiles of the points (widened
+    by 10 %), so that a stray point far away does not make the cells huge;
+    points outside lie in the edge cells, which every scan beyond the edge
+    visits (:func:`_scan` clamps its cell range).
     """
-    lo = p.min(axis=0)
-    span = np.maximum(p.max(axis=0) - lo, 0.0)
-    cell = max(float(tau), float(np.sqrt(span[0] * span[1] / MAX_CELLS)), 1e-300)
+    q_lo, q_hi = np.quantile(p, [0.01, 0.99], axis=0)
+    pad = 0.1 * (q_hi - q_lo)
+    lo = q_lo - pad
+    span = np.maximum(q_hi + pad - lo, 0.0)
+    cell = max(float(tau), float(np.sqrt(span[0] * span[1] / MAX_CELLS)),
+               float(span.max()) / MAX_CELLS, 1e-300)
     nx, ny = (np.floor(span / cell).astype(np.int64) + 1).tolist()
     while nx * ny > MAX_CELLS:
         cell *= 2.0
         nx, ny = (np.floor(span / cell).astype(np.int64) + 1).tolist()
-    ix = np.minimum(((p[:, 0] - lo[0]) / cell).astype(np.int64), nx - 1)
-    iy = np.minimum(((p[:, 1] - lo[1]) / cell).astype(np.int64), ny - 1)
+    ix = np.clip(np.floor((p[:, 0] - lo[0]) / cell), 0, nx - 1).astype(np.int64)
+    iy = np.clip(np.floor((p[:, 1] - lo[1]) / cell), 0, ny - 1).astype(np.int64)
     key = iy * nx + ix
     order = np.argsort(key, kind="stable")
     starts = np.searchsorted(key[order], np.arange(nx * ny + 1))
     return order, starts, float(lo[0]), float(lo[1]), cell, nx, ny
+
+
+@njit(inline="always", **JIT_OPTIONS)
+def _clamp(x, n):
+    """The cell index ``x`` (a float, possibly huge or NaN) clamped into 0 .. n - 1."""
+    if not x > 0.0:
+        return 0
+    if x >= n - 1:
+        return n - 1
+    return int(x)
 
 
 @njit(inline="always", **JIT_OPTIONS)
@@ -53,10 +69,11 @@ def _scan(j, qx, qy, m00, m01, m11, tau2, p, order, starts, x0, y0, cell, nx, ny
     det = m00 * m11 - m01 * m01
     hx = np.sqrt(tau2 * m11 / det)
     hy = np.sqrt(tau2 * m00 / det)
-    ix0 = max(int(np.floor((qx - hx - x0) / cell)), 0)
-    ix1 = min(int(np.floor((qx + hx - x0) / cell)), nx - 1)
-    iy0 = max(int(np.floor((qy - hy - y0) / cell)), 0)
-    iy1 = min(int(np.floor((qy + hy - y0) / cell)), ny - 1)
+    # clamped into the grid: the edge cells hold the points beyond it
+    ix0 = _clamp(np.floor((qx - hx - x0) / cell), nx)
+    ix1 = _clamp(np.floor((qx + hx - x0) / cell), nx)
+    iy0 = _clamp(np.floor((qy - hy - y0) / cell), ny)
+    iy1 = _clamp(np.floor((qy + hy - y0) / cell), ny)
     best_i[j] = -1
     best_d[j] = tau2
     for iy in range(iy0, iy1 + 1):

@@ -104,17 +104,13 @@ _CHANCE_GATE_FLOOR = 2.0
 #: ... and not at all where the tail of true pairs' residuals (this fraction of
 #: them, spread evenly over the gate) is denser than the chance coincidences.
 _TAIL_FRACTION = 0.2
-#: When the best map leaves most points unmatched, the search is repeated on
-#: this many decoys of catalogue 2 (its points scrambled), and the map is
+#: When the best map leaves most points of the larger catalogue unmatched, the
+#: search is repeated on this many decoys of catalogue 2 (its points
+#: scrambled), and the map is
 #: only accepted with at least _DECOY_MARGIN times the decoys' most inliers.
 _N_DECOYS = 2
 _DECOY_MARGIN = 1.3
-#: Hypotheses scored per chunk (bounds the memory of the distance cubes) ...
-_CHUNK = 1024
-#: ... and at most this many (hypothesis x point x point) distances per chunk
-#: (2**21 doubles: 16 MB per array of the chunk), whatever the catalogue sizes.
-_CHUNK_ENTRIES = 2**21
-#: Scoring costs about (hypotheses x (N1 + N2)) operations (a sorted strip
+#: Scoring costs about (hypotheses x (N1 + N2)) operations (a few grid cells
 #: per mapped point, ``lensdual._pairing_kernels``); above this many, the
 #: hypotheses are drawn (with the seed) down to the number that fits: all
 #: _MAX_HYPOTHESES up to 500 points per catalogue.
@@ -969,6 +965,24 @@ def _manual_pairing(ids, ids1, ids2, p, q, centre, order, max_residual):
     return _Pairing(i, j, fit, n_hypotheses=0, n_inliers=len(i), max_residual=None)
 
 
+def _crowded(n_pairs, n1, n2):
+    """Whether a pairing leaves most points of the larger catalogue unmatched."""
+    return 2 * n_pairs < max(n1, n2)
+
+
+def _robust_area(p):
+    """Area (arcsec^2) of the convex hull of the points within their 1-99 % quantile
+    box widened by 10 % (a stray detection far away does not count), and how many
+    points it holds; (0, 0) when the points span no area."""
+    q_lo, q_hi = np.quantile(p, [0.01, 0.99], axis=0)
+    pad = 0.1 * (q_hi - q_lo)
+    inside = np.all((p >= q_lo - pad) & (p <= q_hi + pad), axis=1)
+    try:
+        return ConvexHull(p[inside]).volume, int(inside.sum())
+    except QhullError:  # collinear or too few points
+        return 0.0, 0
+
+
 def _chance_gate2(coef, p, q, centre, rms_rob, n_pairs, colour_ok, gate2):
     """The squared gates ``gate2`` (N2,), narrowed to where a chance coincidence is likelier.
 
@@ -980,6 +994,8 @@ def _chance_gate2(coef, p, q, centre, rms_rob, n_pairs, colour_ok, gate2):
     point of catalogue 1 without counterpart, of density ``rho`` (those
     points over the area of the convex hull of catalogue 1) with compatible
     colours (the fraction ``f`` of combinations that pass the colour gate).
+    Only in a crowded pairing (:func:`_crowded`; the hull and its points are
+    those of :func:`_robust_area`).
     With the prior fraction ``pi_t = n_pairs / N2`` of true pairs: where the
     tail alone is denser than chance, the gate stays; elsewhere a pair is
     likelier true than chance while
@@ -987,12 +1003,13 @@ def _chance_gate2(coef, p, q, centre, rms_rob, n_pairs, colour_ok, gate2):
     ``_CHANCE_GATE_FLOOR`` standard deviations.
     """
     n1, n2 = len(p), len(q)
-    s2 = max(rms_rob, 1e-12) ** 2 / 2.0
-    try:
-        area = ConvexHull(p).volume
-    except QhullError:  # collinear or too few points: no area, no chance density
+    if not _crowded(n_pairs, n1, n2):
         return gate2
-    chance = max(n1 - n_pairs, 0.5) / max(area, 1e-300)
+    s2 = max(rms_rob, 1e-12) ** 2 / 2.0
+    area, n_in = _robust_area(p)
+    if not area > 0:  # no area: no chance density
+        return gate2
+    chance = max(n_in - n_pairs, 0.5) / area
     if colour_ok is not None:
         chance *= max(float(colour_ok.mean()), 1.0 / colour_ok.size)
     jac = _jacobians(coef, q, centre)
@@ -1007,13 +1024,12 @@ def _chance_gate2(coef, p, q, centre, rms_rob, n_pairs, colour_ok, gate2):
 def _decoy_inliers(p, q, parity, tol, colours, order, rng, n_inliers):
     """Most inliers the search finds on decoys of catalogue 2, or None when not needed.
 
-    Run only when the best map leaves most points of the smaller catalogue
-    unmatched (a crowded catalogue, where a chance map may beat the true
-    one). A decoy moves every point of catalogue 2 by 1-2 of its median
+    Run only in a crowded pairing (:func:`_crowded`), where a chance map
+    may beat the true one. A decoy moves every point of catalogue 2 by 1-2 of its median
     nearest-neighbour distances in a random direction: the same numbers of
     points, spread and colours, but no constellation.
     """
-    if 2 * n_inliers >= min(len(p), len(q)):
+    if not _crowded(n_inliers, len(p), len(q)):
         return None
     nn = np.median(cKDTree(q).query(q, k=2)[0][:, 1])
     best = 0
@@ -1136,7 +1152,7 @@ def pair_constellations(
        F-test prefers it (p < 0.01, from 8 pairs on). The refined
        hypotheses are compared by their MSAC score at 4 times the smallest
        robust rms among them (between half and all of ``tolerance``).
-    4. *Chance.* When the best map leaves most points of the smaller
+    4. *Chance.* When the best map leaves most points of the larger
        catalogue unmatched, the search is repeated on two decoys of
        catalogue 2 (every point moved by 1-2 median nearest-neighbour
        distances in a random direction); the pairing is refused
@@ -1149,7 +1165,7 @@ def pair_constellations(
        beyond its gate (or with a colour difference above 5
        ``colour_sigma``) is never formed. The gate is ``max_residual``,
        widened by ``sqrt(1 + leverage)`` where the map extrapolates, and
-       narrowed in a crowded catalogue to where a true pair (Gaussian
+       narrowed in such a crowded catalogue to where a true pair (Gaussian
        residuals of the fitted rms) is likelier than a chance coincidence
        (the density of unmatched points of catalogue 1 with compatible
        colours). The map is refitted on the pairs and the assignment
