@@ -252,6 +252,31 @@ def test_crowded_pairing_is_reproducible_for_a_seed():
     assert runs[0].meta["n_hypotheses"] == runs[1].meta["n_hypotheses"]
 
 
+def test_a_stray_detection_far_away_changes_nothing():
+    """One candidate 1e4 arcsec away: the kernel's grid keeps its cells, the chance
+    density is not diluted, the pairs are those without it."""
+    from lensdual import _pairing_kernels as kern
+
+    c1, c2, truth = crowded_system(0, 100)
+    p = np.column_stack([c1["x"].value, c1["y"].value])
+    stray = c1.copy()
+    stray.add_row({"x": 1e4 * u.arcsec, "y": 1e4 * u.arcsec, "f1": 10.0, "f2": 10.0})
+    p_stray = np.column_stack([stray["x"].value, stray["y"].value])
+    assert kern.grid(p_stray, 0.03)[4] == pytest.approx(kern.grid(p, 0.03)[4], rel=0.05)
+    kw = dict(id_column=None, seed=0, flux_columns=["f1", "f2"])
+    ref = pair_constellations(c1, c2, **kw)
+    got = pair_constellations(stray, c2, **kw)
+    assert score(got, truth) == score(ref, truth)
+    assert score(got, truth)[0] >= 22
+
+
+def test_small_catalogue_against_a_crowded_one_is_refused():
+    """5 points against 300: some map always passes through all 5; decoys do as well."""
+    c1, c2, _ = crowded_system(1, 300)
+    with pytest.raises(ValueError, match="not distinguishable from chance"):
+        pair_constellations(c1, c2[:5], id_column=None, seed=0)
+
+
 def test_crowded_catalogues_with_colours():
     """100 faint spurious candidates per arc with random colours: the brightest points
     give the hypotheses, colours and the chance density the pairs."""
