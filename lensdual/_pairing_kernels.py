@@ -23,6 +23,14 @@ __all__ = []
 MAX_CELLS = 2**20
 
 
+def quantile_box(p):
+    """(lower, upper) corners of the 1-99 % quantile box of the points ``p`` (N, 2),
+    widened by 10 % on each side: their extent, without stray points far away."""
+    q_lo, q_hi = np.quantile(p, [0.01, 0.99], axis=0)
+    pad = 0.1 * (q_hi - q_lo)
+    return q_lo - pad, q_hi + pad
+
+
 def grid(p, tau):
     """Cells of the points ``p`` (N, 2): (rows sorted by cell, cell starts, x0, y0, cell, nx, ny).
 
@@ -33,10 +41,8 @@ def grid(p, tau):
     points outside lie in the edge cells, which every scan beyond the edge
     visits (:func:`_scan` clamps its cell range).
     """
-    q_lo, q_hi = np.quantile(p, [0.01, 0.99], axis=0)
-    pad = 0.1 * (q_hi - q_lo)
-    lo = q_lo - pad
-    span = np.maximum(q_hi + pad - lo, 0.0)
+    lo, hi = quantile_box(p)
+    span = np.maximum(hi - lo, 0.0)
     cell = max(float(tau), float(np.sqrt(span[0] * span[1] / MAX_CELLS)),
                float(span.max()) / MAX_CELLS, 1e-300)
     nx, ny = (np.floor(span / cell).astype(np.int64) + 1).tolist()

@@ -974,9 +974,8 @@ def _robust_area(p):
     """Area (arcsec^2) of the convex hull of the points within their 1-99 % quantile
     box widened by 10 % (a stray detection far away does not count), and how many
     points it holds; (0, 0) when the points span no area."""
-    q_lo, q_hi = np.quantile(p, [0.01, 0.99], axis=0)
-    pad = 0.1 * (q_hi - q_lo)
-    inside = np.all((p >= q_lo - pad) & (p <= q_hi + pad), axis=1)
+    lo, hi = _pairing_kernels.quantile_box(p)
+    inside = np.all((p >= lo) & (p <= hi), axis=1)
     try:
         return ConvexHull(p[inside]).volume, int(inside.sum())
     except QhullError:  # collinear or too few points
