@@ -157,18 +157,38 @@ def _press_ratio(t1, t2, a, idx, degree, s1, s2, pilot):
     return num / den
 
 
-def _curvature(t1, t2, a, idx, degree, s1, s2, pilot):
-    """Largest change of ln|det J| over the points ``idx`` that a fit's
-    second-order terms predict: max |tr(J^-1 dJ(u))|, dJ(u) = H u."""
-    if degree < 2:
-        return 0.0
-    u, _, _, _, beta, _ = _gls_beta(t1, t2, a, idx, degree, s1, s2, pilot)
-    jinv = np.linalg.inv(beta[:, 1:3])
-    out = 0.0
+def _curvature_terms(t1, t2, a, idx, degree, s1, s2, pilot, jinv=None):
+    """At each point of ``idx``: t(u) = tr(J^-1 dJ(u)), the change of ln|det J|
+    from the centre to offset u that a fit's second-order terms predict
+    (dJ(u) = H u), and its standard error from the fit's covariance (J held
+    fixed, at ``jinv`` when given, else the fit's own inverse). Returns the two
+    arrays."""
+    u, x, _, _, beta, cinv = _gls_beta(t1, t2, a, idx, degree, s1, s2, pilot)
+    p = x.shape[1]
+    if jinv is None:
+        jinv = np.linalg.inv(beta[:, 1:3])
+    ts, sds = [], []
     for ux, uy in u:
         dj = np.array([[2 * c[3] * ux + c[4] * uy, c[4] * ux + 2 * c[5] * uy] for c in beta])
-        out = max(out, abs(np.trace(jinv @ dj)))
-    return out
+        ts.append(np.trace(jinv @ dj))
+        # d t / d beta[k, 3:6]: t = sum_kl jinv[l, k] dJ[k, l]
+        grad = np.zeros((2, p))
+        for k in range(2):
+            grad[k, 3:6] = (jinv[0, k] * np.array([2 * ux, uy, 0.0])
+                            + jinv[1, k] * np.array([0.0, ux, 2 * uy]))
+        g = grad.ravel()
+        sds.append(np.sqrt(max(g @ cinv @ g, 0.0)))
+    return np.array(ts), np.array(sds)
+
+
+def _curvature(t1, t2, a, idx, degree, s1, s2, pilot, n_sig=2.0):
+    """Largest change of ln|det J| over the points ``idx`` that a fit's
+    second-order terms predict, less ``n_sig`` times its noise at each point:
+    max (|t(u)| - n_sig sd(t(u))) (see :func:`_curvature_terms`)."""
+    if degree < 2:
+        return 0.0
+    t, sd = _curvature_terms(t1, t2, a, idx, degree, s1, s2, pilot)
+    return max(float(np.max(np.abs(t) - n_sig * sd)), 0.0)
 
 
 def adaptive(t1, t2, s1, s2, pilot, chi2_crit, min_extra=1, report_extra=1, min_candidates=2,
@@ -215,7 +235,7 @@ def adaptive(t1, t2, s1, s2, pilot, chi2_crit, min_extra=1, report_extra=1, min_
                     continue
                 sf = s * np.sqrt(max(1.0, _press_ratio(t1, t2, a, idx, dr, s1, s2, pilot[a])))
                 if chi2_r <= chi2_crit[dof_r]:
-                    consistent.append((np.log(abs(det)), s**2))
+                    consistent.append((dr, k))
                     if fallback is None or sf < fallback[1]:
                         curv = _curvature(t1, t2, a, idx, dr, s1, s2, pilot[a])
                         fallback = (j, sf, np.log(abs(det)), dr, k, dof_r, curv)
@@ -225,10 +245,14 @@ def adaptive(t1, t2, s1, s2, pilot, chi2_crit, min_extra=1, report_extra=1, min_
             jac[a], sd[a], status[a], dofs[a] = best[0], best[1], 0, np.inf
         elif fallback is not None and len(consistent) >= min_candidates:
             _, _, l_best, d_best, k_best, dofs[a], curv = fallback
-            near = [v for (d, k), v in reported.items()
-                    if d == d_best and k_best < k <= k_best + lookahead]
-            spread = max(max((c - l_best) ** 2 - v for c, v in consistent + near), 0.0)
-            trunc = curv_coef * curv**3
+            # the mean excess over the self-consistent fits and the next larger
+            # neighbourhoods of the chosen degree (each fit once)
+            near = {(d, k) for (d, k) in reported
+                    if d == d_best and k_best < k <= k_best + lookahead}
+            keys = set(consistent) | near
+            spread = np.mean([max((reported[key][0] - l_best) ** 2 - reported[key][1], 0.0)
+                              for key in keys])
+            trunc = curv_coef * curv**2
             jac[a], sd[a], status[a] = fallback[0], np.sqrt(fallback[1] ** 2 + spread + trunc**2), 1
         elif fallback is not None:
             jac[a], sd[a], status[a], dofs[a] = fallback[0], fallback[1], 3, fallback[5]

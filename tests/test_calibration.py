@@ -336,3 +336,59 @@ def test_adaptive_misfit_curvature_term_matches_reference():
     _, sd0, _, _ = ref.adaptive(t1, t2, s1, s2, pilot, _chi2_critical(len(t1)), curv_coef=0.0)
     assert (sd[misfit] >= sd0[misfit] * (1 - 1e-9)).all()
     assert (sd[misfit] > 1.5 * sd0[misfit]).any()
+
+
+def _quadratic_map_points(n=14, seed=5):
+    rng = np.random.default_rng(seed)
+    t2 = rng.uniform(-1.0, 1.0, (n, 2))
+    x, y = t2.T
+    t1 = np.column_stack([1.4 * x + 0.2 * y + 0.15 * x * x - 0.1 * x * y,
+                          -0.3 * x + 0.9 * y + 0.05 * y * y + 0.12 * x * y])
+    return t1, t2
+
+
+def test_curvature_noise_matches_monte_carlo():
+    """The standard error of t(u) = tr(J^-1 H u), the change of ln|det J| that a
+    quadratic fit predicts across its neighbourhood, against the scatter of t
+    over 2000 noisy copies (noise on L1 only, so that the design is exact; J^-1
+    held at the noise-free fit's, as the error assumes)."""
+    t1, t2 = _quadratic_map_points()
+    n = len(t1)
+    sig = 0.002
+    s1, s2 = np.full(n, sig), np.zeros(n)
+    idx = np.arange(n)
+    pilot = np.array([[1.4, 0.2], [-0.3, 0.9]])
+    t0, sd0 = ref._curvature_terms(t1, t2, 0, idx, 2, s1, s2, pilot)
+    jinv = np.linalg.inv(ref._gls_fit(t1, t2, 0, idx, 2, s1, s2, pilot)[0])
+    rng = np.random.default_rng(1)
+    draws = np.array([ref._curvature_terms(t1 + sig * rng.standard_normal(t1.shape), t2, 0, idx,
+                                           2, s1, s2, pilot, jinv=jinv)[0]
+                      for _ in range(2000)])
+    far = sd0 > 0  # the centre itself has t = 0 exactly
+    assert far.sum() == n - 1
+    np.testing.assert_allclose(draws.std(axis=0)[far], sd0[far], rtol=0.08)
+    np.testing.assert_allclose(draws.mean(axis=0)[far], t0[far], atol=4 * sd0[far].max() / 40)
+
+
+def test_curvature_of_a_linear_map_is_noise():
+    """For an exactly linear map, the second-order terms of a quadratic fit are
+    noise: the raw curvature max |t(u)| is positive in every noisy copy, while
+    the de-noised one (less twice its error at each point) is zero in most."""
+    t1, t2 = _quadratic_map_points()
+    t1 = t2 @ np.array([[1.4, 0.2], [-0.3, 0.9]]).T
+    n = len(t1)
+    sig = 0.01
+    s = np.full(n, sig)
+    idx = np.arange(n)
+    rng = np.random.default_rng(2)
+    raw, dn = [], []
+    for _ in range(200):
+        o1 = t1 + sig * rng.standard_normal(t1.shape)
+        o2 = t2 + sig * rng.standard_normal(t2.shape)
+        pilot = relative_jacobian(o1 * u.arcsec, o2 * u.arcsec, "quad")[0]
+        raw.append(ref._curvature(o1, o2, 0, idx, 2, s, s, pilot, n_sig=0.0))
+        dn.append(ref._curvature(o1, o2, 0, idx, 2, s, s, pilot))
+    raw, dn = np.array(raw), np.array(dn)
+    assert (raw > 0).all()
+    assert np.mean(dn == 0.0) > 0.6
+    assert np.median(dn) < 0.2 * np.median(raw)

@@ -448,10 +448,12 @@ ADAPTIVE_MISFIT = 1  # no tested fit passed, but a reported fit is consistent on
 ADAPTIVE_FAILED = 2  # no usable fit (too few or degenerate baselines)
 ADAPTIVE_UNTESTABLE = 3  # no fit, not even the reported one, is consistent with the noise
 
-# Truncation error of a "misfit" estimate: ``_ADAPTIVE_CURV_COEF * c ** 3`` in
+# Truncation error of a "misfit" estimate: ``_ADAPTIVE_CURV_COEF * c ** 2`` in
 # ln|det J|, ``c`` the largest change of ln|det J| across the chosen fit's
-# neighbourhood that the fit's own second-order terms predict (see _adaptive_pair).
+# neighbourhood that the fit's own second-order terms predict, less
+# ``_ADAPTIVE_CURV_NSIG`` times its noise at each point (see _adaptive_pair).
 _ADAPTIVE_CURV_COEF = 0.1
+_ADAPTIVE_CURV_NSIG = 2.0
 
 
 @njit(**JIT_OPTIONS)
@@ -578,6 +580,23 @@ def _slope_covariance(L, p, scale, work, out):
     out[1] = work[1] * scale[1] * scale[2]
 
 
+@njit(**JIT_OPTIONS)
+def _quad_covariance(L, p, scale, work, out):
+    """Entries (3..5, 3..5) of ``S (S A S)^-1 S`` into ``out`` (3, 3): the
+    covariance of a fit's second-order coefficients."""
+    for j in range(3, 6):
+        _inverse_entry(L, p, scale, j, j, work)
+        for i in range(3, 6):
+            out[i - 3, j - 3] = work[i] * scale[i] * scale[j]
+
+
+@njit(**JIT_OPTIONS)
+def _quad_form3(a0, a1, a2, C):
+    """``a^T C a`` for ``a = (a0, a1, a2)`` and a symmetric (3, 3) ``C``."""
+    return (a0 * a0 * C[0, 0] + a1 * a1 * C[1, 1] + a2 * a2 * C[2, 2]
+            + 2.0 * (a0 * a1 * C[0, 1] + a0 * a2 * C[0, 2] + a1 * a2 * C[1, 2]))
+
+
 # Kept whole (noqa): one jitted function keeps the incremental Cholesky state (L, scale,
 # work) in local arrays while candidates are added one by one; split into helpers, the
 # innermost loop would pay call and argument overhead for every candidate.
@@ -607,20 +626,25 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
 
     If none passes, the reported fits that pass the chi-square test on their
     own are used: the one with the smallest error scaled by its
-    leave-one-out (PRESS) misfit, widened by the largest change of
-    ``ln|det J|`` beyond noise among the other such fits and over the next
-    ``lookahead`` larger neighbourhoods of its degree, and by a truncation
-    error ``_ADAPTIVE_CURV_COEF * c^3`` (``ADAPTIVE_MISFIT``, when at least
+    leave-one-out (PRESS) misfit, widened by the model spread (the mean,
+    over the self-consistent fits and the next ``lookahead`` larger
+    neighbourhoods of its degree, of the squared change of ``ln|det J|``
+    beyond each fit's noise; the maximum over them, used before, doubled
+    the errors of galaxy-scale arcs) and by a truncation error
+    ``_ADAPTIVE_CURV_COEF * c^2`` (``ADAPTIVE_MISFIT``, when at least
     ``min_candidates`` fits are self-consistent). ``c``, the chosen fit's
-    curvature, is the largest ``|tr(J^-1 dJ(u))|`` over the neighbourhood's
-    offsets ``u``, ``dJ(u)`` the change of the Jacobian that the fit's
-    second-order terms predict there: how much ``ln|det J|`` varies across
-    the neighbourhood. With few residual degrees of freedom, a fit of a map
-    that bends that much passes its chi-square while its derivative at the
-    centre is biased beyond its noise (galaxy-scale folds with 8 sources,
-    ``c`` of 1-2); the cube leaves the gently curved cluster maps (``c``
-    ~ 0.2) nearly untouched. Otherwise the least-bad fit is returned as
-    ``ADAPTIVE_UNTESTABLE``.
+    curvature, is the largest ``|tr(J^-1 dJ(u))| - _ADAPTIVE_CURV_NSIG sd``
+    over the neighbourhood's offsets ``u``: ``dJ(u)`` the change of the
+    Jacobian that the fit's second-order terms predict there, ``sd`` the
+    standard error of that trace from the fit's covariance. It measures how
+    much ``ln|det J|`` varies across the neighbourhood beyond what noise in
+    the second-order terms would show. With few residual degrees of
+    freedom, a fit of a map that bends that much passes its chi-square
+    while its derivative at the centre is biased beyond its noise
+    (galaxy-scale folds with 8 sources, ``c`` of 1-2); gently curved
+    cluster maps (``c`` ~ 0.2) are barely widened, and noisy fits of
+    nearly linear maps (20 mas) are not widened for their noise. Otherwise
+    the least-bad fit is returned as ``ADAPTIVE_UNTESTABLE``.
 
     Neighbourhoods of up to ``k_dense`` points are all tried; larger ones on
     a geometric grid (each at least 1/8 larger than the last tried) and the
@@ -726,6 +750,7 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
     jb = np.empty((2, 2))
     jf = np.empty((2, 2))
     ywy = np.zeros(2)
+    qc = np.empty((2, 3, 3))
     for k in range(n):
         # add point order[k] to both normal systems (full cubic design)
         for comp in range(2):
@@ -850,9 +875,13 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
                 dof_r = 2 * (kk - pr)
                 sdf = sd * np.sqrt(max(1.0, press / press_null))
                 # curvature: the largest change of ln|det J| over the neighbourhood
-                # that the fit's second-order terms predict, tr(J'^-1 dJ'(u))
+                # that the fit's second-order terms predict, tr(J'^-1 dJ'(u)),
+                # less twice its noise at each point (a noisy fit's second-order
+                # terms would otherwise pass for curvature)
                 curv = 0.0
                 if pr >= 6:
+                    _quad_covariance(L[0], pr, scale, work, qc[0])
+                    _quad_covariance(L[1], pr, scale, work, qc[1])
                     for q in range(kk):
                         ux = U[q, 1]
                         uy = U[q, 2]
@@ -860,8 +889,13 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
                         d01 = beta[0, 4] * ux + 2.0 * beta[0, 5] * uy
                         d10 = 2.0 * beta[1, 3] * ux + beta[1, 4] * uy
                         d11 = beta[1, 4] * ux + 2.0 * beta[1, 5] * uy
-                        curv = max(curv, abs(g00 * d00 + g01 * d01 + g10 * d10
-                                             + g11 * d11) / hmax)
+                        tq = abs(g00 * d00 + g01 * d01 + g10 * d10 + g11 * d11) / hmax
+                        # its variance: t is linear in each component's (b3, b4, b5)
+                        vt = (_quad_form3(2.0 * g00 * ux, g00 * uy + g01 * ux, 2.0 * g01 * uy,
+                                          qc[0])
+                              + _quad_form3(2.0 * g10 * ux, g10 * uy + g11 * ux, 2.0 * g11 * uy,
+                                            qc[1])) / (hmax * hmax)
+                        curv = max(curv, tq - _ADAPTIVE_CURV_NSIG * np.sqrt(max(vt, 0.0)))
                 consistent = chi2_r <= chi2_crit[dof_r]
                 if n_cand < cand_ln.shape[0]:
                     cand_ln[n_cand] = np.log(abs(det))
@@ -891,19 +925,23 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
         return best_sd, ADAPTIVE_OK, np.inf
     if fallback and n_consistent >= min_candidates:
         _copy_jacobian(jf, jac_out)
-        # model uncertainty: the largest change of ln|det J| beyond noise among
-        # the other self-consistent fits, and when the neighbourhood of the
+        # model uncertainty: the mean squared change of ln|det J| beyond noise
+        # among the self-consistent fits, and when the neighbourhood of the
         # chosen fit grows by up to ``lookahead`` points at the same degree
         spread = 0.0
+        n_spread = 0
         for i in range(n_cand):
             near = (cand_dr[i] == best_fb_dr and cand_k[i] > best_fb_k
                     and cand_k[i] <= best_fb_k + lookahead)
             if cand_ok[i] or near:
                 # a difference beyond that fit's own noise is evidence of bias
-                spread = max(spread, (cand_ln[i] - best_fb_ln) ** 2 - cand_var[i])
+                spread += max((cand_ln[i] - best_fb_ln) ** 2 - cand_var[i], 0.0)
+                n_spread += 1
+        if n_spread > 0:
+            spread /= n_spread
         # truncation error the residuals cannot show (too few of them): grows
         # with how much the fitted map bends across the neighbourhood
-        trunc = _ADAPTIVE_CURV_COEF * best_fb_curv ** 3
+        trunc = _ADAPTIVE_CURV_COEF * best_fb_curv ** 2
         return np.sqrt(best_fb * best_fb + spread + trunc * trunc), ADAPTIVE_MISFIT, best_fb_dof
     if fallback:  # one self-consistent fit only: its model error cannot be judged
         _copy_jacobian(jf, jac_out)
