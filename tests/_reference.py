@@ -245,13 +245,13 @@ def adaptive(t1, t2, s1, s2, pilot, chi2_crit, min_extra=1, report_extra=1, min_
             jac[a], sd[a], status[a], dofs[a] = best[0], best[1], 0, np.inf
         elif fallback is not None and len(consistent) >= min_candidates:
             _, _, l_best, d_best, k_best, dofs[a], curv = fallback
-            # the mean excess over the self-consistent fits and the next larger
-            # neighbourhoods of the chosen degree (each fit once)
+            # the mean excess over the other self-consistent fits and the next
+            # larger neighbourhoods of the chosen degree (each fit once)
             near = {(d, k) for (d, k) in reported
                     if d == d_best and k_best < k <= k_best + lookahead}
-            keys = set(consistent) | near
+            keys = (set(consistent) | near) - {(d_best, k_best)}
             spread = np.mean([max((reported[key][0] - l_best) ** 2 - reported[key][1], 0.0)
-                              for key in keys])
+                              for key in keys]) if keys else 0.0
             trunc = curv_coef * curv**2
             jac[a], sd[a], status[a] = fallback[0], np.sqrt(fallback[1] ** 2 + spread + trunc**2), 1
         elif fallback is not None:

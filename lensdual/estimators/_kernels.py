@@ -627,7 +627,7 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
     If none passes, the reported fits that pass the chi-square test on their
     own are used: the one with the smallest error scaled by its
     leave-one-out (PRESS) misfit, widened by the model spread (the mean,
-    over the self-consistent fits and the next ``lookahead`` larger
+    over the other self-consistent fits and the next ``lookahead`` larger
     neighbourhoods of its degree, of the squared change of ``ln|det J|``
     beyond each fit's noise; the maximum over them, used before, doubled
     the errors of galaxy-scale arcs) and by a truncation error
@@ -926,14 +926,15 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
     if fallback and n_consistent >= min_candidates:
         _copy_jacobian(jf, jac_out)
         # model uncertainty: the mean squared change of ln|det J| beyond noise
-        # among the self-consistent fits, and when the neighbourhood of the
+        # among the other self-consistent fits, and when the neighbourhood of the
         # chosen fit grows by up to ``lookahead`` points at the same degree
         spread = 0.0
         n_spread = 0
         for i in range(n_cand):
             near = (cand_dr[i] == best_fb_dr and cand_k[i] > best_fb_k
                     and cand_k[i] <= best_fb_k + lookahead)
-            if cand_ok[i] or near:
+            itself = cand_k[i] == best_fb_k and cand_dr[i] == best_fb_dr
+            if (cand_ok[i] or near) and not itself:
                 # a difference beyond that fit's own noise is evidence of bias
                 spread += max((cand_ln[i] - best_fb_ln) ** 2 - cand_var[i], 0.0)
                 n_spread += 1
