@@ -156,8 +156,9 @@ def test_smacs_lenstool_without_data_raises(monkeypatch, tmp_path):
         clean_constellation("smacs_lenstool", 8, seed=0)
 
 
-def test_macs1149_lenstool_without_data_raises(monkeypatch, tmp_path):
+@pytest.mark.parametrize("family", ["macs1149_lenstool", "a2744_lenstool", "a370_lenstool"])
+def test_hff_lenstool_without_data_raises(family, monkeypatch, tmp_path):
     monkeypatch.setenv("LENSDUAL_HFF_DIR", str(tmp_path))
     monkeypatch.setattr(fam_module, "_calibrated", fam_module._calibrated.__wrapped__)
     with pytest.raises(FileNotFoundError, match="LENSDUAL_HFF_DIR"):
-        calibration_system("macs1149_lenstool")
+        calibration_system(family)

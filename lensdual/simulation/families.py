@@ -49,6 +49,20 @@ separations on an arc):
     macro-images 1.3 (L1, ``mu ~ +4``) and 1.2 (L2, ``mu ~ -4``), 22 arcsec
     apart. It was added after the estimator's rules were frozen, as a lens
     they were not tuned on.
+``a2744_lenstool``
+    The real CATS Lenstool model of Abell 2744 (2017, 258 dPIEs) at the
+    redshift of its system 61 (z = 2.952); sources next to the fold that
+    makes images 61.1 (L1) and 61.2 (L2), 3.8 arcsec apart: ``|mu| ~
+    13-31``, ``mu_true`` 1.11-1.24, baselines 0.9-1.3 arcsec. Added (like
+    the next one) after the misfit errors were last tuned, as a lens model
+    no choice looked at.
+``a370_lenstool``
+    The real CATS Lenstool model of Abell 370 (2017, two lens planes, z = 0.375
+    and 1.05) at the redshift of its system 3 (z = 1.9553); sources next to
+    the tangential fold of images 3.1 (L1) and 3.2 (L2), 11 arcsec apart,
+    where arc L2 runs along a critical curve: ``|mu| ~ 7-120``, ``mu_true``
+    varying eight-fold (0.5-4.2) over a constellation, baselines 3.8-5.7
+    arcsec. A stress test beyond the other families.
 
 How the regions were found
 --------------------------
@@ -99,7 +113,7 @@ __all__ = [
 
 #: The lens families of :func:`clean_constellation`.
 FAMILIES = ("cluster_fold", "cluster_cusp", "galaxy_fold", "smacs_analog", "smacs_lenstool",
-            "macs1149_lenstool")
+            "macs1149_lenstool", "a2744_lenstool", "a370_lenstool")
 
 #: Folder of the real SMACS0723 Lenstool model (``best.par``) used by the
 #: ``smacs_lenstool`` family; the environment variable
@@ -107,9 +121,10 @@ FAMILIES = ("cluster_fold", "cluster_cusp", "galaxy_fold", "smacs_analog", "smac
 SMACS0723_LENSTOOL_DIR = (Path(__file__).resolve().parents[3] / "shared" / "data"
                           / "smacs0723_mahler2022")
 
-#: Folder of the CATS v4 Lenstool model of MACS J1149 used by the
-#: ``macs1149_lenstool`` family; ``LENSDUAL_HFF_DIR`` (the folder holding
-#: ``macs1149_v4``) overrides it.
+#: Folder of the CATS Lenstool models used by the ``macs1149_lenstool``,
+#: ``a2744_lenstool`` and ``a370_lenstool`` families; ``LENSDUAL_HFF_DIR``
+#: (the folder holding ``macs1149_v4``, ``abell2744`` and ``abell370``)
+#: overrides it.
 HFF_LENSTOOL_DIR = (Path(__file__).resolve().parents[3] / "shared" / "data"
                     / "hff_cats_lenstool")
 
@@ -232,6 +247,45 @@ FAMILY_PARAMETERS = {
                    "grid_spacing": 0.1 * u.arcsec},
         "link_length": 1.5 * u.arcsec,
     },
+    # the next two were found by ray-tracing the models' catalogue images and
+    # tracing the critical curves on a 0.02 arcsec grid around the pair: the
+    # fold point is the caustic point nearest the system's source, the normal
+    # points from it to the source (every one of 2,000 random sources of each
+    # region has exactly one image on each arc in the finder's window)
+    "a2744_lenstool": {
+        "description": ("real CATS Lenstool model of Abell 2744 (2017; not used to tune the "
+                        "estimator), fold pair of system 61 (images 61.1 and 61.2, "
+                        "z = 2.952)"),
+        "z_source": 2.952,
+        "lenstool": {"family": "a2744_lenstool", "model": "CATS Lenstool model of Abell 2744",
+                     "folder": HFF_LENSTOOL_DIR, "file": "abell2744/best.par",
+                     "env": "LENSDUAL_HFF_DIR"},
+        "fold_point": (17.520, 19.002) * u.arcsec,
+        "normal": (-0.375, 0.927),
+        "distance": (0.05, 0.2) * u.arcsec,
+        "half_length": 0.12 * u.arcsec,
+        "reference": ((-28.80, -12.12), (-27.48, -15.65)) * u.arcsec,
+        "finder": {"center": (-28.1, -13.9) * u.arcsec, "half_width": 6.0 * u.arcsec,
+                   "grid_spacing": 0.1 * u.arcsec},
+        "link_length": 1.0 * u.arcsec,
+    },
+    "a370_lenstool": {
+        "description": ("real CATS Lenstool model of Abell 370 (2017; not used to tune the "
+                        "estimator; two lens planes), tangential fold of system 3 (images "
+                        "3.1 and 3.2, z = 1.9553)"),
+        "z_source": 1.9553,
+        "lenstool": {"family": "a370_lenstool", "model": "CATS Lenstool model of Abell 370",
+                     "folder": HFF_LENSTOOL_DIR, "file": "abell370/best.par",
+                     "env": "LENSDUAL_HFF_DIR"},
+        "fold_point": (-2.936, 28.612) * u.arcsec,
+        "normal": (0.944, -0.331),
+        "distance": (0.07, 0.2) * u.arcsec,
+        "half_length": 0.08 * u.arcsec,
+        "reference": ((26.0, 51.8), (5.5, 59.9)) * u.arcsec,
+        "finder": {"center": (15.5, 56.0) * u.arcsec, "half_width": 14.0 * u.arcsec,
+                   "grid_spacing": 0.1 * u.arcsec},
+        "link_length": 1.5 * u.arcsec,
+    },
 }
 
 
@@ -308,6 +362,8 @@ _LENS_BUILDERS = {
     "smacs_analog": _smacs_analog_system,
     "smacs_lenstool": _lenstool_system,
     "macs1149_lenstool": _lenstool_system,
+    "a2744_lenstool": _lenstool_system,
+    "a370_lenstool": _lenstool_system,
 }
 
 
