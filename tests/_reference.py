@@ -191,8 +191,34 @@ def _curvature(t1, t2, a, idx, degree, s1, s2, pilot, n_sig=2.0):
     return max(float(np.max(np.abs(t) - n_sig * sd)), 0.0)
 
 
+def _top_change(t1, t2, a, idx, degree, s1, s2, pilot, n_sig=2.0):
+    """Largest change of ln|det J| over the points ``idx`` that a fit's
+    highest-degree terms alone predict, less ``n_sig`` times its noise at each
+    point (J held fixed): tr(J^-1 dJ_top(u)), dJ_top the derivative of the
+    top-degree terms at u. 0 for a linear fit."""
+    if degree < 2:
+        return 0.0
+    u, x, _, _, beta, cinv = _gls_beta(t1, t2, a, idx, degree, s1, s2, pilot)
+    p = x.shape[1]
+    top = np.arange(p - (degree + 1), p)  # the degree + 1 monomials of the top degree
+    jinv = np.linalg.inv(beta[:, 1:3])
+    out = 0.0
+    for ux, uy in u:
+        # d/dx and d/dy of each top monomial x^(d-i) y^i at u
+        ddx = np.array([(degree - i) * ux ** max(degree - i - 1, 0) * uy**i
+                        for i in range(degree + 1)])
+        ddy = np.array([i * ux ** (degree - i) * uy ** max(i - 1, 0) for i in range(degree + 1)])
+        grad = np.zeros((2, p))
+        for k in range(2):
+            grad[k, top] = jinv[0, k] * ddx + jinv[1, k] * ddy
+        g = grad.ravel()
+        t = g @ beta.ravel()
+        out = max(out, abs(t) - n_sig * np.sqrt(max(g @ cinv @ g, 0.0)))
+    return out
+
+
 def adaptive(t1, t2, s1, s2, pilot, chi2_crit, min_extra=1, report_extra=1, min_candidates=2,
-             lookahead=5, curv_coef=0.1):
+             lookahead=5, curv_coef=0.1, top_coef=0.6):
     """One pass of the adaptive estimator given pilot Jacobians (N, 2, 2).
 
     Returns J (N, 2, 2), the error of ln|det J|, the status (0 ok,
@@ -230,6 +256,8 @@ def adaptive(t1, t2, s1, s2, pilot, chi2_crit, min_extra=1, report_extra=1, min_
                 reported[(dr, k)] = (np.log(abs(det)), s**2)
                 if chi2 <= chi2_crit[dof]:
                     rank = s**2 if g_pilot is None else g_pilot @ cj @ g_pilot
+                    # the truncation the fit cannot test: its top-order change
+                    rank += (top_coef * _top_change(t1, t2, a, idx, dr, s1, s2, pilot[a])) ** 2
                     if best is None or rank < best[2]:
                         best = (j, s, rank)
                     continue

@@ -454,6 +454,10 @@ ADAPTIVE_UNTESTABLE = 3  # no fit, not even the reported one, is consistent with
 # ``_ADAPTIVE_CURV_NSIG`` times its noise at each point (see _adaptive_pair).
 _ADAPTIVE_CURV_COEF = 0.1
 _ADAPTIVE_CURV_NSIG = 2.0
+# Weight of the top-order change ``c_top`` in the ranking of the passing fits
+# (see _adaptive_pair): rank = variance along the pilot's gradient
+# + (_ADAPTIVE_TOP_COEF * c_top) ** 2.
+_ADAPTIVE_TOP_COEF = 0.6
 
 
 @njit(**JIT_OPTIONS)
@@ -597,6 +601,52 @@ def _quad_form3(a0, a1, a2, C):
             + 2.0 * (a0 * a1 * C[0, 1] + a0 * a2 * C[0, 2] + a1 * a2 * C[1, 2]))
 
 
+@njit(**JIT_OPTIONS)
+def _top_change(L, pr, scale, work, beta, U, kk, g00, g01, g10, g11, hmax, n_sig, cov_top,
+                grad):
+    """The largest change of ln|det J| across a fit's ``kk`` points that its
+    highest-degree terms alone predict, less ``n_sig`` times its noise at each
+    point (the fit's covariance): how much the terms the fit truncates next
+    may matter there. 0 for a linear fit."""
+    if pr == 6:
+        i0 = 3
+        m = 3
+    elif pr == 10:
+        i0 = 6
+        m = 4
+    else:
+        return 0.0
+    for comp in range(2):
+        for j in range(m):
+            _inverse_entry(L[comp], pr, scale, i0 + j, i0 + j, work)
+            for i in range(m):
+                cov_top[comp, i, j] = work[i0 + i] * scale[i0 + i] * scale[i0 + j]
+    out = 0.0
+    for q in range(kk):
+        x = U[q, 1]
+        y = U[q, 2]
+        t = 0.0
+        v = 0.0
+        for comp in range(2):
+            ga = g00 if comp == 0 else g10
+            gb = g01 if comp == 0 else g11
+            if m == 3:
+                grad[0] = ga * 2.0 * x
+                grad[1] = ga * y + gb * x
+                grad[2] = gb * 2.0 * y
+            else:
+                grad[0] = ga * 3.0 * x * x
+                grad[1] = ga * 2.0 * x * y + gb * x * x
+                grad[2] = ga * y * y + gb * 2.0 * x * y
+                grad[3] = gb * 3.0 * y * y
+            for i in range(m):
+                t += grad[i] * beta[comp, i0 + i]
+                for j in range(m):
+                    v += grad[i] * cov_top[comp, i, j] * grad[j]
+        out = max(out, abs(t) / hmax - n_sig * np.sqrt(max(v, 0.0)) / hmax)
+    return out
+
+
 # Kept whole (noqa): one jitted function keeps the incremental Cholesky state (L, scale,
 # work) in local arrays while candidates are added one by one; split into helpers, the
 # innermost loop would pay call and argument overhead for every candidate.
@@ -617,12 +667,19 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
     for that neighbourhood is the fit of degree ``d + report_extra`` on the
     same points, whose truncation bias is one order smaller (robust bias
     correction). Among the neighbourhoods that pass the test, the one whose
-    reported fit has the smallest error of ``ln|det J|`` *along the pilot's
-    gradient* wins (``ADAPTIVE_OK``), and its own error is returned. The
-    ranking uses the fits' covariances (their designs) and the common pilot,
-    not each fit's own noisy ``det J``: ranked by their own errors, which
-    scale as ``1 / |det J|``, fits whose noise raised ``|det J|`` would win
-    (a selection bias towards over-estimates).
+    reported fit has the smallest variance of ``ln|det J|`` *along the
+    pilot's gradient* plus ``(_ADAPTIVE_TOP_COEF c_top)^2`` wins
+    (``ADAPTIVE_OK``), and its own error is returned. The ranking uses the
+    fits' covariances (their designs) and the common pilot, not each fit's
+    own noisy ``det J``: ranked by their own errors, which scale as
+    ``1 / |det J|``, fits whose noise raised ``|det J|`` would win (a
+    selection bias towards over-estimates). ``c_top`` (:func:`_top_change`)
+    is the largest change of ``ln|det J|`` across the neighbourhood that the
+    reported fit's highest-degree terms alone predict, less
+    ``_ADAPTIVE_CURV_NSIG`` times its noise: where it is large, the terms
+    the fit truncates next are likely to matter, so a smaller neighbourhood
+    is preferred to a larger one that passed its test only because that
+    test cannot see them.
 
     If none passes, the reported fits that pass the chi-square test on their
     own are used: the one with the smallest error scaled by its
@@ -751,6 +808,8 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
     jf = np.empty((2, 2))
     ywy = np.zeros(2)
     qc = np.empty((2, 3, 3))
+    cov_top = np.empty((2, 4, 4))
+    grad_top = np.empty(4)
     for k in range(n):
         # add point order[k] to both normal systems (full cubic design)
         for comp in range(2):
@@ -842,6 +901,11 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
                                + q11 * q11 * cov[1, 2])) / (hmax * hmax)
                     if not rank > 0.0:
                         rank = var_ln
+                if rank < best_rank and _ADAPTIVE_TOP_COEF > 0.0:
+                    # the truncation the fit cannot test: its top-order change
+                    ctop = _top_change(L, pr, scale, work, beta, U, kk, g00, g01, g10, g11,
+                                       hmax, _ADAPTIVE_CURV_NSIG, cov_top, grad_top)
+                    rank += (_ADAPTIVE_TOP_COEF * ctop) ** 2
                 if rank < best_rank:
                     best_rank = rank
                     best_sd = sd

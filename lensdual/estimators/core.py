@@ -479,7 +479,10 @@ def size_magnification(
     test); the estimate of that neighbourhood is then the fit of degree
     ``d + 1`` on the same points, whose truncation bias is one order
     smaller than the tested fit's misfit (robust bias correction). Among
-    the accepted neighbourhoods the one with the smallest error wins. The
+    the accepted neighbourhoods the one with the smallest error wins, with
+    a penalty for the change of ``ln|det J|`` across the neighbourhood that
+    the reported fit's highest-degree terms predict beyond their noise (a
+    proxy of the truncation the test cannot see). The
     error of ``ln mu_size`` is the exact linear propagation of the position
     errors through that fit: no bootstrap is needed, and ``n_bootstrap`` is
     ignored. ``mu_size_status`` is then ``"ok"``.
