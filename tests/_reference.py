@@ -157,64 +157,54 @@ def _press_ratio(t1, t2, a, idx, degree, s1, s2, pilot):
     return num / den
 
 
-def _curvature_terms(t1, t2, a, idx, degree, s1, s2, pilot, jinv=None):
+def _curvature_terms(t1, t2, a, idx, degree, s1, s2, pilot, jinv=None, order=2):
     """At each point of ``idx``: t(u) = tr(J^-1 dJ(u)), the change of ln|det J|
-    from the centre to offset u that a fit's second-order terms predict
-    (dJ(u) = H u), and its standard error from the fit's covariance (J held
-    fixed, at ``jinv`` when given, else the fit's own inverse). Returns the two
+    from the centre to offset u that a fit's terms of degree ``order`` alone
+    predict (dJ(u) their derivative at u; order 2: the curvature, dJ = H u),
+    and its standard error from the fit's covariance (J held fixed, at
+    ``jinv`` when given, else the fit's own inverse). Returns the two
     arrays."""
     u, x, _, _, beta, cinv = _gls_beta(t1, t2, a, idx, degree, s1, s2, pilot)
     p = x.shape[1]
     if jinv is None:
         jinv = np.linalg.inv(beta[:, 1:3])
+    terms = np.arange(order * (order + 1) // 2, (order + 1) * (order + 2) // 2)
     ts, sds = [], []
     for ux, uy in u:
-        dj = np.array([[2 * c[3] * ux + c[4] * uy, c[4] * ux + 2 * c[5] * uy] for c in beta])
-        ts.append(np.trace(jinv @ dj))
-        # d t / d beta[k, 3:6]: t = sum_kl jinv[l, k] dJ[k, l]
+        # d/dx and d/dy of each monomial x^(order - i) y^i at u
+        ddx = np.array([(order - i) * ux ** max(order - i - 1, 0) * uy**i
+                        for i in range(order + 1)])
+        ddy = np.array([i * ux ** (order - i) * uy ** max(i - 1, 0) for i in range(order + 1)])
+        # t = sum_kl jinv[l, k] dJ[k, l] is linear in beta[k, terms]
         grad = np.zeros((2, p))
         for k in range(2):
-            grad[k, 3:6] = (jinv[0, k] * np.array([2 * ux, uy, 0.0])
-                            + jinv[1, k] * np.array([0.0, ux, 2 * uy]))
+            grad[k, terms] = jinv[0, k] * ddx + jinv[1, k] * ddy
         g = grad.ravel()
+        ts.append(g @ beta.ravel())
         sds.append(np.sqrt(max(g @ cinv @ g, 0.0)))
     return np.array(ts), np.array(sds)
 
 
-def _curvature(t1, t2, a, idx, degree, s1, s2, pilot, n_sig=2.0):
-    """Largest change of ln|det J| over the points ``idx`` that a fit's
-    second-order terms predict, less ``n_sig`` times its noise at each point:
-    max (|t(u)| - n_sig sd(t(u))) (see :func:`_curvature_terms`)."""
-    if degree < 2:
+def _order_change(t1, t2, a, idx, degree, s1, s2, pilot, order, n_sig=2.0):
+    """max (|t(u)| - n_sig sd(t(u))) over the points ``idx`` for the terms of
+    degree ``order`` of a fit of ``degree`` (:func:`_curvature_terms`); 0 when
+    the fit has no such terms."""
+    if order < 2 or degree < order:
         return 0.0
-    t, sd = _curvature_terms(t1, t2, a, idx, degree, s1, s2, pilot)
+    t, sd = _curvature_terms(t1, t2, a, idx, degree, s1, s2, pilot, order=order)
     return max(float(np.max(np.abs(t) - n_sig * sd)), 0.0)
 
 
-def _top_change(t1, t2, a, idx, degree, s1, s2, pilot, n_sig=2.0):
+def _curvature(t1, t2, a, idx, degree, s1, s2, pilot, n_sig=2.0):
     """Largest change of ln|det J| over the points ``idx`` that a fit's
-    highest-degree terms alone predict, less ``n_sig`` times its noise at each
-    point (J held fixed): tr(J^-1 dJ_top(u)), dJ_top the derivative of the
-    top-degree terms at u. 0 for a linear fit."""
-    if degree < 2:
-        return 0.0
-    u, x, _, _, beta, cinv = _gls_beta(t1, t2, a, idx, degree, s1, s2, pilot)
-    p = x.shape[1]
-    top = np.arange(p - (degree + 1), p)  # the degree + 1 monomials of the top degree
-    jinv = np.linalg.inv(beta[:, 1:3])
-    out = 0.0
-    for ux, uy in u:
-        # d/dx and d/dy of each top monomial x^(d-i) y^i at u
-        ddx = np.array([(degree - i) * ux ** max(degree - i - 1, 0) * uy**i
-                        for i in range(degree + 1)])
-        ddy = np.array([i * ux ** (degree - i) * uy ** max(i - 1, 0) for i in range(degree + 1)])
-        grad = np.zeros((2, p))
-        for k in range(2):
-            grad[k, top] = jinv[0, k] * ddx + jinv[1, k] * ddy
-        g = grad.ravel()
-        t = g @ beta.ravel()
-        out = max(out, abs(t) - n_sig * np.sqrt(max(g @ cinv @ g, 0.0)))
-    return out
+    second-order terms predict, less ``n_sig`` times its noise at each point."""
+    return _order_change(t1, t2, a, idx, degree, s1, s2, pilot, 2, n_sig)
+
+
+def _top_change(t1, t2, a, idx, degree, s1, s2, pilot, n_sig=2.0):
+    """The same for the fit's highest-degree terms (0 for a linear fit): how
+    much the terms it truncates next may matter there."""
+    return _order_change(t1, t2, a, idx, degree, s1, s2, pilot, degree, n_sig)
 
 
 def adaptive(t1, t2, s1, s2, pilot, chi2_crit, min_extra=1, report_extra=1, min_candidates=2,

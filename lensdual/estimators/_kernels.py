@@ -585,42 +585,23 @@ def _slope_covariance(L, p, scale, work, out):
 
 
 @njit(**JIT_OPTIONS)
-def _quad_covariance(L, p, scale, work, out):
-    """Entries (3..5, 3..5) of ``S (S A S)^-1 S`` into ``out`` (3, 3): the
-    covariance of a fit's second-order coefficients."""
-    for j in range(3, 6):
-        _inverse_entry(L, p, scale, j, j, work)
-        for i in range(3, 6):
-            out[i - 3, j - 3] = work[i] * scale[i] * scale[j]
-
-
-@njit(**JIT_OPTIONS)
-def _quad_form3(a0, a1, a2, C):
-    """``a^T C a`` for ``a = (a0, a1, a2)`` and a symmetric (3, 3) ``C``."""
-    return (a0 * a0 * C[0, 0] + a1 * a1 * C[1, 1] + a2 * a2 * C[2, 2]
-            + 2.0 * (a0 * a1 * C[0, 1] + a0 * a2 * C[0, 2] + a1 * a2 * C[1, 2]))
-
-
-@njit(**JIT_OPTIONS)
-def _top_change(L, pr, scale, work, beta, U, kk, g00, g01, g10, g11, hmax, n_sig, cov_top,
-                grad):
+def _order_change(L, pr, scale, work, beta, U, kk, g00, g01, g10, g11, hmax, n_sig, deg,
+                  cov_o, grad):
     """The largest change of ln|det J| across a fit's ``kk`` points that its
-    highest-degree terms alone predict, less ``n_sig`` times its noise at each
-    point (the fit's covariance): how much the terms the fit truncates next
-    may matter there. 0 for a linear fit."""
-    if pr == 6:
-        i0 = 3
-        m = 3
-    elif pr == 10:
-        i0 = 6
-        m = 4
-    else:
+    terms of degree ``deg`` (2 or 3) alone predict, ``tr(J^-1 dJ_deg(u))``,
+    less ``n_sig`` times its standard error at each point (from the fit's
+    covariance, J held fixed); 0 when the fit (``pr`` coefficients) has no
+    such terms. Degree 2 is the curvature of a "misfit" fit, the fit's top
+    degree its top-order change (see :func:`_adaptive_pair`)."""
+    if deg < 2 or pr < _ncoef(deg):
         return 0.0
+    i0 = _ncoef(deg - 1)
+    m = deg + 1
     for comp in range(2):
         for j in range(m):
             _inverse_entry(L[comp], pr, scale, i0 + j, i0 + j, work)
             for i in range(m):
-                cov_top[comp, i, j] = work[i0 + i] * scale[i0 + i] * scale[i0 + j]
+                cov_o[comp, i, j] = work[i0 + i] * scale[i0 + i] * scale[i0 + j]
     out = 0.0
     for q in range(kk):
         x = U[q, 1]
@@ -630,6 +611,7 @@ def _top_change(L, pr, scale, work, beta, U, kk, g00, g01, g10, g11, hmax, n_sig
         for comp in range(2):
             ga = g00 if comp == 0 else g10
             gb = g01 if comp == 0 else g11
+            # d/dx and d/dy of the monomials x^(deg - i) y^i, weighted by dln|det|/dJ
             if m == 3:
                 grad[0] = ga * 2.0 * x
                 grad[1] = ga * y + gb * x
@@ -642,7 +624,7 @@ def _top_change(L, pr, scale, work, beta, U, kk, g00, g01, g10, g11, hmax, n_sig
             for i in range(m):
                 t += grad[i] * beta[comp, i0 + i]
                 for j in range(m):
-                    v += grad[i] * cov_top[comp, i, j] * grad[j]
+                    v += grad[i] * cov_o[comp, i, j] * grad[j]
         out = max(out, abs(t) / hmax - n_sig * np.sqrt(max(v, 0.0)) / hmax)
     return out
 
@@ -673,7 +655,7 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
     fits' covariances (their designs) and the common pilot, not each fit's
     own noisy ``det J``: ranked by their own errors, which scale as
     ``1 / |det J|``, fits whose noise raised ``|det J|`` would win (a
-    selection bias towards over-estimates). ``c_top`` (:func:`_top_change`)
+    selection bias towards over-estimates). ``c_top`` (:func:`_order_change`)
     is the largest change of ``ln|det J|`` across the neighbourhood that the
     reported fit's highest-degree terms alone predict, less
     ``_ADAPTIVE_CURV_NSIG`` times its noise: where it is large, the terms
@@ -807,9 +789,8 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
     jb = np.empty((2, 2))
     jf = np.empty((2, 2))
     ywy = np.zeros(2)
-    qc = np.empty((2, 3, 3))
-    cov_top = np.empty((2, 4, 4))
-    grad_top = np.empty(4)
+    cov_o = np.empty((2, 4, 4))
+    grad_o = np.empty(4)
     for k in range(n):
         # add point order[k] to both normal systems (full cubic design)
         for comp in range(2):
@@ -903,8 +884,9 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
                         rank = var_ln
                 if rank < best_rank and _ADAPTIVE_TOP_COEF > 0.0:
                     # the truncation the fit cannot test: its top-order change
-                    ctop = _top_change(L, pr, scale, work, beta, U, kk, g00, g01, g10, g11,
-                                       hmax, _ADAPTIVE_CURV_NSIG, cov_top, grad_top)
+                    ctop = _order_change(L, pr, scale, work, beta, U, kk, g00, g01, g10, g11,
+                                         hmax, _ADAPTIVE_CURV_NSIG, dt + report_extra, cov_o,
+                                         grad_o)
                     rank += (_ADAPTIVE_TOP_COEF * ctop) ** 2
                 if rank < best_rank:
                     best_rank = rank
@@ -938,28 +920,6 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
                         press_null += 1.0 / (1.0 - lev)
                 dof_r = 2 * (kk - pr)
                 sdf = sd * np.sqrt(max(1.0, press / press_null))
-                # curvature: the largest change of ln|det J| over the neighbourhood
-                # that the fit's second-order terms predict, tr(J'^-1 dJ'(u)),
-                # less twice its noise at each point (a noisy fit's second-order
-                # terms would otherwise pass for curvature)
-                curv = 0.0
-                if pr >= 6:
-                    _quad_covariance(L[0], pr, scale, work, qc[0])
-                    _quad_covariance(L[1], pr, scale, work, qc[1])
-                    for q in range(kk):
-                        ux = U[q, 1]
-                        uy = U[q, 2]
-                        d00 = 2.0 * beta[0, 3] * ux + beta[0, 4] * uy
-                        d01 = beta[0, 4] * ux + 2.0 * beta[0, 5] * uy
-                        d10 = 2.0 * beta[1, 3] * ux + beta[1, 4] * uy
-                        d11 = beta[1, 4] * ux + 2.0 * beta[1, 5] * uy
-                        tq = abs(g00 * d00 + g01 * d01 + g10 * d10 + g11 * d11) / hmax
-                        # its variance: t is linear in each component's (b3, b4, b5)
-                        vt = (_quad_form3(2.0 * g00 * ux, g00 * uy + g01 * ux, 2.0 * g01 * uy,
-                                          qc[0])
-                              + _quad_form3(2.0 * g10 * ux, g10 * uy + g11 * ux, 2.0 * g11 * uy,
-                                            qc[1])) / (hmax * hmax)
-                        curv = max(curv, tq - _ADAPTIVE_CURV_NSIG * np.sqrt(max(vt, 0.0)))
                 consistent = chi2_r <= chi2_crit[dof_r]
                 if n_cand < cand_ln.shape[0]:
                     cand_ln[n_cand] = np.log(abs(det))
@@ -976,7 +936,13 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
                         best_fb_dr = dt + report_extra
                         best_fb = sdf
                         best_fb_dof = float(dof_r)
-                        best_fb_curv = curv
+                        # curvature: the largest change of ln|det J| over the
+                        # neighbourhood that the fit's second-order terms predict,
+                        # less twice its noise (a noisy fit's second-order terms
+                        # would otherwise pass for curvature)
+                        best_fb_curv = _order_change(L, pr, scale, work, beta, U, kk, g00,
+                                                     g01, g10, g11, hmax, _ADAPTIVE_CURV_NSIG,
+                                                     2, cov_o, grad_o)
                         fallback = True
                         _rotate_back(c, s, jr00, jr01, jr10, jr11, jf)
                 elif sdf < best_un:
