@@ -7,8 +7,9 @@ Run on demand::
 
 Prints the main table (reStructuredText list-table rows of every family but
 the untuned ones) and one table per untuned family present (MACS J1149,
-Abell 2744, Abell 370: false flags with noisy fluxes / pull width / power at
-a 25 % anomaly, and ``quad2``'s false flags), to paste into
+Abell 2744, Abell 370: false flags with noisy fluxes / pull width
+(Gaussian-equivalent width) / power at a 25 % anomaly, and ``quad2``'s false
+flags), to paste into
 ``docs/calibration.rst``.
 """
 
@@ -41,6 +42,12 @@ def pct(x, digits=2):
     return "nan" if x != x else f"{100 * x:.{digits}f}"
 
 
+def width(r):
+    """The pull width and, in brackets, that of the Gaussian-equivalent pulls."""
+    gw = r.get("pull_gw", float("nan"))
+    return f"{r['pull_w']:.2f} ({gw:.2f})"
+
+
 def main_rows(cells):
     keys = sorted({k[:2] for k in cells if k[0] not in UNTUNED and k[2] == "adaptive"},
                   key=lambda k: (list(dict.fromkeys(c[0] for c in cells)).index(k[0]), k[1]))
@@ -54,7 +61,7 @@ def main_rows(cells):
             lines += [f"   * - {fam}", f"     - {n_src}", f"     - {noise:g}",
                       f"     - {100 * r['tested']:.0f}",
                       f"     - {pct(r['ffr'])} / {pct(r['ffr_exact'])} (< {pct(r['ffr_u95'])})",
-                      f"     - {r['pull_med']:.2f}", f"     - {r['pull_w']:.2f}",
+                      f"     - {r['pull_med']:.2f}", f"     - {width(r)}",
                       f"     - {pct(r['bias'])}", f"     - {pct(r['sig'], 1)}",
                       f"     - {power}", f"     - {quad2}"]
     return lines
@@ -68,7 +75,7 @@ def untuned_rows(cells, family):
             r = cells[(family, n_src, "adaptive", noise)]
             q = cells.get((family, n_src, "quad2", noise))
             quad2 = "" if q is None else f" (quad2 {100 * q['ffr']:.2g} %)"
-            lines.append(f"     - {pct(r['ffr'])} % / {r['pull_w']:.2f} / "
+            lines.append(f"     - {pct(r['ffr'])} % / {width(r)} / "
                          f"{100 * r['pow25']:.0f} %{quad2}")
     return lines
 

@@ -208,7 +208,7 @@ def _top_change(t1, t2, a, idx, degree, s1, s2, pilot, n_sig=2.0):
 
 
 def adaptive(t1, t2, s1, s2, pilot, chi2_crit, min_extra=1, report_extra=1, min_candidates=2,
-             lookahead=5, curv_coef=0.1, top_coef=0.6):
+             lookahead=5, curv_coef=0.1, top_coef=0.6, top_nsig=1.5):
     """One pass of the adaptive estimator given pilot Jacobians (N, 2, 2).
 
     Returns J (N, 2, 2), the error of ln|det J|, the status (0 ok,
@@ -247,7 +247,8 @@ def adaptive(t1, t2, s1, s2, pilot, chi2_crit, min_extra=1, report_extra=1, min_
                 if chi2 <= chi2_crit[dof]:
                     rank = s**2 if g_pilot is None else g_pilot @ cj @ g_pilot
                     # the truncation the fit cannot test: its top-order change
-                    rank += (top_coef * _top_change(t1, t2, a, idx, dr, s1, s2, pilot[a])) ** 2
+                    rank += (top_coef * _top_change(t1, t2, a, idx, dr, s1, s2, pilot[a],
+                                                    n_sig=top_nsig)) ** 2
                     if best is None or rank < best[2]:
                         best = (j, s, rank)
                     continue

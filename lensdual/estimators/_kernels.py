@@ -456,8 +456,12 @@ _ADAPTIVE_CURV_COEF = 0.1
 _ADAPTIVE_CURV_NSIG = 2.0
 # Weight of the top-order change ``c_top`` in the ranking of the passing fits
 # (see _adaptive_pair): rank = variance along the pilot's gradient
-# + (_ADAPTIVE_TOP_COEF * c_top) ** 2.
+# + (_ADAPTIVE_TOP_COEF * c_top) ** 2, ``c_top`` less ``_ADAPTIVE_TOP_NSIG``
+# times its noise at each point (1.5, not the curvature's 2: at 10-20 mas
+# the noise allowance of 2 zeroed ``c_top`` for most fits, and large
+# neighbourhoods won whose truncation the test cannot see).
 _ADAPTIVE_TOP_COEF = 0.6
+_ADAPTIVE_TOP_NSIG = 1.5
 
 
 @njit(**JIT_OPTIONS)
@@ -658,7 +662,7 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
     selection bias towards over-estimates). ``c_top`` (:func:`_order_change`)
     is the largest change of ``ln|det J|`` across the neighbourhood that the
     reported fit's highest-degree terms alone predict, less
-    ``_ADAPTIVE_CURV_NSIG`` times its noise: where it is large, the terms
+    ``_ADAPTIVE_TOP_NSIG`` times its noise: where it is large, the terms
     the fit truncates next are likely to matter, so a smaller neighbourhood
     is preferred to a larger one that passed its test only because that
     test cannot see them.
@@ -885,7 +889,7 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
                 if rank < best_rank and _ADAPTIVE_TOP_COEF > 0.0:
                     # the truncation the fit cannot test: its top-order change
                     ctop = _order_change(L, pr, scale, work, beta, U, kk, g00, g01, g10, g11,
-                                         hmax, _ADAPTIVE_CURV_NSIG, dt + report_extra, cov_o,
+                                         hmax, _ADAPTIVE_TOP_NSIG, dt + report_extra, cov_o,
                                          grad_o)
                     rank += (_ADAPTIVE_TOP_COEF * ctop) ** 2
                 if rank < best_rank:
