@@ -272,7 +272,8 @@ def adaptive(t1, t2, s1, s2, pilot, chi2_crit, min_extra=1, report_extra=1, min_
             spread = np.mean([max((reported[key][0] - l_best) ** 2 - reported[key][1], 0.0)
                               for key in keys]) if keys else 0.0
             trunc = curv_coef * curv**2
-            jac[a], sd[a], status[a] = fallback[0], np.sqrt(fallback[1] ** 2 + spread + trunc**2), 1
+            jac[a], sd[a], status[a] = (fallback[0],
+                                        np.sqrt(fallback[1] ** 2 + max(spread, trunc**2)), 1)
         elif fallback is not None:
             jac[a], sd[a], status[a], dofs[a] = fallback[0], fallback[1], 3, fallback[5]
         elif worst is not None:

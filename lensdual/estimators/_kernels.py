@@ -673,8 +673,10 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
     over the other self-consistent fits and the next ``lookahead`` larger
     neighbourhoods of its degree, of the squared change of ``ln|det J|``
     beyond each fit's noise; the maximum over them, used before, doubled
-    the errors of galaxy-scale arcs) and by a truncation error
-    ``_ADAPTIVE_CURV_COEF * c^2`` (``ADAPTIVE_MISFIT``, when at least
+    the errors of galaxy-scale arcs) or by a truncation error
+    ``_ADAPTIVE_CURV_COEF * c^2``, whichever is larger: both estimate the
+    chosen fit's bias, and their sum counted it twice (``ADAPTIVE_MISFIT``,
+    when at least
     ``min_candidates`` fits are self-consistent). ``c``, the chosen fit's
     curvature, is the largest ``|tr(J^-1 dJ(u))| - _ADAPTIVE_CURV_NSIG sd``
     over the neighbourhood's offsets ``u``: ``dJ(u)`` the change of the
@@ -977,7 +979,10 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
         # truncation error the residuals cannot show (too few of them): grows
         # with how much the fitted map bends across the neighbourhood
         trunc = _ADAPTIVE_CURV_COEF * best_fb_curv ** 2
-        return np.sqrt(best_fb * best_fb + spread + trunc * trunc), ADAPTIVE_MISFIT, best_fb_dof
+        # the spread and the truncation term are two estimates of the same model
+        # error (the chosen fit's bias): the larger counts, not their sum
+        return (np.sqrt(best_fb * best_fb + max(spread, trunc * trunc)), ADAPTIVE_MISFIT,
+                best_fb_dof)
     if fallback:  # one self-consistent fit only: its model error cannot be judged
         _copy_jacobian(jf, jac_out)
         return best_fb, ADAPTIVE_UNTESTABLE, best_fb_dof
