@@ -250,6 +250,21 @@ def test_duality_significance_against_closed_forms():
         duality_significance(3.0, 0.0)
 
 
+@pytest.mark.parametrize("dof", [2.0, 4.0, 8.0])
+def test_gaussian_equivalent_pulls_of_student_t(dof):
+    """The calibration suite's ``pull_gw``: pulls of a "misfit" pair whose error
+    is estimated from ``dof`` residuals follow Student's t (16-84 % half-width
+    1.32 / 1.14 / 1.07, not 1); mapped through the significance the flag reads,
+    they are standard normal (half-width 1, 0.27 % beyond 3)."""
+    pull = t_dist.rvs(dof, size=400_000, random_state=np.random.default_rng(int(dof)))
+    q16, q84 = np.percentile(pull, [15.87, 84.13])
+    assert abs(0.5 * (q84 - q16) - t_dist.ppf(norm.cdf(1.0), dof)) < 0.02
+    g = np.sign(pull) * duality_significance(np.abs(pull), dof)
+    g16, g84 = np.percentile(g, [15.87, 84.13])
+    assert abs(0.5 * (g84 - g16) - 1.0) < 0.01
+    assert abs(np.mean(np.abs(g) > 3.0) - 2 * norm.sf(3.0)) < 0.0006
+
+
 @pytest.mark.filterwarnings("ignore::lensdual.exceptions.EstimatorWarning")
 def test_null_calibration_rates_and_chunking():
     pairs = _pairs(n=14, seed=2)
