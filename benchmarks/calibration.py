@@ -104,8 +104,7 @@ def run_cell(constellations, sigma_mas, method, n_noise, seed=0):
     if not tested.any():
         nan = float("nan")
         out.update(ffr=nan, ffr_u95=nan, ffr_exact=nan, pull_med=nan, pull_w=nan, pull_gw=nan,
-                   bias=nan, sig=nan,
-                   pow10=nan, pow25=nan, pow50=nan)
+                   bias=nan, sig=nan, pow10=nan, pow25=nan, pow50=nan)
         return out
     snr0 = np.abs(ln_flux_noise - err) / tot
     n_flag = int(np.sum(flagged(snr0)))
@@ -143,8 +142,7 @@ def main(argv=None):
     n_const = args.n_const or n_const
     n_noise = args.n_noise or n_noise
     cols = ("n", "tested", "ok", "ffr", "ffr_u95", "ffr_exact", "pull_med", "pull_w", "pull_gw",
-            "bias",
-            "sig", "pow10", "pow25", "pow50")
+            "bias", "sig", "pow10", "pow25", "pow50")
     print("family n_sources method noise_mas " + " ".join(cols))
     for name in args.families.split(","):
         for n_src in map(int, args.n_sources.split(",")):

@@ -201,7 +201,7 @@ def _curvature(t1, t2, a, idx, degree, s1, s2, pilot, n_sig=2.0):
     return _order_change(t1, t2, a, idx, degree, s1, s2, pilot, 2, n_sig)
 
 
-def _top_change(t1, t2, a, idx, degree, s1, s2, pilot, n_sig=2.0):
+def _top_change(t1, t2, a, idx, degree, s1, s2, pilot, n_sig=1.5):
     """The same for the fit's highest-degree terms (0 for a linear fit): how
     much the terms it truncates next may matter there."""
     return _order_change(t1, t2, a, idx, degree, s1, s2, pilot, degree, n_sig)

@@ -128,6 +128,13 @@ SMACS0723_LENSTOOL_DIR = (Path(__file__).resolve().parents[3] / "shared" / "data
 HFF_LENSTOOL_DIR = (Path(__file__).resolve().parents[3] / "shared" / "data"
                     / "hff_cats_lenstool")
 
+
+def _hff_model(family, model, file):
+    """The ``"lenstool"`` record of a family on a CATS model under
+    :data:`HFF_LENSTOOL_DIR` (``LENSDUAL_HFF_DIR`` overrides it)."""
+    return {"family": family, "model": model, "folder": HFF_LENSTOOL_DIR, "file": file,
+            "env": "LENSDUAL_HFF_DIR"}
+
 #: Smallest and largest number of sources of :func:`clean_constellation`.
 N_SOURCES_RANGE = (8, 40)
 
@@ -235,9 +242,8 @@ FAMILY_PARAMETERS = {
                         "estimator), the SN Refsdal host's macro-images 1.3 (L1) and 1.2 "
                         "(L2), sources over the knots' patch of the source plane"),
         "z_source": 1.4888,
-        "lenstool": {"family": "macs1149_lenstool", "model": "CATS v4 Lenstool model",
-                     "folder": HFF_LENSTOOL_DIR, "file": "macs1149_v4/best.par",
-                     "env": "LENSDUAL_HFF_DIR"},
+        "lenstool": _hff_model("macs1149_lenstool", "CATS v4 Lenstool model",
+                               "macs1149_v4/best.par"),
         "fold_point": (-2.24, 5.69) * u.arcsec,
         "normal": (0.0, 1.0),
         "distance": (0.1, 0.7) * u.arcsec,
@@ -257,9 +263,8 @@ FAMILY_PARAMETERS = {
                         "estimator), fold pair of system 61 (images 61.1 and 61.2, "
                         "z = 2.952)"),
         "z_source": 2.952,
-        "lenstool": {"family": "a2744_lenstool", "model": "CATS Lenstool model of Abell 2744",
-                     "folder": HFF_LENSTOOL_DIR, "file": "abell2744/best.par",
-                     "env": "LENSDUAL_HFF_DIR"},
+        "lenstool": _hff_model("a2744_lenstool", "CATS Lenstool model of Abell 2744",
+                               "abell2744/best.par"),
         "fold_point": (17.520, 19.002) * u.arcsec,
         "normal": (-0.375, 0.927),
         "distance": (0.05, 0.2) * u.arcsec,
@@ -274,9 +279,8 @@ FAMILY_PARAMETERS = {
                         "estimator; two lens planes), tangential fold of system 3 (images "
                         "3.1 and 3.2, z = 1.9553)"),
         "z_source": 1.9553,
-        "lenstool": {"family": "a370_lenstool", "model": "CATS Lenstool model of Abell 370",
-                     "folder": HFF_LENSTOOL_DIR, "file": "abell370/best.par",
-                     "env": "LENSDUAL_HFF_DIR"},
+        "lenstool": _hff_model("a370_lenstool", "CATS Lenstool model of Abell 370",
+                               "abell370/best.par"),
         "fold_point": (-2.936, 28.612) * u.arcsec,
         "normal": (0.944, -0.331),
         "distance": (0.07, 0.2) * u.arcsec,
