@@ -207,8 +207,81 @@ def _top_change(t1, t2, a, idx, degree, s1, s2, pilot, n_sig=1.5):
     return _order_change(t1, t2, a, idx, degree, s1, s2, pilot, degree, n_sig)
 
 
+def _gls_operator(t2, a, idx, degree, s1, s2, pilot):
+    """The GLS fit of :func:`_gls_beta` as a linear operator: ``beta.ravel() =
+    H @ y.ravel()`` (``y`` the (k, 2) offsets on L1), with the design ``x`` and
+    the data covariance ``V`` (2k x 2k, block diagonal)."""
+    u = t2[idx] - t2[a]
+    x = _monomials(u, degree)
+    cov = s1[idx, None, None] ** 2 * np.eye(2) + s2[idx, None, None] ** 2 * (pilot @ pilot.T)
+    w = np.linalg.inv(cov)
+    p, k = x.shape[1], len(idx)
+    normal = np.einsum("bi,bj,bkl->kilj", x, x, w).reshape(2 * p, 2 * p)
+    r = np.einsum("bi,bkl->kibl", x, w).reshape(2 * p, 2 * k)
+    v = np.zeros((2 * k, 2 * k))
+    for b in range(k):
+        v[2 * b:2 * b + 2, 2 * b:2 * b + 2] = cov[b]
+    return x, np.linalg.solve(normal, r), v
+
+
+def _two_scale(t1, t2, a, order, h, b, s1, s2, pilot):
+    """Two-scale estimate: the linear GLS fit of the ``h`` nearest points less
+    the alias of the quadratic terms that the quadratic GLS fit of the ``b``
+    nearest points estimates. Built as one explicit linear operator on the
+    ``b`` points' L1 offsets; returns J and the 4x4 covariance of its entries."""
+    idx_h, idx_b = order[:h], order[:b]
+    _, op_h, _ = _gls_operator(t2, a, idx_h, 1, s1, s2, pilot)
+    _, op_b, v_b = _gls_operator(t2, a, idx_b, 2, s1, s2, pilot)
+    quad = _monomials(t2[idx_h] - t2[a], 2)[:, 3:6]
+    # stacked L1 offsets that quadratic coefficients gamma (2, 3) predict on the h points
+    z = np.zeros((2 * h, 6))
+    for comp in range(2):
+        z[comp::2, 3 * comp:3 * comp + 3] = quad
+    gamma_rows = [3, 4, 5, 9, 10, 11]
+    op_lin = np.zeros((6, 2 * b))
+    op_lin[:, :2 * h] = op_h
+    g = op_lin - op_h @ z @ op_b[gamma_rows]
+    y = (t1[idx_b] - t1[a]).ravel()
+    beta = (g @ y).reshape(2, 3)
+    sel = [1, 2, 4, 5]
+    jac = np.array([[beta[0, 1], beta[0, 2]], [beta[1, 1], beta[1, 2]]])
+    return jac, (g @ v_b @ g.T)[np.ix_(sel, sel)]
+
+
+def _two_scale_best(t1, t2, a, order, s1, s2, pilot, chi2_crit, min_extra, g_pilot, best,
+                    top_coef, top_nsig, two_gate, two_gate_nsig):
+    """The best-ranked of ``best`` (J, sd, rank; or None) and the two-scale
+    estimates of pair ``a``: a linear fit that passed its test, corrected by
+    the quadratic terms of a larger neighbourhood whose quadratic fit passed
+    its own, where that quadratic is known to be gentle."""
+    n = len(t1)
+    lin = [k for k in range(6 + min_extra, n + 1)
+           if _gls_fit(t1, t2, a, order[:k], 1, s1, s2, pilot)[2] <= chi2_crit[2 * (k - 3)]]
+    for b in range(6 + min_extra, n + 1):
+        if not lin or lin[0] >= b:
+            continue
+        _, _, chi2, dof = _gls_fit(t1, t2, a, order[:b], 2, s1, s2, pilot)
+        if chi2 > chi2_crit[dof]:
+            continue
+        for h in (k for k in lin if k < b):
+            j, cj = _two_scale(t1, t2, a, order, h, b, s1, s2, pilot)
+            t, tsd = _curvature_terms(t1, t2, a, order[:b], 2, s1, s2, pilot,
+                                      jinv=np.linalg.inv(j), order=2)
+            if np.max(np.abs(t) + two_gate_nsig * tsd) > two_gate:
+                continue
+            det = np.linalg.det(j)
+            g = np.array([j[1, 1], -j[1, 0], -j[0, 1], j[0, 0]]) / det
+            s = np.sqrt(g @ cj @ g)
+            rank = s**2 if g_pilot is None else g_pilot @ cj @ g_pilot
+            rank += (top_coef * max(float(np.max(np.abs(t) - top_nsig * tsd)), 0.0)) ** 2
+            if best is None or rank < best[2]:
+                best = (j, s, rank)
+    return best
+
+
 def adaptive(t1, t2, s1, s2, pilot, chi2_crit, min_extra=1, report_extra=1, min_candidates=2,
-             lookahead=5, curv_coef=0.1, top_coef=0.6, top_nsig=1.5):
+             lookahead=5, curv_coef=0.1, top_coef=0.6, top_nsig=1.5, two_gate=0.5,
+             two_gate_nsig=2.0):
     """One pass of the adaptive estimator given pilot Jacobians (N, 2, 2).
 
     Returns J (N, 2, 2), the error of ln|det J|, the status (0 ok,
@@ -260,6 +333,9 @@ def adaptive(t1, t2, s1, s2, pilot, chi2_crit, min_extra=1, report_extra=1, min_
                         fallback = (j, sf, np.log(abs(det)), dr, k, dof_r, curv)
                 elif worst is None or sf < worst[1]:
                     worst = (j, sf, dof_r)
+        if report_extra == 1:
+            best = _two_scale_best(t1, t2, a, order, s1, s2, pilot[a], chi2_crit, min_extra,
+                                   g_pilot, best, top_coef, top_nsig, two_gate, two_gate_nsig)
         if best is not None:
             jac[a], sd[a], status[a], dofs[a] = best[0], best[1], 0, np.inf
         elif fallback is not None and len(consistent) >= min_candidates:

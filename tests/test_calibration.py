@@ -433,3 +433,55 @@ def test_adaptive_top_order_ranking_matches_reference():
     _, sd0, st0, _ = ref.adaptive(t1, t2, s, s, pilot, _chi2_critical(len(t1)), top_coef=0.0)
     ok = (st == 0) & (st0 == 0)
     assert (ok & ~np.isclose(sd, sd0, rtol=1e-9)).sum() >= 2
+
+
+def test_two_scale_estimate_exact_on_a_quadratic_map_with_its_covariance():
+    """The two-scale estimate (linear fit of the h nearest points less the alias
+    of the quadratic terms fitted on b > h points) is exact on a quadratic map,
+    and its covariance matches the Monte Carlo scatter of the estimate."""
+    rng = np.random.default_rng(7)
+    t2 = rng.uniform(-1, 1, (20, 2))
+    x, y = t2.T
+    t1 = np.column_stack([0.9 * x + 0.3 * y + 0.2 * x**2 - 0.1 * x * y + 0.15 * y**2,
+                          -0.2 * x + 0.7 * y + 0.05 * x**2 + 0.25 * x * y - 0.1 * y**2])
+    a = 3
+    jac_true = np.array([[0.9 + 0.4 * x[a] - 0.1 * y[a], 0.3 - 0.1 * x[a] + 0.3 * y[a]],
+                         [-0.2 + 0.1 * x[a] + 0.25 * y[a], 0.7 + 0.25 * x[a] - 0.2 * y[a]]])
+    order = np.argsort(((t2 - t2[a]) ** 2).sum(axis=1), kind="stable")
+    s1 = np.full(20, 0.004)
+    s2 = np.zeros(20)  # noise on L1 only: the effective variance is then exact
+    jac, cov = ref._two_scale(t1, t2, a, order, 8, 20, s1, s2, jac_true)
+    np.testing.assert_allclose(jac, jac_true, atol=1e-10)
+    # the linear fit of 8 points alone is biased by the curvature
+    lin, _, _, _ = ref._gls_fit(t1, t2, a, order[:8], 1, s1, s2, jac_true)
+    assert np.max(np.abs(lin - jac_true)) > 0.05
+    draws = np.array([ref._two_scale(t1 + 0.004 * rng.standard_normal(t1.shape), t2, a, order,
+                                     8, 20, s1, s2, jac_true)[0].ravel() for _ in range(3000)])
+    np.testing.assert_allclose(np.cov(draws.T), cov, rtol=0.1, atol=0.05 * np.max(cov))
+
+
+@pytest.mark.filterwarnings("ignore::lensdual.exceptions.EstimatorWarning")
+def test_adaptive_two_scale_estimates_match_reference():
+    """Kernel vs twin where two-scale estimates win pairs (24 points, 10 mas):
+    the same choices, Jacobians and errors, and the twin without the
+    two-scale candidates chooses differently there."""
+    n = 24
+    t1, t2, _ = _constellation(n, 2)
+    rng = np.random.default_rng(5)
+    s = np.full(n, 0.01)
+    t1 = t1 + s[:, None] * rng.standard_normal((n, 2))
+    t2 = t2 + s[:, None] * rng.standard_normal((n, 2))
+    (jac, sd, st, dof), (jac_ref, sd_ref, st_ref, _) = _kernel_one_pass(t1, t2, s, s)
+    np.testing.assert_array_equal(st, st_ref)
+    np.testing.assert_allclose(jac, jac_ref, rtol=1e-6, atol=1e-8)
+    np.testing.assert_allclose(sd, sd_ref, rtol=1e-6)
+    pilot = relative_jacobian(t1 * u.arcsec, t2 * u.arcsec, "quad")
+    orig = ref._two_scale
+    try:  # the twin without two-scale candidates: never chosen
+        ref._two_scale = lambda *args: (orig(*args)[0], orig(*args)[1] * 1e12)
+        _, sd_one, st_one, _ = ref.adaptive(t1, t2, s, s, pilot, _chi2_critical(n))
+    finally:
+        ref._two_scale = orig
+    ok = (st == 0) & (st_one == 0)
+    won = ok & ~np.isclose(sd, sd_one)
+    assert won.sum() >= 2

@@ -478,8 +478,15 @@ def size_magnification(
     accepted when its chi-square is consistent with those errors (5 %
     test); the estimate of that neighbourhood is then the fit of degree
     ``d + 1`` on the same points, whose truncation bias is one order
-    smaller than the tested fit's misfit (robust bias correction). Among
-    the accepted neighbourhoods the one with the smallest error wins, with
+    smaller than the tested fit's misfit (robust bias correction). A
+    linear fit that passed its test may also take its bias correction from
+    a larger neighbourhood whose quadratic fit passed its own: the linear
+    fit's slopes less the alias of that quadratic's terms (a *two-scale*
+    estimate, with less variance than the quadratic on the smaller
+    neighbourhood). It is used only where that quadratic is known to be
+    gentle: the change of ``ln|det J|`` across the larger neighbourhood
+    that it predicts, plus twice its noise, stays below 0.5. Among
+    the accepted estimates the one with the smallest error wins, with
     a penalty for the change of ``ln|det J|`` across the neighbourhood that
     the reported fit's highest-degree terms predict beyond their noise (a
     proxy of the truncation the test cannot see). The
