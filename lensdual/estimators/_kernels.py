@@ -662,6 +662,31 @@ def _store_linear(L, scale, A, beta, work, rhs_al, sol_al, h_sl, h_al, h_cv, j):
 
 
 @njit(**JIT_OPTIONS)
+def _slopes_jacobian(s00, s01, s10, s11, hmax):
+    """``J' = slopes / hmax`` (rotated frame, derivatives with respect to the
+    unscaled offsets), ``det J'`` and ``d ln|det| / dJ' = J'^-T``; the last
+    four are 0 where ``det J'`` is 0 or not finite (the caller skips the fit)."""
+    jr00 = s00 / hmax
+    jr01 = s01 / hmax
+    jr10 = s10 / hmax
+    jr11 = s11 / hmax
+    det = jr00 * jr11 - jr01 * jr10
+    if not (np.isfinite(det) and det != 0.0):
+        return jr00, jr01, jr10, jr11, det, 0.0, 0.0, 0.0, 0.0
+    return jr00, jr01, jr10, jr11, det, jr11 / det, -jr10 / det, -jr01 / det, jr00 / det
+
+
+@njit(**JIT_OPTIONS)
+def _ln_det_form(cv, g00, g01, g10, g11, hmax):
+    """``g^T C g / hmax^2`` summed over the two components: the variance of
+    ``ln|det J|`` (``g = J'^-T``) or of its projection on another gradient,
+    from the slopes' covariance entries ``cv[comp] = (11, 12, 22)``."""
+    return ((g00 * g00 * cv[0, 0] + 2.0 * g00 * g01 * cv[0, 1] + g01 * g01 * cv[0, 2])
+            + (g10 * g10 * cv[1, 0] + 2.0 * g10 * g11 * cv[1, 1]
+               + g11 * g11 * cv[1, 2])) / (hmax * hmax)
+
+
+@njit(**JIT_OPTIONS)
 def _two_scale_slopes(sl_h, al_h, cv_h, beta, s13, s33, sl, cv):
     """One component of a two-scale estimate (:func:`_two_scale`): the slopes
     ``sl_h - al_h gamma`` (``gamma = beta[3:6]``) into ``sl`` and their
@@ -716,20 +741,11 @@ def _two_scale(L, scale, work, beta, U, kk, hmax, h_k, h_sl, h_al, h_cv, n_h, c,
         for comp in range(2):
             _two_scale_slopes(h_sl[j, comp], h_al[j, comp], h_cv[j, comp], beta[comp], s13[comp],
                               s33[comp], sl[comp], cv[comp])
-        jr00 = sl[0, 0] / hmax
-        jr01 = sl[0, 1] / hmax
-        jr10 = sl[1, 0] / hmax
-        jr11 = sl[1, 1] / hmax
-        det = jr00 * jr11 - jr01 * jr10
+        jr00, jr01, jr10, jr11, det, g00, g01, g10, g11 = _slopes_jacobian(
+            sl[0, 0], sl[0, 1], sl[1, 0], sl[1, 1], hmax)
         if not (np.isfinite(det) and det != 0.0):
             continue
-        g00 = jr11 / det
-        g01 = -jr10 / det
-        g10 = -jr01 / det
-        g11 = jr00 / det
-        var_ln = ((g00 * g00 * cv[0, 0] + 2.0 * g00 * g01 * cv[0, 1] + g01 * g01 * cv[0, 2])
-                  + (g10 * g10 * cv[1, 0] + 2.0 * g10 * g11 * cv[1, 1]
-                     + g11 * g11 * cv[1, 2])) / (hmax * hmax)
+        var_ln = _ln_det_form(cv, g00, g01, g10, g11, hmax)
         if not var_ln > 0.0:
             continue
         # the gate: the quadratic's change across the b points, plus its noise
@@ -738,9 +754,7 @@ def _two_scale(L, scale, work, beta, U, kk, hmax, h_k, h_sl, h_al, h_cv, n_h, c,
             continue
         rank = var_ln
         if pilot_ranks:
-            rank = ((q[0] * q[0] * cv[0, 0] + 2.0 * q[0] * q[1] * cv[0, 1] + q[1] * q[1] * cv[0, 2])
-                    + (q[2] * q[2] * cv[1, 0] + 2.0 * q[2] * q[3] * cv[1, 1]
-                       + q[3] * q[3] * cv[1, 2])) / (hmax * hmax)
+            rank = _ln_det_form(cv, q[0], q[1], q[2], q[3], hmax)
             if not rank > 0.0:
                 rank = var_ln
         if rank < best_rank and _ADAPTIVE_TOP_COEF > 0.0:
@@ -1025,32 +1039,19 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
             for comp in range(2):
                 _factored_solve(L[comp], pr, scale, rhs[comp], beta[comp])
                 _slope_covariance(L[comp], pr, scale, work, cov[comp])
-            # J' rows (rotated frame), derivatives with respect to the unscaled offsets
-            jr00 = beta[0, 1] / hmax
-            jr01 = beta[0, 2] / hmax
-            jr10 = beta[1, 1] / hmax
-            jr11 = beta[1, 2] / hmax
-            det = jr00 * jr11 - jr01 * jr10
+            # J' rows (rotated frame) and d ln|det| / dJ' = J'^-T
+            jr00, jr01, jr10, jr11, det, g00, g01, g10, g11 = _slopes_jacobian(
+                beta[0, 1], beta[0, 2], beta[1, 1], beta[1, 2], hmax)
             if not (np.isfinite(det) and det != 0.0):
                 continue
-            # d ln|det| / dJ' = J'^-T
-            g00 = jr11 / det
-            g01 = -jr10 / det
-            g10 = -jr01 / det
-            g11 = jr00 / det
-            var_ln = ((g00 * g00 * cov[0, 0] + 2.0 * g00 * g01 * cov[0, 1] + g01 * g01 * cov[0, 2])
-                      + (g10 * g10 * cov[1, 0] + 2.0 * g10 * g11 * cov[1, 1]
-                         + g11 * g11 * cov[1, 2])) / (hmax * hmax)
+            var_ln = _ln_det_form(cov, g00, g01, g10, g11, hmax)
             if not var_ln > 0.0:
                 continue
             sd = np.sqrt(var_ln)
             if passed:
                 rank = var_ln
                 if pilot_ranks:
-                    rank = ((q00 * q00 * cov[0, 0] + 2.0 * q00 * q01 * cov[0, 1]
-                             + q01 * q01 * cov[0, 2])
-                            + (q10 * q10 * cov[1, 0] + 2.0 * q10 * q11 * cov[1, 1]
-                               + q11 * q11 * cov[1, 2])) / (hmax * hmax)
+                    rank = _ln_det_form(cov, q00, q01, q10, q11, hmax)
                     if not rank > 0.0:
                         rank = var_ln
                 if rank < best_rank and _ADAPTIVE_TOP_COEF > 0.0:
