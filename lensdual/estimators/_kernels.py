@@ -606,8 +606,18 @@ def _order_change(L, pr, scale, work, beta, U, kk, g00, g01, g10, g11, hmax, n_s
     covariance, J held fixed); 0 when the fit (``pr`` coefficients) has no
     such terms. Degree 2 is the curvature of a "misfit" fit, the fit's top
     degree its top-order change (see :func:`_adaptive_pair`)."""
+    return _order_changes(L, pr, scale, work, beta, U, kk, g00, g01, g10, g11, hmax, n_sig,
+                          0.0, deg, cov_o, grad)[0]
+
+
+@njit(**JIT_OPTIONS)
+def _order_changes(L, pr, scale, work, beta, U, kk, g00, g01, g10, g11, hmax, n_sig, n_up,
+                   deg, cov_o, grad):
+    """:func:`_order_change` and, in the same pass, its upper bound: the largest
+    change *plus* ``n_up`` times its standard error (both 0 without such
+    terms)."""
     if deg < 2 or pr < _ncoef(deg):
-        return 0.0
+        return 0.0, 0.0
     i0 = _ncoef(deg - 1)
     m = deg + 1
     for comp in range(2):
@@ -616,6 +626,7 @@ def _order_change(L, pr, scale, work, beta, U, kk, g00, g01, g10, g11, hmax, n_s
             for i in range(m):
                 cov_o[comp, i, j] = work[i0 + i] * scale[i0 + i] * scale[i0 + j]
     out = 0.0
+    up = 0.0
     for q in range(kk):
         x = U[q, 1]
         y = U[q, 2]
@@ -638,8 +649,10 @@ def _order_change(L, pr, scale, work, beta, U, kk, g00, g01, g10, g11, hmax, n_s
                 t += grad[i] * beta[comp, i0 + i]
                 for j in range(m):
                     v += grad[i] * cov_o[comp, i, j] * grad[j]
-        out = max(out, abs(t) / hmax - n_sig * np.sqrt(max(v, 0.0)) / hmax)
-    return out
+        sq = np.sqrt(max(v, 0.0))
+        out = max(out, abs(t) / hmax - n_sig * sq / hmax)
+        up = max(up, abs(t) / hmax + n_up * sq / hmax)
+    return out, up
 
 
 @njit(**JIT_OPTIONS)
@@ -748,21 +761,20 @@ def _two_scale(L, scale, work, beta, U, kk, hmax, h_k, h_sl, h_al, h_cv, n_h, c,
         var_ln = _ln_det_form(cv, g00, g01, g10, g11, hmax)
         if not var_ln > 0.0:
             continue
-        # the gate: the quadratic's change across the b points, plus its noise
-        if _order_change(L, 6, scale, work, beta, U, kk, g00, g01, g10, g11, hmax,
-                         -_ADAPTIVE_TWO_GATE_NSIG, 2, cov_o, grad_o) > _ADAPTIVE_TWO_GATE:
-            continue
         rank = var_ln
         if pilot_ranks:
             rank = _ln_det_form(cv, q[0], q[1], q[2], q[3], hmax)
             if not rank > 0.0:
                 rank = var_ln
-        if rank < best_rank and _ADAPTIVE_TOP_COEF > 0.0:
-            # the truncation the bias estimate cannot test: its quadratic's change
-            # across the larger neighbourhood
-            ctop = _order_change(L, 6, scale, work, beta, U, kk, g00, g01, g10, g11, hmax,
-                                 _ADAPTIVE_TOP_NSIG, 2, cov_o, grad_o)
-            rank += (_ADAPTIVE_TOP_COEF * ctop) ** 2
+        if not rank < best_rank:
+            continue  # the gate only rejects and the penalty only adds
+        # the quadratic's change across the b points: less 1.5 times its noise, the
+        # truncation the bias estimate cannot test (penalty); plus twice, the gate
+        ctop, cup = _order_changes(L, 6, scale, work, beta, U, kk, g00, g01, g10, g11, hmax,
+                                   _ADAPTIVE_TOP_NSIG, _ADAPTIVE_TWO_GATE_NSIG, 2, cov_o, grad_o)
+        if cup > _ADAPTIVE_TWO_GATE:
+            continue
+        rank += (_ADAPTIVE_TOP_COEF * ctop) ** 2
         if rank < best_rank:
             best_rank = rank
             best_sd = np.sqrt(var_ln)
