@@ -675,18 +675,26 @@ def _store_linear(L, scale, A, beta, work, rhs_al, sol_al, h_sl, h_al, h_cv, j):
 
 
 @njit(**JIT_OPTIONS)
-def _slopes_jacobian(s00, s01, s10, s11, hmax):
+def _slopes_jacobian(s00, s01, s10, s11, cv, hmax):
     """``J' = slopes / hmax`` (rotated frame, derivatives with respect to the
-    unscaled offsets), ``det J'`` and ``d ln|det| / dJ' = J'^-T``; the last
-    four are 0 where ``det J'`` is 0 or not finite (the caller skips the fit)."""
+    unscaled offsets), ``d ln|det| / dJ' = J'^-T`` and the variance of
+    ``ln|det J|`` from the slopes' covariance ``cv`` (:func:`_ln_det_form`),
+    with ``det J'`` after ``J'``; the gradient and the variance are 0 where
+    ``det J'`` is 0 or not finite (the caller skips fits whose variance is
+    not positive)."""
     jr00 = s00 / hmax
     jr01 = s01 / hmax
     jr10 = s10 / hmax
     jr11 = s11 / hmax
     det = jr00 * jr11 - jr01 * jr10
     if not (np.isfinite(det) and det != 0.0):
-        return jr00, jr01, jr10, jr11, det, 0.0, 0.0, 0.0, 0.0
-    return jr00, jr01, jr10, jr11, det, jr11 / det, -jr10 / det, -jr01 / det, jr00 / det
+        return jr00, jr01, jr10, jr11, det, 0.0, 0.0, 0.0, 0.0, 0.0
+    g00 = jr11 / det
+    g01 = -jr10 / det
+    g10 = -jr01 / det
+    g11 = jr00 / det
+    return (jr00, jr01, jr10, jr11, det, g00, g01, g10, g11,
+            _ln_det_form(cv, g00, g01, g10, g11, hmax))
 
 
 @njit(**JIT_OPTIONS)
@@ -754,11 +762,8 @@ def _two_scale(L, scale, work, beta, U, kk, hmax, h_k, h_sl, h_al, h_cv, n_h, c,
         for comp in range(2):
             _two_scale_slopes(h_sl[j, comp], h_al[j, comp], h_cv[j, comp], beta[comp], s13[comp],
                               s33[comp], sl[comp], cv[comp])
-        jr00, jr01, jr10, jr11, det, g00, g01, g10, g11 = _slopes_jacobian(
-            sl[0, 0], sl[0, 1], sl[1, 0], sl[1, 1], hmax)
-        if not (np.isfinite(det) and det != 0.0):
-            continue
-        var_ln = _ln_det_form(cv, g00, g01, g10, g11, hmax)
+        jr00, jr01, jr10, jr11, _, g00, g01, g10, g11, var_ln = _slopes_jacobian(
+            sl[0, 0], sl[0, 1], sl[1, 0], sl[1, 1], cv, hmax)
         if not var_ln > 0.0:
             continue
         rank = var_ln
@@ -964,7 +969,7 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
     sol_al = np.empty(3)
     s13 = np.empty((2, 2, 3))
     s33 = np.empty((2, 3, 3))
-    qv = np.empty(4)
+    qv = np.array([q00, q01, q10, q11])  # the pilot's gradient, for _two_scale
     for k in range(n):
         # add point order[k] to both normal systems (full cubic design)
         for comp in range(2):
@@ -1006,7 +1011,8 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
             pr = _ncoef(dt + report_extra)
             # a quadratic test also serves the two-scale estimates of the stored
             # linear fits, from fewer points than its own reported (cubic) fit needs
-            bias_fit = two_scale and dt == 2 and n_h > 0 and kk >= pt + min_extra
+            # (stored fits come in increasing size: the first is the smallest)
+            bias_fit = two_scale and dt == 2 and n_h > 0 and h_k[0] < kk and kk >= pt + min_extra
             if kk < pr + min_extra and not bias_fit:
                 continue
             # test fit: chi-square of both components at degree dt
@@ -1029,10 +1035,6 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
                 h_k[n_h] = kk
                 n_h += 1
             if passed and bias_fit:
-                qv[0] = q00
-                qv[1] = q01
-                qv[2] = q10
-                qv[3] = q11
                 rank2, sd2 = _two_scale(L, scale, work, beta, U, kk, hmax, h_k, h_sl, h_al, h_cv,
                                         n_h, c, s, pilot_ranks, qv, best_rank, s13, s33, cov_o,
                                         grad_o, jb)
@@ -1052,11 +1054,8 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
                 _factored_solve(L[comp], pr, scale, rhs[comp], beta[comp])
                 _slope_covariance(L[comp], pr, scale, work, cov[comp])
             # J' rows (rotated frame) and d ln|det| / dJ' = J'^-T
-            jr00, jr01, jr10, jr11, det, g00, g01, g10, g11 = _slopes_jacobian(
-                beta[0, 1], beta[0, 2], beta[1, 1], beta[1, 2], hmax)
-            if not (np.isfinite(det) and det != 0.0):
-                continue
-            var_ln = _ln_det_form(cov, g00, g01, g10, g11, hmax)
+            jr00, jr01, jr10, jr11, det, g00, g01, g10, g11, var_ln = _slopes_jacobian(
+                beta[0, 1], beta[0, 2], beta[1, 1], beta[1, 2], cov, hmax)
             if not var_ln > 0.0:
                 continue
             sd = np.sqrt(var_ln)

@@ -485,7 +485,7 @@ def size_magnification(
     estimate, with less variance than the quadratic on the smaller
     neighbourhood). It is used only where that quadratic is known to be
     gentle: the change of ``ln|det J|`` across the larger neighbourhood
-    that it predicts, plus twice its noise, stays below 0.5. Among
+    that it predicts, plus twice its noise, is at most 0.5. Among
     the accepted estimates the one with the smallest error wins, with
     a penalty for the change of ``ln|det J|`` across the neighbourhood that
     the reported fit's highest-degree terms predict beyond their noise (a
