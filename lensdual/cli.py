@@ -380,9 +380,10 @@ def build_parser():
                       help="size-magnification estimator (adaptive: local fits chosen by the "
                            "data, errors that include the estimator's own; quad2, quad, 2v: "
                            "bootstrap errors of the position noise only)")
-    demo.add_argument("--null-realisations", type=_int_range(0), default=200,
+    demo.add_argument("--null-realisations", type=_int_range(0), default=1000,
                       help="simulated clean constellations for the null calibration of the "
-                           "adaptive test (0: off; otherwise >= 100)")
+                           "adaptive test (0: off; otherwise >= 100, and >= 370 for its "
+                           "empirical p-values to confirm a flag at SNR 3)")
     demo.add_argument("--snr-threshold", type=_positive_float, default=3.0,
                       help="a pair is anomalous above this duality SNR")
     demo.add_argument("--write-config", action="store_true",

@@ -13,7 +13,7 @@ can give. From Python, the demo is::
 
     system, truth = simulate_demo(seed=0)
     demo = render_demo(system, truth, seed=0)
-    analysis = analyse(demo.images, psf=demo.psf, seed=0, null_realisations=200)
+    analysis = analyse(demo.images, psf=demo.psf, seed=0, null_realisations=1000)
     comparison = compare_with_truth(analysis.result, truth, demo.centre)
     print(format_report(analysis, ["", truth_paragraph(comparison)]))
 

@@ -581,6 +581,9 @@ def check_duality(
 _NULL_BLOCK = 50
 _NULL_MIN_REALISATIONS = 100
 _NULL_MAX_DEGREE = 4
+# Above this chi2/dof of the null map the real map bends faster than the null's:
+# a warning, and the verdict calls the null's confirmations of flags optimistic.
+_NULL_MAP_CHI2_DOF_MAX = 2.0
 
 
 def _smooth_map(t1, t2, sigma, alpha=0.05):
@@ -770,7 +773,7 @@ def null_calibration(pairs, *, sigma_pos, n_realisations=1000,
     ln_flux_err = np.where(np.isfinite(ln_flux_err), ln_flux_err, np.inf)
 
     mapped, jac, degree, chi2_dof = _smooth_map(t1, t2, sigma)
-    if chi2_dof > 2.0:
+    if chi2_dof > _NULL_MAP_CHI2_DOF_MAX:
         warnings.warn(
             f"the null map (a degree-{degree} polynomial) fits the pairs with chi2/dof = "
             f"{chi2_dof:.2g}: the real map bends faster than the null's, so the empirical "

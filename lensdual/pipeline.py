@@ -29,7 +29,7 @@ from astropy import units as u
 
 from ._pairs_table import ARCS, POS_ERR_COLUMNS, arc_xy, flux_col, flux_err_col
 from ._validation import as_angle_scalar, as_real
-from .duality import DEFAULT_SNR_THRESHOLD
+from .duality import _NULL_MAP_CHI2_DOF_MAX, DEFAULT_SNR_THRESHOLD
 from .estimators import DEFAULT_METHOD, DEFAULT_N_BOOTSTRAP, estimate_sigma_pos
 
 # The seed of analyse (and of lensdual run's [analysis] seed): runs repeat.
@@ -514,12 +514,50 @@ def verdict(result, sigma_pos):
         parts.append(f"pair {row['pair_id']} (mu_flux = {_fmt(row['mu_flux'])} +- "
                      f"{_fmt(row['mu_flux_err'])}, mu_size = {_fmt(row['mu_size'])} +- "
                      f"{_fmt(row['mu_size_err'])}, ratio {_fmt(ratio, '.2f')}, "
-                     f"{_snr_words(row)}: {how} than the geometry allows)")
+                     f"{_snr_words(row)}{_empirical_words(row)}: {how} than the geometry "
+                     "allows)")
     n_bad = len(bad)
     text += (f"{n_bad} pair{'s break' if n_bad > 1 else ' breaks'} geometrical duality: "
              + "; ".join(parts) + ". A flux anomaly at fixed geometry is the signature of "
              "unseen sub-structure (a sub-halo) near one of the two images. "
              f"The other {n_tested - n_bad} tested pairs agree with duality.")
+    return text + _null_confirmation(bad, meta)
+
+
+def _empirical_words(row):
+    """", empirical p = 0.1% against the null calibration" where it was run."""
+    if "p_value_empirical" not in row.colnames or not np.isfinite(row["p_value_empirical"]):
+        return ""
+    return f", empirical p = {_percent(float(row['p_value_empirical']))} against the null"
+
+
+def _null_confirmation(bad, meta):
+    """How many flags the null calibration's empirical p-values confirm (empty without one)."""
+    null = meta.get("null_calibration")
+    if not null or "p_value_empirical" not in bad.colnames or "p_threshold" not in meta:
+        return ""
+    p_thr = float(meta["p_threshold"])
+    n_real = int(null["n_realisations"])
+    if 1.0 / (n_real + 1) > p_thr:
+        return (f" The null calibration's {n_real} realisations cannot give an empirical "
+                f"p-value below {_percent(p_thr)}, so they cannot confirm a flag at this "
+                f"threshold: run at least {int(np.ceil(1.0 / p_thr - 1.0))} to do so.")
+    p_emp = np.asarray(bad["p_value_empirical"], dtype=float)
+    n_conf = int(np.count_nonzero(p_emp <= p_thr))
+    if len(bad) == 1:
+        what = "confirms this flag" if n_conf else "does not confirm this flag"
+    else:
+        what = f"confirms {n_conf} of the {len(bad)} flags"
+    text = f" The null calibration {what} (empirical p <= {_percent(p_thr)})."
+    if null["map_chi2_dof"] > _NULL_MAP_CHI2_DOF_MAX:
+        text += (f" But the null map fits the pairs with chi2/dof = {null['map_chi2_dof']:.2g} "
+                 "(the real map bends faster than the null's), so its empirical p-values are "
+                 "optimistic.")
+    if n_conf < len(bad):
+        text += (" A flag that the null does not confirm may come from the estimator's own "
+                 "bias where the magnification ratio changes steeply across the constellation "
+                 "and the astrometry is coarse (see the calibration page): look at it closely "
+                 "before calling it a sub-halo.")
     return text
 
 

@@ -62,7 +62,7 @@ def test_demo_table_columns_and_verdict(demo_dir):
     np.testing.assert_allclose(meta["expected_false_flags"], meta["n_tested"] * 0.0026998,
                                rtol=1e-4)
     null = meta["null_calibration"]
-    assert null["n_realisations"] == 200 and 0 <= null["false_alarm_rate"] < 0.05
+    assert null["n_realisations"] == 1000 and 0 <= null["false_alarm_rate"] < 0.05
     report = (demo_dir / "report.txt").read_text()
     assert f"1 pair of {meta['n_tested']} tested flagged" in report
     assert "simulated clean constellations like this one" in report
@@ -156,7 +156,7 @@ def test_the_demo_from_python_gives_the_command_s_report(demo_dir):
     system, truth = simulate_demo(n_sources=8, seed=3)
     demo = render_demo(system, truth, seed=3)
     analysis = analyse(demo.images, psf=demo.psf, n_bootstrap=200, seed=3,
-                       null_realisations=200)
+                       null_realisations=1000)
     assert isinstance(analysis, Analysis)
     comparison = compare_with_truth(analysis.result, truth, demo.centre)
     report = (demo_dir / "report.txt").read_text()

@@ -272,3 +272,48 @@ def test_bad_arguments(kwargs, exc, match):
 def test_not_a_table():
     with pytest.raises(TypeError, match="pairs must be an astropy Table or QTable"):
         check_duality({"x1": [1, 2, 3]})
+
+
+def test_verdict_says_which_flags_the_null_calibration_confirms():
+    """A flag the null calibration confirms (empirical p at most the threshold's p)
+    is counted as confirmed; the verdict says when the realisations are too few to
+    confirm any flag; each flagged pair carries its empirical p-value."""
+    from lensdual.pipeline import _add_null_calibration, verdict
+
+    rng = np.random.default_rng(4)
+    t2 = rng.uniform(-1, 1, (12, 2))
+    t1 = t2 @ np.array([[1.4, 0.2], [0.1, -0.8]]).T
+    flux1 = np.full(12, 100.0) * abs(1.4 * -0.8 - 0.2 * 0.1)
+    flux1[5] *= 2.0  # pair 6: twice too bright on L1
+    flux1[9] *= 0.5  # pair 10: twice too faint
+    pairs = QTable({"pair_id": np.arange(1, 13),
+                    "x1": t1[:, 0] * u.arcsec, "y1": t1[:, 1] * u.arcsec,
+                    "x2": t2[:, 0] * u.arcsec, "y2": t2[:, 1] * u.arcsec,
+                    "flux1_F150W": flux1, "flux2_F150W": np.full(12, 100.0),
+                    "flux_err1_F150W": 0.01 * flux1, "flux_err2_F150W": np.full(12, 1.0)})
+    sigma = 0.002 * u.arcsec
+    res = check_duality(pairs, sigma_pos=sigma)
+    assert np.flatnonzero(res["anomalous"]).tolist() == [5, 9]
+    p_thr = res.meta["duality"]["p_threshold"]
+    few = res.copy()
+    _add_null_calibration(few, pairs, sigma, 100, 3.0, 0)
+    text = verdict(few, sigma)
+    assert "cannot confirm a flag at this threshold: run at least 370" in text
+    assert "empirical p = 0.99% against the null" in text  # 1 / 101: no null SNR as large
+    _add_null_calibration(res, pairs, sigma, 400, 3.0, 0)
+    p_emp = np.asarray(res["p_value_empirical"])[[5, 9]]
+    assert np.all(p_emp < 2 / 401) and np.all(p_emp <= p_thr)  # no null SNR as large
+    text = verdict(res, sigma)
+    assert "The null calibration confirms 2 of the 2 flags (empirical p <= 0.27%)." in text
+    assert "look at it closely" not in text and "optimistic" not in text
+    # a flag the null does not confirm gets the warning
+    res["p_value_empirical"][9] = 0.01
+    text = verdict(res, sigma)
+    assert "confirms 1 of the 2 flags" in text and "look at it closely" in text
+    res["anomalous"][5] = False
+    assert "does not confirm this flag" in verdict(res, sigma)
+    res["anomalous"][[5, 9]] = [True, False]
+    assert "The null calibration confirms this flag" in verdict(res, sigma)
+    # where the null map does not follow the data its confirmations are called optimistic
+    res.meta["duality"]["null_calibration"]["map_chi2_dof"] = 75.0
+    assert "chi2/dof = 75 (the real map bends faster" in verdict(res, sigma)

@@ -210,7 +210,8 @@ FIELDS = (
        "significance threshold of a duality violation", above=0),
     _F("analysis", "seed", "integer", _DEFAULT_SEED, "seed of the random numbers", minimum=0),
     _F("analysis", "null_realisations", "integer", 0,
-       f"realisations of the null calibration: 0 (off) or >= {MIN_NULL_REALISATIONS}; "
+       f"realisations of the null calibration: 0 (off) or >= {MIN_NULL_REALISATIONS} "
+       "(>= 370 for its empirical p-values to confirm a flag at SNR 3); "
        'needs estimator "adaptive"',
        minimum=0, note=f"0 (off) or >= {MIN_NULL_REALISATIONS}: null calibration "
                        '(estimator "adaptive")'),
