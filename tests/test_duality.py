@@ -292,7 +292,8 @@ def test_verdict_says_which_flags_the_null_calibration_confirms():
                     "flux1_F150W": flux1, "flux2_F150W": np.full(12, 100.0),
                     "flux_err1_F150W": 0.01 * flux1, "flux_err2_F150W": np.full(12, 1.0)})
     sigma = 0.002 * u.arcsec
-    res = check_duality(pairs, sigma_pos=sigma)
+    res = _check_duality(pairs, sigma_pos=sigma)  # the adaptive default, as the pipeline
+    assert res.meta["duality"]["method"] == "adaptive"
     assert np.flatnonzero(res["anomalous"]).tolist() == [5, 9]
     p_thr = res.meta["duality"]["p_threshold"]
     few = res.copy()
