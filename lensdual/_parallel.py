@@ -1,6 +1,17 @@
 """Running independent tasks here, on a dask Client or on an Executor (one home)."""
 
+import os
+
 __all__ = []
+
+
+def available_threads(limit=8):
+    """The cores this process may run on (its CPU affinity where known), at most ``limit``."""
+    if hasattr(os, "sched_getaffinity"):
+        n = len(os.sched_getaffinity(0))
+    else:
+        n = os.cpu_count() or 1
+    return max(1, min(limit, n))
 
 
 def check_client(client):

@@ -8,6 +8,7 @@ where they disagree.
 """
 
 import warnings
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 from astropy import units as u
@@ -19,6 +20,7 @@ from . import _pairs_table
 from ._pairs_table import band_fluxes as _band_fluxes
 from ._pairs_table import pair_bands
 from ._pairs_table import positions as _positions
+from ._parallel import available_threads as _available_threads
 from ._parallel import check_client, run_tasks
 from ._validation import as_int, as_real
 from .estimators import DEFAULT_METHOD, DEFAULT_N_BOOTSTRAP, TESTABLE_STATUS, size_magnification
@@ -684,9 +686,12 @@ def null_calibration(pairs, *, sigma_pos, n_realisations=1000,
         block number, so that results do not depend on ``client`` or
         ``chunk_size``.
     client : `dask.distributed.Client` or `concurrent.futures.Executor`, optional
-        Where to run the blocks (default: here, serially).
+        Where to run the blocks (default: here, in threads over the cores
+        this process may use, up to 8: the estimator's kernel releases the
+        GIL).
     chunk_size : int
-        Blocks of 50 realisations per task (default 4).
+        Blocks of 50 realisations per task of ``client`` (default 4; one
+        block per task in the default threads).
     weight_power : float
         Weight power of the Quad pilot, see
         :func:`~lensdual.estimators.relative_jacobian`.
@@ -787,8 +792,16 @@ def null_calibration(pairs, *, sigma_pos, n_realisations=1000,
     sizes = [min(_NULL_BLOCK, n_real - b * _NULL_BLOCK) for b in range(n_blocks)]
     args = [(b, entropy, sizes[b], mapped, t2, sigma, mu_true, ln_flux_err, float(weight_power))
             for b in range(n_blocks)]
-    tasks = [args[i:i + chunk] for i in range(0, n_blocks, chunk)]
-    parts = run_tasks(_null_tasks, tasks, client)
+    if client is None:
+        threads = min(_available_threads(), n_blocks)
+        if threads > 1:
+            with ThreadPoolExecutor(threads) as pool:
+                parts = run_tasks(_null_tasks, [[a] for a in args], pool)
+        else:
+            parts = run_tasks(_null_tasks, [args], None)
+    else:
+        tasks = [args[i:i + chunk] for i in range(0, n_blocks, chunk)]
+        parts = run_tasks(_null_tasks, tasks, client)
     null = np.vstack([blk for part in parts for blk in part])  # (n_real, N)
 
     snr = np.asarray(observed["significance"], dtype=float)

@@ -278,11 +278,20 @@ def test_null_calibration_rates_and_chunking():
     assert 0.2 < frac1 < 0.45  # Gaussian: 0.317
     p = np.asarray(null["p_value_empirical"])
     assert ((p > 0) & (p <= 1)).all()
-    # chunking and executor independence
+    # chunking and executor independence; the default runs in threads, the same
+    # blocks as one after the other here
     with ThreadPoolExecutor(2) as pool:
         other = null_calibration(pairs, sigma_pos=3 * u.mas, n_realisations=300, seed=7,
                                  client=pool, chunk_size=1)
     np.testing.assert_array_equal(other["null_snr"], null["null_snr"])
+
+    class Serial:
+        def map(self, fn, tasks):
+            return map(fn, tasks)
+
+    serial = null_calibration(pairs, sigma_pos=3 * u.mas, n_realisations=300, seed=7,
+                              client=Serial(), chunk_size=3)
+    np.testing.assert_array_equal(serial["null_snr"], null["null_snr"])
 
 
 @pytest.mark.parametrize(

@@ -1,6 +1,5 @@
 """Model-independent relative Jacobian and size magnification (paper Sect. 4)."""
 
-import os
 import warnings
 from concurrent.futures import ThreadPoolExecutor
 
@@ -10,6 +9,7 @@ from astropy.table import QTable
 from scipy.spatial import cKDTree
 from scipy.stats import chi2 as _chi2
 
+from .._parallel import available_threads
 from .._validation import (
     as_angle_scalar,
     as_int,
@@ -321,8 +321,7 @@ def _adaptive(t1, t2, sigma, wp, max_neighbours=DEFAULT_MAX_NEIGHBOURS):
     status = np.empty(n, dtype=np.int64)
     dof = np.empty(n)
     settings = _adaptive_settings(nbr, n, wp)
-    threads = min(_MAX_THREADS, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
-                  else (os.cpu_count() or 1))
+    threads = available_threads(_MAX_THREADS)
     if n < _THREAD_MIN_PAIRS or threads < 2:
         _kernels.adaptive_jacobians_knn(t1, t2, nbr, sigma[0], sigma[1], *settings, jac, ln_sd,
                                         status, dof)
