@@ -792,13 +792,9 @@ def null_calibration(pairs, *, sigma_pos, n_realisations=1000,
     sizes = [min(_NULL_BLOCK, n_real - b * _NULL_BLOCK) for b in range(n_blocks)]
     args = [(b, entropy, sizes[b], mapped, t2, sigma, mu_true, ln_flux_err, float(weight_power))
             for b in range(n_blocks)]
-    if client is None:
-        threads = min(_available_threads(), n_blocks)
-        if threads > 1:
-            with ThreadPoolExecutor(threads) as pool:
-                parts = run_tasks(_null_tasks, [[a] for a in args], pool)
-        else:
-            parts = run_tasks(_null_tasks, [args], None)
+    if client is None:  # one block per task, in threads over the cores we may use
+        with ThreadPoolExecutor(min(_available_threads(), n_blocks)) as pool:
+            parts = run_tasks(_null_tasks, [[a] for a in args], pool)
     else:
         tasks = [args[i:i + chunk] for i in range(0, n_blocks, chunk)]
         parts = run_tasks(_null_tasks, tasks, client)

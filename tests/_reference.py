@@ -207,6 +207,19 @@ def _top_change(t1, t2, a, idx, degree, s1, s2, pilot, n_sig=1.5):
     return _order_change(t1, t2, a, idx, degree, s1, s2, pilot, degree, n_sig)
 
 
+def _ln_det_gradient(j):
+    """d ln|det J| / dJ, as the entries J00, J01, J10, J11."""
+    return np.array([j[1, 1], -j[1, 0], -j[0, 1], j[0, 0]]) / np.linalg.det(j)
+
+
+def _error_and_rank(j, cj, g_pilot):
+    """The error of ln|det J| of a fit (J, covariance ``cj``) and its base rank: the
+    variance along the pilot's gradient ``g_pilot``, its own where that is None."""
+    g = _ln_det_gradient(j)
+    s = np.sqrt(g @ cj @ g)
+    return s, (s**2 if g_pilot is None else g_pilot @ cj @ g_pilot)
+
+
 def _gls_operator(t2, a, idx, degree, s1, s2, pilot):
     """The GLS fit of :func:`_gls_beta` as a linear operator: ``beta.ravel() =
     H @ y.ravel()`` (``y`` the (k, 2) offsets on L1), with the design ``x`` and
@@ -269,10 +282,7 @@ def _two_scale_best(t1, t2, a, order, s1, s2, pilot, chi2_crit, min_extra, g_pil
                                       jinv=np.linalg.inv(j), order=2)
             if np.max(np.abs(t) + two_gate_nsig * tsd) > two_gate:
                 continue
-            det = np.linalg.det(j)
-            g = np.array([j[1, 1], -j[1, 0], -j[0, 1], j[0, 0]]) / det
-            s = np.sqrt(g @ cj @ g)
-            rank = s**2 if g_pilot is None else g_pilot @ cj @ g_pilot
+            s, rank = _error_and_rank(j, cj, g_pilot)
             rank += (top_coef * max(float(np.max(np.abs(t) - top_nsig * tsd)), 0.0)) ** 2
             if best is None or rank < best[2]:
                 best = (j, s, rank)
@@ -300,10 +310,8 @@ def adaptive(t1, t2, s1, s2, pilot, chi2_crit, min_extra=1, report_extra=1, min_
         # passing fits are ranked by the variance of ln|det J| along the pilot's
         # gradient (their own errors where the pilot is singular)
         p_det = np.linalg.det(pilot[a])
-        g_pilot = None
-        if np.isfinite(p_det) and p_det != 0.0:
-            p = pilot[a]
-            g_pilot = np.array([p[1, 1], -p[1, 0], -p[0, 1], p[0, 0]]) / p_det
+        g_pilot = (_ln_det_gradient(pilot[a]) if np.isfinite(p_det) and p_det != 0.0
+                   else None)
         best = fallback = worst = None
         consistent = []
         reported = {}  # (degree, k) -> ln|det J| of every reported fit
@@ -314,11 +322,9 @@ def adaptive(t1, t2, s1, s2, pilot, chi2_crit, min_extra=1, report_extra=1, min_
                 _, _, chi2, dof = _gls_fit(t1, t2, a, idx, dt, s1, s2, pilot[a])
                 j, cj, chi2_r, dof_r = _gls_fit(t1, t2, a, idx, dr, s1, s2, pilot[a])
                 det = np.linalg.det(j)
-                g = np.array([j[1, 1], -j[1, 0], -j[0, 1], j[0, 0]]) / det
-                s = np.sqrt(g @ cj @ g)
+                s, rank = _error_and_rank(j, cj, g_pilot)
                 reported[(dr, k)] = (np.log(abs(det)), s**2)
                 if chi2 <= chi2_crit[dof]:
-                    rank = s**2 if g_pilot is None else g_pilot @ cj @ g_pilot
                     # the truncation the fit cannot test: its top-order change
                     rank += (top_coef * _top_change(t1, t2, a, idx, dr, s1, s2, pilot[a],
                                                     n_sig=top_nsig)) ** 2
