@@ -494,3 +494,62 @@ def test_adaptive_two_scale_estimates_match_reference():
     ok = (st == 0) & (st_one == 0)
     won = ok & ~np.isclose(sd, sd_one)
     assert won.sum() >= 2
+
+
+def _reverse_quadratic_constellation(n=20, seed=3):
+    """An L1 -> L2 map that is exactly quadratic and nearly singular at one end:
+    the L2 -> L1 map (its inverse, a square root) expands without bound there."""
+    rng = np.random.default_rng(seed)
+    t1 = np.column_stack([rng.uniform(-1, 1.05, n), rng.uniform(-1, 1, n)])
+    x, y = t1.T
+    t2 = np.column_stack([x - 0.45 * x**2, 0.6 * y + 0.1 * x**2])
+    det_k = (1 - 0.9 * x) * 0.6  # det of the L1 -> L2 Jacobian; mu_true = 1 / det_k
+    return t1, t2, 1.0 / det_k
+
+
+def test_reverse_map_where_the_forward_fit_is_untestable(monkeypatch):
+    from lensdual.estimators import core
+
+    t1, t2, mu_true = _reverse_quadratic_constellation()
+    rng = np.random.default_rng(11)
+    s = 0.5e-3
+    sig = np.full((2, len(t1)), s)
+    o1 = t1 + s * rng.standard_normal(t1.shape)
+    o2 = t2 + s * rng.standard_normal(t2.shape)
+    ok_codes = (_kernels.ADAPTIVE_OK, _kernels.ADAPTIVE_MISFIT)
+    _, _, st_fwd, _ = core._adaptive_forward(o1, o2, sig, 2.0)
+    jr, sd_r, st_r, dof_r = core._adaptive_forward(o2, o1, sig[::-1].copy(), 2.0)
+    # the square root is no polynomial at 0.5 mas: most forward fits are untestable
+    assert (st_fwd == _kernels.ADAPTIVE_UNTESTABLE).sum() >= 8
+    expect = ~np.isin(st_fwd, ok_codes) & np.isin(st_r, ok_codes)
+    jac, sd, st, dof, rev = core._adaptive(o1, o2, sig, 2.0)
+    np.testing.assert_array_equal(rev, expect)
+    # those pairs take the inverse of the L1 -> L2 fit, with its error and status
+    np.testing.assert_allclose(jac[rev], np.linalg.inv(jr[rev]), rtol=1e-12)
+    np.testing.assert_array_equal(sd[rev], sd_r[rev])
+    np.testing.assert_array_equal(st[rev], st_r[rev])
+    np.testing.assert_array_equal(dof[rev], dof_r[rev])
+    pull = (np.log(np.abs(np.linalg.det(jac[rev]))) - np.log(mu_true[rev])) / sd[rev]
+    assert np.all(np.abs(pull) < 4), pull
+    # the others are the forward fit's, unchanged
+    jf, sd_f, _, _ = core._adaptive_forward(o1, o2, sig, 2.0)
+    np.testing.assert_array_equal(jac[~rev], jf[~rev])
+    np.testing.assert_array_equal(sd[~rev], sd_f[~rev])
+    tab = size_magnification(o1 * u.arcsec, o2 * u.arcsec, sigma_pos=s * u.arcsec)
+    assert tab.meta["reverse_map_rows"] == np.flatnonzero(rev).tolist()
+    assert set(tab["mu_size_status"][rev]) <= {"ok", "misfit"}
+    # the null calibration's batches follow the same rule, copy by copy
+    noise1 = s * rng.standard_normal((3, len(t1), 2))
+    noise2 = s * rng.standard_normal((3, len(t1), 2))
+    det_b, sd_b, ok_b, dof_b = core._adaptive_batch(t1, t2, noise1, noise2, sig)
+    for k in range(3):
+        jk, sdk, stk, dofk, _ = core._adaptive(t1 + noise1[k], t2 + noise2[k], sig, 2.0)
+        np.testing.assert_allclose(det_b[k], np.abs(np.linalg.det(jk)), rtol=1e-10)
+        np.testing.assert_array_equal(ok_b[k], np.isin(stk, ok_codes))
+        np.testing.assert_array_equal(sd_b[k][ok_b[k]], sdk[ok_b[k]])
+        np.testing.assert_array_equal(dof_b[k][ok_b[k]], dofk[ok_b[k]])
+    # without the reverse map those pairs stay untestable
+    monkeypatch.setattr(core, "_ADAPTIVE_REVERSE", False)
+    _, _, st_off, _, rev_off = core._adaptive(o1, o2, sig, 2.0)
+    assert not rev_off.any()
+    np.testing.assert_array_equal(st_off, st_fwd)

@@ -70,6 +70,9 @@ _ADAPTIVE_MIN_CANDIDATES = 2
 _ADAPTIVE_LOOKAHEAD = 5
 # Passes of the effective-variance iteration (pilot Jacobian -> estimate).
 _ADAPTIVE_PASSES = 2
+# Where no L2-to-L1 fit is testable, fit the L1-to-L2 map and invert it (see
+# _adaptive; False: the L2-to-L1 map only, as before 0.x).
+_ADAPTIVE_REVERSE = True
 # With a neighbour cap in force (more pairs than max_neighbours), every
 # neighbourhood of up to this many points is tried, larger ones on a
 # geometric grid (steps of 1/8). Without a cap (N <= max_neighbours) every
@@ -285,7 +288,7 @@ def relative_jacobian(theta1, theta2, method="quad", *, weight_power=2, min_angl
             raise ValueError("method 'adaptive' needs sigma_pos (the position errors its "
                              "local fits are tested against)")
         sigma = _as_sigma(sigma_pos, t1.shape[0], positive=True)
-        jac, _, status, _ = _adaptive(t1, t2, sigma, wp, cap)
+        jac, _, status, _, _ = _adaptive(t1, t2, sigma, wp, cap)
         _warn_adaptive(status)
         return jac
     jac, status = _jacobians(t1, t2, _neighbour_rows(t2, cap), code, wp, min_sin)
@@ -311,9 +314,35 @@ def _adaptive_settings(nbr, n_points, wp):
             float(wp), _COND_MAX)
 
 
+def _testable_codes(status):
+    return (status == _kernels.ADAPTIVE_OK) | (status == _kernels.ADAPTIVE_MISFIT)
+
+
 def _adaptive(t1, t2, sigma, wp, max_neighbours=DEFAULT_MAX_NEIGHBOURS):
-    """Run the adaptive kernel: Jacobians, errors of ln|det J|, status codes and
-    the errors' degrees of freedom."""
+    """The adaptive estimator: Jacobians, errors of ln|det J|, status codes, the
+    errors' degrees of freedom, and which pairs took the reverse map.
+
+    Where the L2-to-L1 fit is not testable ("untestable" or "failed"), the
+    L1-to-L2 map is fitted the same way (:func:`_adaptive_forward` on the
+    swapped arcs) and, where that fit is testable, its Jacobian ``K`` gives
+    ``J = K^-1`` (``ln|det J| = -ln|det K|``, same error).
+    """
+    jac, ln_sd, status, dof = _adaptive_forward(t1, t2, sigma, wp, max_neighbours)
+    reverse = np.zeros(t1.shape[0], dtype=bool)
+    if _ADAPTIVE_REVERSE and not _testable_codes(status).all():
+        jr, sr, str_, dr = _adaptive_forward(t2, t1, np.ascontiguousarray(sigma[::-1]), wp,
+                                                    max_neighbours)
+        reverse = ~_testable_codes(status) & _testable_codes(str_)
+        jac[reverse] = np.linalg.inv(jr[reverse])
+        ln_sd[reverse] = sr[reverse]
+        status[reverse] = str_[reverse]
+        dof[reverse] = dr[reverse]
+    return jac, ln_sd, status, dof, reverse
+
+
+def _adaptive_forward(t1, t2, sigma, wp, max_neighbours=DEFAULT_MAX_NEIGHBOURS):
+    """Run the adaptive kernel on the L2-to-L1 map: Jacobians, errors of
+    ln|det J|, status codes and the errors' degrees of freedom."""
     n = t1.shape[0]
     nbr = _neighbour_rows(t2, max_neighbours)
     jac = np.empty((n, 2, 2))
@@ -348,6 +377,29 @@ def _adaptive_batch(t1, t2, noise1, noise2, sigma, wp=2.0,
     :func:`lensdual.duality.null_calibration`. The neighbour rows are those
     of ``t2`` (the copies re-rank the points within them).
     """
+    n = noise1.shape[1]
+    det, ln_sd, status, dof = _adaptive_batch_forward(t1, t2, noise1, noise2, sigma, wp,
+                                                      max_neighbours)
+    testable = _testable_codes(status)
+    # the reverse map where the forward one is not testable (as _adaptive), on
+    # the copies that need it only
+    rows = np.flatnonzero(~testable.all(axis=1)) if _ADAPTIVE_REVERSE else np.empty(0, int)
+    if rows.size:
+        dr, sr, str_, dfr = _adaptive_batch_forward(t2, t1, noise2[rows], noise1[rows],
+                                                    np.ascontiguousarray(sigma[::-1]), wp,
+                                                    max_neighbours)
+        use = ~testable[rows] & _testable_codes(str_)
+        sub = (rows[:, None], np.arange(n)[None, :])
+        det[sub] = np.where(use, 1.0 / dr, det[sub])
+        ln_sd[sub] = np.where(use, sr, ln_sd[sub])
+        dof[sub] = np.where(use, dfr, dof[sub])
+        testable[sub] |= use
+    return np.abs(det), ln_sd, testable, dof
+
+
+def _adaptive_batch_forward(t1, t2, noise1, noise2, sigma, wp, max_neighbours):
+    """The adaptive kernel on noisy copies, L2-to-L1 map only: signed
+    determinants, errors, status codes and degrees of freedom, each (B, N)."""
     b, n = noise1.shape[:2]
     nbr = _neighbour_rows(t2, max_neighbours)
     det = np.empty((b, n))
@@ -356,8 +408,7 @@ def _adaptive_batch(t1, t2, noise1, noise2, sigma, wp=2.0,
     dof = np.empty((b, n))
     _kernels.adaptive_batch_knn(t1, t2, nbr, noise1, noise2, sigma[0], sigma[1],
                                 *_adaptive_settings(nbr, n, wp), det, ln_sd, status, dof)
-    testable = (status == _kernels.ADAPTIVE_OK) | (status == _kernels.ADAPTIVE_MISFIT)
-    return np.abs(det), ln_sd, testable, dof
+    return det, ln_sd, status, dof
 
 
 def _warn_adaptive(status):
@@ -366,7 +417,8 @@ def _warn_adaptive(status):
     if untestable.size:
         warnings.warn(
             f"adaptive Jacobian: no local polynomial (up to cubic) describes the map around "
-            f"pair(s) {untestable.tolist()} within the position errors (the constellation is "
+            f"pair(s) {untestable.tolist()} within the position errors, from L2 to L1 or "
+            "from L1 to L2 (the constellation is "
             "too sparse for how fast the map bends there, or sigma_pos is too small); their "
             "mu_size_status is 'untestable' and check_duality does not test them",
             EstimatorWarning,
@@ -514,7 +566,14 @@ def size_magnification(
     self-consistent fits, or none, the least-bad estimate is returned with
     ``mu_size_status = "untestable"``:
     :func:`~lensdual.duality.check_duality` does not test such pairs (an
-    `~lensdual.exceptions.EstimatorWarning` names them). See the
+    `~lensdual.exceptions.EstimatorWarning` names them).
+
+    Where no L2-to-L1 fit is testable, the same estimator runs on the
+    reverse map, L1 to L2 (the arcs swapped, neighbours taken in L1), and
+    where that fit is testable its Jacobian ``K`` gives ``J = K^-1`` (same
+    error, status and degrees of freedom): next to a critical curve of arc
+    L1 the L2-to-L1 map expands without bound while the reverse map stays
+    smooth. ``meta["reverse_map_rows"]`` lists those pairs. See the
     calibration page of the docs for the measurements behind these choices.
 
     ``"2v"``, ``"quad"`` and ``"quad2"`` are the paper's estimators and
@@ -678,7 +737,7 @@ def _size_table(det, jac, pct, ln_err, n_valid, status, ln_err_dof=None):
 
 def _adaptive_table(t1, t2, sigma, wp, sigma_pos, max_neighbours=DEFAULT_MAX_NEIGHBOURS):
     """size_magnification for method 'adaptive' (analytic errors, no bootstrap)."""
-    jac, ln_sd, status, dof = _adaptive(t1, t2, sigma, wp, max_neighbours)
+    jac, ln_sd, status, dof, reverse = _adaptive(t1, t2, sigma, wp, max_neighbours)
     _warn_adaptive(status)
     det = jac[:, 0, 0] * jac[:, 1, 1] - jac[:, 0, 1] * jac[:, 1, 0]
     mu = np.abs(det)
@@ -693,6 +752,8 @@ def _adaptive_table(t1, t2, sigma, wp, sigma_pos, max_neighbours=DEFAULT_MAX_NEI
     )
     table.meta["sigma_pos"] = _sigma_meta(sigma_pos)
     table.meta["weight_power"] = wp
+    # rows whose Jacobian is the inverse of the L1-to-L2 map's (see _adaptive)
+    table.meta["reverse_map_rows"] = np.flatnonzero(reverse).tolist()
     return table
 
 
