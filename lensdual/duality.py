@@ -433,7 +433,10 @@ def check_duality(
         Student's t),
         ``p_value_holm`` its Holm-Bonferroni adjustment over the tested
         pairs (:func:`holm_adjust`). A ``pair_id`` column (from 1) is added
-        when missing. ``meta['duality']`` records the settings and the
+        when missing. ``meta['duality']`` records the settings
+        (``reverse_map_pairs``, for ``"adaptive"``: the ``pair_id`` of the
+        pairs whose Jacobian came from the L1-to-L2 map, see
+        :func:`~lensdual.estimators.size_magnification`) and the
         calibration of the family of tests: ``n_tested``, ``n_flagged``,
         ``p_threshold`` (the false-alarm probability of one pair at the
         threshold), ``expected_false_flags`` (``n_tested * p_threshold``),
@@ -569,6 +572,10 @@ def check_duality(
         "snr_definition": snr_definition,
         "n_flagged": int(np.count_nonzero(tab["anomalous"])),
     }
+    if "reverse_map_rows" in size.meta:
+        # rows of the kept pairs -> pair ids of the whole table
+        rows = np.flatnonzero(keep)[np.asarray(size.meta["reverse_map_rows"], dtype=int)]
+        meta["reverse_map_pairs"] = [int(i) for i in np.asarray(tab["pair_id"])[rows]]
     meta.update(_family_summary(pval, snr_threshold))
     tab.meta["duality"] = meta
     return tab

@@ -538,6 +538,17 @@ def test_reverse_map_where_the_forward_fit_is_untestable(monkeypatch):
     tab = size_magnification(o1 * u.arcsec, o2 * u.arcsec, sigma_pos=s * u.arcsec)
     assert tab.meta["reverse_map_rows"] == np.flatnonzero(rev).tolist()
     assert set(tab["mu_size_status"][rev]) <= {"ok", "misfit"}
+    # check_duality names them by pair_id, and tests them
+    pairs = QTable()
+    pairs["pair_id"] = np.arange(101, 101 + len(t1))
+    pairs["x1"], pairs["y1"] = o1[:, 0] * u.arcsec, o1[:, 1] * u.arcsec
+    pairs["x2"], pairs["y2"] = o2[:, 0] * u.arcsec, o2[:, 1] * u.arcsec
+    pairs["flux1_F150W"] = 100.0 * mu_true
+    pairs["flux2_F150W"] = 100.0 * np.ones(len(t1))
+    pairs["flux_err1_F150W"] = pairs["flux_err2_F150W"] = 0.5 * np.ones(len(t1))
+    res = check_duality(pairs, sigma_pos=s * u.arcsec)
+    assert res.meta["duality"]["reverse_map_pairs"] == (101 + np.flatnonzero(rev)).tolist()
+    assert res["tested"][rev].all()
     # the null calibration's batches follow the same rule, copy by copy
     noise1 = s * rng.standard_normal((3, len(t1), 2))
     noise2 = s * rng.standard_normal((3, len(t1), 2))
