@@ -549,6 +549,13 @@ def test_reverse_map_where_the_forward_fit_is_untestable(monkeypatch):
     res = check_duality(pairs, sigma_pos=s * u.arcsec)
     assert res.meta["duality"]["reverse_map_pairs"] == (101 + np.flatnonzero(rev)).tolist()
     assert res["tested"][rev].all()
+    # with a doubtful pair left out, the ids still name the right pairs
+    pairs["doubt"] = ["checked by eye"] + [""] * (len(t1) - 1)
+    res = check_duality(pairs, sigma_pos=s * u.arcsec)
+    sub = size_magnification(o1[1:] * u.arcsec, o2[1:] * u.arcsec, sigma_pos=s * u.arcsec)
+    assert sub.meta["reverse_map_rows"]
+    assert res.meta["duality"]["reverse_map_pairs"] == [
+        102 + i for i in sub.meta["reverse_map_rows"]]
     # the null calibration's batches follow the same rule, copy by copy
     noise1 = s * rng.standard_normal((3, len(t1), 2))
     noise2 = s * rng.standard_normal((3, len(t1), 2))

@@ -71,7 +71,7 @@ _ADAPTIVE_LOOKAHEAD = 5
 # Passes of the effective-variance iteration (pilot Jacobian -> estimate).
 _ADAPTIVE_PASSES = 2
 # Where no L2-to-L1 fit is testable, fit the L1-to-L2 map and invert it (see
-# _adaptive; False: the L2-to-L1 map only, as before 0.x).
+# _adaptive; False: the L2-to-L1 map only).
 _ADAPTIVE_REVERSE = True
 # With a neighbour cap in force (more pairs than max_neighbours), every
 # neighbourhood of up to this many points is tried, larger ones on a
@@ -331,8 +331,10 @@ def _adaptive(t1, t2, sigma, wp, max_neighbours=DEFAULT_MAX_NEIGHBOURS):
     reverse = np.zeros(t1.shape[0], dtype=bool)
     if _ADAPTIVE_REVERSE and not _testable_codes(status).all():
         jr, sr, str_, dr = _adaptive_forward(t2, t1, np.ascontiguousarray(sigma[::-1]), wp,
-                                                    max_neighbours)
-        reverse = ~_testable_codes(status) & _testable_codes(str_)
+                                             max_neighbours)
+        with np.errstate(invalid="ignore"):
+            invertible = np.abs(np.linalg.det(jr)) > 0.0
+        reverse = ~_testable_codes(status) & _testable_codes(str_) & invertible
         jac[reverse] = np.linalg.inv(jr[reverse])
         ln_sd[reverse] = sr[reverse]
         status[reverse] = str_[reverse]
@@ -375,7 +377,9 @@ def _adaptive_batch(t1, t2, noise1, noise2, sigma, wp=2.0,
     "ok" or "misfit" (the pair is tested) and the error's degrees of freedom,
     each of shape (B, N). No validation: for
     :func:`lensdual.duality.null_calibration`. The neighbour rows are those
-    of ``t2`` (the copies re-rank the points within them).
+    of ``t2`` (the copies re-rank the points within them); as in
+    :func:`_adaptive`, pairs with no testable L2-to-L1 fit take the
+    L1-to-L2 map's (neighbour rows of ``t1``) where that one is testable.
     """
     n = noise1.shape[1]
     det, ln_sd, status, dof = _adaptive_batch_forward(t1, t2, noise1, noise2, sigma, wp,
@@ -388,9 +392,9 @@ def _adaptive_batch(t1, t2, noise1, noise2, sigma, wp=2.0,
         dr, sr, str_, dfr = _adaptive_batch_forward(t2, t1, noise2[rows], noise1[rows],
                                                     np.ascontiguousarray(sigma[::-1]), wp,
                                                     max_neighbours)
-        use = ~testable[rows] & _testable_codes(str_)
+        use = ~testable[rows] & _testable_codes(str_) & (np.abs(dr) > 0.0)
         sub = (rows[:, None], np.arange(n)[None, :])
-        det[sub] = np.where(use, 1.0 / dr, det[sub])
+        det[sub] = np.where(use, 1.0 / np.where(use, dr, 1.0), det[sub])
         ln_sd[sub] = np.where(use, sr, ln_sd[sub])
         dof[sub] = np.where(use, dfr, dof[sub])
         testable[sub] |= use
