@@ -2,7 +2,11 @@
 
 Run on demand (minutes)::
 
-    python benchmarks/calibration.py [--quick]
+    python benchmarks/calibration.py [--quick] [--save-dir DIR]
+
+``--save-dir`` keeps each cell's per-pair results (``ln(mu_size /
+mu_true)``, its error, status, degrees of freedom and flux noise), so that
+another error model or flag rule can be judged offline on the same draws.
 
 For every cell (lens family x position noise) many clean constellations
 (no sub-halo, exact true positions from the lens, flux ratios equal to the
@@ -41,6 +45,7 @@ ratios (quoted errors 1 % per image), ``ffr`` noisy ones.
 import argparse
 import time
 import warnings
+from pathlib import Path
 
 import numpy as np
 from astropy import units as u
@@ -66,7 +71,7 @@ def constellations(family, n_sources, n_const, seed=0):
     return out
 
 
-def run_cell(constellations, sigma_mas, method, n_noise, seed=0):
+def run_cell(constellations, sigma_mas, method, n_noise, seed=0, save=None):
     rng = np.random.default_rng(seed)
     err, sd, status, dof = [], [], [], []
     sig = sigma_mas / 1000.0
@@ -86,6 +91,13 @@ def run_cell(constellations, sigma_mas, method, n_noise, seed=0):
     err, sd, status, dof = map(np.concatenate, (err, sd, status, dof))
     flux_sd = np.sqrt(2) * FLUX_ERR
     ln_flux_noise = flux_sd * rng.standard_normal(err.size)
+    if save is not None:
+        # per-pair results, for offline analysis of the error model (pairs in
+        # constellation order, noise draws within)
+        np.savez(save, ln_err=err, ln_sd=sd, status=status.astype(str), dof=dof,
+                 ln_flux_noise=ln_flux_noise,
+                 constellation=np.repeat(np.arange(len(constellations)),
+                                         [n_noise * len(c[2]) for c in constellations]))
     tested = np.isin(status, TESTABLE_STATUS)
     tot = np.hypot(sd, flux_sd)
     tot_dof = _snr_dof(tot, sd, dof)  # the total error's degrees of freedom, as check_duality
@@ -137,7 +149,13 @@ def main(argv=None):
     parser.add_argument("--n-noise", type=int, default=None,
                         help="noise draws per constellation (default 10, --quick 5)")
     parser.add_argument("--seed", type=int, default=0, help="first constellation seed")
+    parser.add_argument("--save-dir", default=None,
+                        help="save each cell's per-pair results (ln(mu_size / mu_true), "
+                             "its error, status, degrees of freedom, flux noise) as "
+                             "FAMILY_N_METHOD_NOISE.npz in this folder")
     args = parser.parse_args(argv)
+    if args.save_dir is not None:
+        Path(args.save_dir).mkdir(parents=True, exist_ok=True)
     n_const, n_noise = (5, 5) if args.quick else (10, 10)
     n_const = args.n_const or n_const
     n_noise = args.n_noise or n_noise
@@ -154,7 +172,9 @@ def main(argv=None):
             for method in args.methods.split(","):
                 for s in map(float, args.noise.split(",")):
                     t0 = time.perf_counter()
-                    r = run_cell(cons, s, method, n_noise)
+                    save = (None if args.save_dir is None else
+                            Path(args.save_dir) / f"{name}_{n_src}_{method}_{s:g}.npz")
+                    r = run_cell(cons, s, method, n_noise, save=save)
                     print(f"{name} {n_src} {method} {s:g} "
                           + " ".join(f"{r[c]:.3g}" for c in cols)
                           + f"  # {time.perf_counter() - t0:.0f} s", flush=True)
