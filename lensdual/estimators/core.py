@@ -318,6 +318,14 @@ def _testable_codes(status):
     return (status == _kernels.ADAPTIVE_OK) | (status == _kernels.ADAPTIVE_MISFIT)
 
 
+def _reverse_wins(status, status_rev, det_rev):
+    """Where the L1-to-L2 fit replaces the L2-to-L1 one: the forward fit is not
+    testable, the reverse one is, and its Jacobian can be inverted."""
+    with np.errstate(invalid="ignore"):
+        invertible = np.abs(det_rev) > 0.0
+    return ~_testable_codes(status) & _testable_codes(status_rev) & invertible
+
+
 def _adaptive(t1, t2, sigma, wp, max_neighbours=DEFAULT_MAX_NEIGHBOURS):
     """The adaptive estimator: Jacobians, errors of ln|det J|, status codes, the
     errors' degrees of freedom, and which pairs took the reverse map.
@@ -333,8 +341,7 @@ def _adaptive(t1, t2, sigma, wp, max_neighbours=DEFAULT_MAX_NEIGHBOURS):
         jr, sr, str_, dr = _adaptive_forward(t2, t1, np.ascontiguousarray(sigma[::-1]), wp,
                                              max_neighbours)
         with np.errstate(invalid="ignore"):
-            invertible = np.abs(np.linalg.det(jr)) > 0.0
-        reverse = ~_testable_codes(status) & _testable_codes(str_) & invertible
+            reverse = _reverse_wins(status, str_, np.linalg.det(jr))
         jac[reverse] = np.linalg.inv(jr[reverse])
         ln_sd[reverse] = sr[reverse]
         status[reverse] = str_[reverse]
@@ -381,7 +388,6 @@ def _adaptive_batch(t1, t2, noise1, noise2, sigma, wp=2.0,
     :func:`_adaptive`, pairs with no testable L2-to-L1 fit take the
     L1-to-L2 map's (neighbour rows of ``t1``) where that one is testable.
     """
-    n = noise1.shape[1]
     det, ln_sd, status, dof = _adaptive_batch_forward(t1, t2, noise1, noise2, sigma, wp,
                                                       max_neighbours)
     testable = _testable_codes(status)
@@ -392,12 +398,11 @@ def _adaptive_batch(t1, t2, noise1, noise2, sigma, wp=2.0,
         dr, sr, str_, dfr = _adaptive_batch_forward(t2, t1, noise2[rows], noise1[rows],
                                                     np.ascontiguousarray(sigma[::-1]), wp,
                                                     max_neighbours)
-        use = ~testable[rows] & _testable_codes(str_) & (np.abs(dr) > 0.0)
-        sub = (rows[:, None], np.arange(n)[None, :])
-        det[sub] = np.where(use, 1.0 / np.where(use, dr, 1.0), det[sub])
-        ln_sd[sub] = np.where(use, sr, ln_sd[sub])
-        dof[sub] = np.where(use, dfr, dof[sub])
-        testable[sub] |= use
+        r, c = np.nonzero(_reverse_wins(status[rows], str_, dr))
+        det[rows[r], c] = 1.0 / dr[r, c]
+        ln_sd[rows[r], c] = sr[r, c]
+        dof[rows[r], c] = dfr[r, c]
+        testable[rows[r], c] = True
     return np.abs(det), ln_sd, testable, dof
 
 
