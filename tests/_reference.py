@@ -185,6 +185,29 @@ def _curvature_terms(t1, t2, a, idx, degree, s1, s2, pilot, jinv=None, order=2):
     return np.array(ts), np.array(sds)
 
 
+def _centre_gradient2(t1, t2, a, idx, degree, s1, s2, pilot, jinv=None):
+    """|grad ln|det J||^2 at the pair (offset 0) from a fit's second-order
+    terms, less the trace of its covariance (J held fixed, at ``jinv`` when
+    given), at least 0: the pair's own L2 noise moves the point where the fit
+    takes J by ``s2[a]``, so this times ``s2[a]^2`` is a variance of ln|det J|."""
+    _, x, _, _, beta, cinv = _gls_beta(t1, t2, a, idx, degree, s1, s2, pilot)
+    p = x.shape[1]
+    if jinv is None:
+        jinv = np.linalg.inv(beta[:, 1:3])
+    total = 0.0
+    # d/dx_m of dF_k/dx_l at 0 from the monomials x^2 (3), xy (4), y^2 (5)
+    second = {(0, 0): (3, 2.0), (0, 1): (4, 1.0), (1, 0): (4, 1.0), (1, 1): (5, 2.0)}
+    for m in range(2):
+        grad = np.zeros((2, p))
+        for k in range(2):
+            for l in range(2):
+                col, f = second[(l, m)]
+                grad[k, col] += jinv[l, k] * f
+        g = grad.ravel()
+        total += (g @ beta.ravel()) ** 2 - g @ cinv @ g
+    return max(total, 0.0)
+
+
 def _order_change(t1, t2, a, idx, degree, s1, s2, pilot, order, n_sig=2.0):
     """max (|t(u)| - n_sig sd(t(u))) over the points ``idx`` for the terms of
     degree ``order`` of a fit of ``degree`` (:func:`_curvature_terms`); 0 when
@@ -263,7 +286,7 @@ def _two_scale(t1, t2, a, order, h, b, s1, s2, pilot):
 
 def _two_scale_best(t1, t2, a, order, s1, s2, pilot, chi2_crit, min_extra, g_pilot, best,
                     top_coef, top_nsig, two_gate, two_gate_nsig):
-    """The best-ranked of ``best`` (J, sd, rank; or None) and the two-scale
+    """The best-ranked of ``best`` (J, sd, rank, g2; or None) and the two-scale
     estimates of pair ``a``: a linear fit that passed its test, corrected by
     the quadratic terms of a larger neighbourhood whose quadratic fit passed
     its own, where that quadratic is known to be gentle."""
@@ -285,7 +308,9 @@ def _two_scale_best(t1, t2, a, order, s1, s2, pilot, chi2_crit, min_extra, g_pil
             s, rank = _error_and_rank(j, cj, g_pilot)
             rank += (top_coef * max(float(np.max(np.abs(t) - top_nsig * tsd)), 0.0)) ** 2
             if best is None or rank < best[2]:
-                best = (j, s, rank)
+                g2 = _centre_gradient2(t1, t2, a, order[:b], 2, s1, s2, pilot,
+                                       jinv=np.linalg.inv(j))
+                best = (j, s, rank, g2)
     return best
 
 
@@ -329,23 +354,28 @@ def adaptive(t1, t2, s1, s2, pilot, chi2_crit, min_extra=1, report_extra=1, min_
                     rank += (top_coef * _top_change(t1, t2, a, idx, dr, s1, s2, pilot[a],
                                                     n_sig=top_nsig)) ** 2
                     if best is None or rank < best[2]:
-                        best = (j, s, rank)
+                        best = (j, s, rank, _centre_gradient2(t1, t2, a, idx, dr, s1, s2,
+                                                              pilot[a]))
                     continue
                 sf = s * np.sqrt(max(1.0, _press_ratio(t1, t2, a, idx, dr, s1, s2, pilot[a])))
                 if chi2_r <= chi2_crit[dof_r]:
                     consistent.append((dr, k))
                     if fallback is None or sf < fallback[1]:
                         curv = _curvature(t1, t2, a, idx, dr, s1, s2, pilot[a])
-                        fallback = (j, sf, np.log(abs(det)), dr, k, dof_r, curv)
+                        fallback = (j, sf, np.log(abs(det)), dr, k, dof_r, curv,
+                                    _centre_gradient2(t1, t2, a, idx, dr, s1, s2, pilot[a]))
                 elif worst is None or sf < worst[1]:
-                    worst = (j, sf, dof_r)
+                    worst = (j, sf, dof_r, _centre_gradient2(t1, t2, a, idx, dr, s1, s2, pilot[a]))
         if report_extra == 1:
             best = _two_scale_best(t1, t2, a, order, s1, s2, pilot[a], chi2_crit, min_extra,
                                    g_pilot, best, top_coef, top_nsig, two_gate, two_gate_nsig)
+        # the pair's own L2 noise moves the point where the fits take J
+        v_centre = s2[a] ** 2
         if best is not None:
-            jac[a], sd[a], status[a], dofs[a] = best[0], best[1], 0, np.inf
+            jac[a], sd[a], status[a], dofs[a] = (best[0], np.sqrt(best[1] ** 2
+                                                                  + v_centre * best[3]), 0, np.inf)
         elif fallback is not None and len(consistent) >= min_candidates:
-            _, _, l_best, d_best, k_best, dofs[a], curv = fallback
+            _, _, l_best, d_best, k_best, dofs[a], curv, g2 = fallback
             # the mean excess over the other self-consistent fits and the next
             # larger neighbourhoods of the chosen degree (each fit once)
             near = {(d, k) for (d, k) in reported
@@ -354,10 +384,14 @@ def adaptive(t1, t2, s1, s2, pilot, chi2_crit, min_extra=1, report_extra=1, min_
             spread = np.mean([max((reported[key][0] - l_best) ** 2 - reported[key][1], 0.0)
                               for key in keys]) if keys else 0.0
             trunc = curv_coef * curv**2
-            jac[a], sd[a], status[a] = (fallback[0],
-                                        np.sqrt(fallback[1] ** 2 + max(spread, trunc**2)), 1)
+            var = fallback[1] ** 2 + max(spread, trunc**2) + v_centre * g2
+            jac[a], sd[a], status[a] = fallback[0], np.sqrt(var), 1
         elif fallback is not None:
-            jac[a], sd[a], status[a], dofs[a] = fallback[0], fallback[1], 3, fallback[5]
+            jac[a], sd[a], status[a], dofs[a] = (fallback[0],
+                                                 np.sqrt(fallback[1] ** 2 + v_centre * fallback[7]),
+                                                 3, fallback[5])
         elif worst is not None:
-            jac[a], sd[a], status[a], dofs[a] = worst[0], worst[1], 3, worst[2]
+            jac[a], sd[a], status[a], dofs[a] = (worst[0],
+                                                 np.sqrt(worst[1] ** 2 + v_centre * worst[3]),
+                                                 3, worst[2])
     return jac, sd, status, dofs

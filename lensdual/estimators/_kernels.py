@@ -656,6 +656,47 @@ def _order_changes(L, pr, scale, work, beta, U, kk, g00, g01, g10, g11, hmax, n_
 
 
 @njit(**JIT_OPTIONS)
+def _centre_gradient2(L, pr, scale, work, beta, g00, g01, g10, g11, hmax, cv):
+    """``|grad ln|det J||^2`` at the pair from a fit's second-order terms, less
+    its noise (the trace of its covariance from the fit's, J held fixed; 0 at
+    least). ``beta`` holds the fit's coefficients (``pr >= 6``), ``g`` the
+    gradient ``d ln|det| / dJ'`` of the rotated Jacobian, ``cv`` a (3, 3)
+    scratch array.
+
+    The offsets of a pair's neighbours are taken from its own noisy L2
+    position, so the fits estimate the Jacobian at that position, not at
+    the true one: the pair's L2 noise ``s2`` adds ``s2^2`` times this to the
+    variance of ``ln|det J|`` (see :func:`_adaptive_pair`).
+    """
+    if pr < 6:
+        return 0.0  # no second-order terms
+    h2 = hmax * hmax
+    gx = 0.0
+    gy = 0.0
+    var = 0.0
+    for comp in range(2):
+        ga = g00 if comp == 0 else g10
+        gb = g01 if comp == 0 else g11
+        # d ln|det| / dx = sum g_ij dJ_ij/dx; dJ/dx of row comp = (2 b3, b4) / h^2,
+        # dJ/dy = (b4, 2 b5) / h^2 (monomials x^2, xy, y^2 at 3, 4, 5)
+        ax0, ax1, ax2 = 2.0 * ga / h2, gb / h2, 0.0
+        ay0, ay1, ay2 = 0.0, ga / h2, 2.0 * gb / h2
+        gx += ax0 * beta[comp, 3] + ax1 * beta[comp, 4]
+        gy += ay1 * beta[comp, 4] + ay2 * beta[comp, 5]
+        for j in range(3):
+            _inverse_entry(L[comp], pr, scale, 3 + j, 3 + j, work)
+            for i in range(3):
+                cv[i, j] = work[3 + i] * scale[3 + i] * scale[3 + j]
+        var += (ax0 * (cv[0, 0] * ax0 + cv[0, 1] * ax1 + cv[0, 2] * ax2)
+                + ax1 * (cv[1, 0] * ax0 + cv[1, 1] * ax1 + cv[1, 2] * ax2)
+                + ax2 * (cv[2, 0] * ax0 + cv[2, 1] * ax1 + cv[2, 2] * ax2))
+        var += (ay0 * (cv[0, 0] * ay0 + cv[0, 1] * ay1 + cv[0, 2] * ay2)
+                + ay1 * (cv[1, 0] * ay0 + cv[1, 1] * ay1 + cv[1, 2] * ay2)
+                + ay2 * (cv[2, 0] * ay0 + cv[2, 1] * ay1 + cv[2, 2] * ay2))
+    return max(gx * gx + gy * gy - var, 0.0)
+
+
+@njit(**JIT_OPTIONS)
 def _store_linear(L, scale, A, beta, work, rhs_al, sol_al, h_sl, h_al, h_cv, j):
     """Keep what a two-scale estimate needs of a linear fit that passed its test
     (:func:`_two_scale`): its slopes, the alias of the three quadratic
@@ -730,13 +771,14 @@ def _two_scale_slopes(sl_h, al_h, cv_h, beta, s13, s33, sl, cv):
 
 @njit(**JIT_OPTIONS)
 def _two_scale(L, scale, work, beta, U, kk, hmax, h_k, h_sl, h_al, h_cv, n_h, c, s, pilot_ranks,
-               q, best_rank, s13, s33, cov_o, grad_o, jb):
+               q, best_rank, s13, s33, cov_o, grad_o, cv3, jb):
     """Two-scale estimates at the ``kk`` points whose quadratic fit (``beta``,
     factor ``L``) passed its test: each stored linear fit of ``h < kk``
     points, less the alias of this quadratic's second-order terms (robust
     bias correction whose bias estimate comes from the larger
-    neighbourhood). Returns ``(rank, sd)`` of the best-ranked one below
-    ``best_rank`` (its Jacobian in ``jb``), or ``(best_rank, -1)``.
+    neighbourhood). Returns ``(rank, sd, g2)`` of the best-ranked one below
+    ``best_rank`` (its Jacobian in ``jb``; ``g2`` from
+    :func:`_centre_gradient2` of the quadratic), or ``(best_rank, -1, 0)``.
 
     The covariance of ``slopes_h - A_h gamma_b`` is exact: with ``S`` the
     inverse normal matrix of the quadratic fit and the points of ``h`` the
@@ -754,6 +796,7 @@ def _two_scale(L, scale, work, beta, U, kk, hmax, h_k, h_sl, h_al, h_cv, n_h, c,
                 else:
                     s33[comp, i - 3, m] = v
     best_sd = -1.0
+    best_g2 = 0.0
     sl = np.empty((2, 2))
     cv = np.empty((2, 3))
     for j in range(n_h):
@@ -783,8 +826,9 @@ def _two_scale(L, scale, work, beta, U, kk, hmax, h_k, h_sl, h_al, h_cv, n_h, c,
         if rank < best_rank:
             best_rank = rank
             best_sd = np.sqrt(var_ln)
+            best_g2 = _centre_gradient2(L, 6, scale, work, beta, g00, g01, g10, g11, hmax, cv3)
             _rotate_back(c, s, jr00, jr01, jr10, jr11, jb)
-    return best_rank, best_sd
+    return best_rank, best_sd, best_g2
 
 
 # Kept whole (noqa): one jitted function keeps the incremental Cholesky state (L, scale,
@@ -851,6 +895,14 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
     cluster maps (``c`` ~ 0.2) are barely widened, and noisy fits of
     nearly linear maps (20 mas) are not widened for their noise. Otherwise
     the least-bad fit is returned as ``ADAPTIVE_UNTESTABLE``.
+
+    Every error returned also holds the pair's own L2 noise ``s2[a]``: the
+    offsets of the neighbours are measured from the pair's noisy position, so
+    the fits take the Jacobian there, not at the true position, which adds
+    ``s2[a]^2 |grad ln|det J||^2`` to the variance (the gradient from the
+    reported fit's second-order terms, less its noise:
+    :func:`_centre_gradient2`). The L1 noise of the pair is common to all
+    the outputs' offsets and goes into the fits' constant terms.
 
     Neighbourhoods of up to ``k_dense`` points are all tried; larger ones on
     a geometric grid (each at least 1/8 larger than the last tried) and the
@@ -930,6 +982,7 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
         q10 = -pr01 / pdet
         q11 = pr00 / pdet
     best_sd = np.inf
+    best_g2 = 0.0
     best_rank = np.inf
     best_fb = np.inf
     best_un = np.inf
@@ -950,8 +1003,11 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
     best_fb_dr = 0
     best_fb_dof = 0.0
     best_fb_curv = 0.0
+    best_fb_g2 = 0.0
+    best_un_g2 = 0.0
     best_un_dof = 0.0
     cov = np.empty((2, 3))
+    cv3 = np.empty((3, 3))
     spow = np.empty(4)
     jb = np.empty((2, 2))
     jf = np.empty((2, 2))
@@ -1035,12 +1091,13 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
                 h_k[n_h] = kk
                 n_h += 1
             if passed and bias_fit:
-                rank2, sd2 = _two_scale(L, scale, work, beta, U, kk, hmax, h_k, h_sl, h_al, h_cv,
-                                        n_h, c, s, pilot_ranks, qv, best_rank, s13, s33, cov_o,
-                                        grad_o, jb)
+                rank2, sd2, g2 = _two_scale(L, scale, work, beta, U, kk, hmax, h_k, h_sl, h_al,
+                                            h_cv, n_h, c, s, pilot_ranks, qv, best_rank, s13, s33,
+                                            cov_o, grad_o, cv3, jb)
                 if sd2 > 0.0:
                     best_rank = rank2
                     best_sd = sd2
+                    best_g2 = g2
                     found = True
             if kk < pr + min_extra:
                 continue
@@ -1074,6 +1131,8 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
                 if rank < best_rank:
                     best_rank = rank
                     best_sd = sd
+                    best_g2 = _centre_gradient2(L, pr, scale, work, beta, g00, g01, g10, g11,
+                                                hmax, cv3)
                     found = True
                     _rotate_back(c, s, jr00, jr01, jr10, jr11, jb)
             if not found:
@@ -1119,6 +1178,8 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
                         best_fb_dr = dt + report_extra
                         best_fb = sdf
                         best_fb_dof = float(dof_r)
+                        best_fb_g2 = _centre_gradient2(L, pr, scale, work, beta, g00, g01, g10,
+                                                       g11, hmax, cv3)
                         # curvature: the largest change of ln|det J| over the
                         # neighbourhood that the fit's second-order terms predict,
                         # less twice its noise (a noisy fit's second-order terms
@@ -1131,11 +1192,16 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
                 elif sdf < best_un:
                     best_un = sdf
                     best_un_dof = float(dof_r)
+                    best_un_g2 = _centre_gradient2(L, pr, scale, work, beta, g00, g01, g10, g11,
+                                                   hmax, cv3)
                     untestable = True
                     _rotate_back(c, s, jr00, jr01, jr10, jr11, ju)
+    # the pair's own L2 noise moves the point where the fits take the Jacobian
+    # (every offset is measured from it): s2^2 |grad ln|det J||^2
+    v_centre = s2[a] * s2[a]
     if found:
         _copy_jacobian(jb, jac_out)
-        return best_sd, ADAPTIVE_OK, np.inf
+        return np.sqrt(best_sd * best_sd + v_centre * best_g2), ADAPTIVE_OK, np.inf
     if fallback and n_consistent >= min_candidates:
         _copy_jacobian(jf, jac_out)
         # model uncertainty: the mean squared change of ln|det J| beyond noise
@@ -1158,14 +1224,14 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
         trunc = _ADAPTIVE_CURV_COEF * best_fb_curv ** 2
         # the spread and the truncation term are two estimates of the same model
         # error (the chosen fit's bias): the larger counts, not their sum
-        return (np.sqrt(best_fb * best_fb + max(spread, trunc * trunc)), ADAPTIVE_MISFIT,
-                best_fb_dof)
+        return (np.sqrt(best_fb * best_fb + max(spread, trunc * trunc) + v_centre * best_fb_g2),
+                ADAPTIVE_MISFIT, best_fb_dof)
     if fallback:  # one self-consistent fit only: its model error cannot be judged
         _copy_jacobian(jf, jac_out)
-        return best_fb, ADAPTIVE_UNTESTABLE, best_fb_dof
+        return np.sqrt(best_fb * best_fb + v_centre * best_fb_g2), ADAPTIVE_UNTESTABLE, best_fb_dof
     if untestable:
         _copy_jacobian(ju, jac_out)
-        return best_un, ADAPTIVE_UNTESTABLE, best_un_dof
+        return np.sqrt(best_un * best_un + v_centre * best_un_g2), ADAPTIVE_UNTESTABLE, best_un_dof
     jac_out[:, :] = np.nan
     return np.nan, ADAPTIVE_FAILED, 0.0
 
