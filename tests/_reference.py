@@ -381,10 +381,11 @@ def adaptive(t1, t2, s1, s2, pilot, chi2_crit, min_extra=1, report_extra=1, min_
             near = {(d, k) for (d, k) in reported
                     if d == d_best and k_best < k <= k_best + lookahead}
             keys = (set(consistent) | near) - {(d_best, k_best)}
-            spread = np.mean([max((reported[key][0] - l_best) ** 2 - reported[key][1], 0.0)
-                              for key in keys]) if keys else 0.0
+            # the truncation term is one more entry of the mean
+            excess = [max((reported[key][0] - l_best) ** 2 - reported[key][1], 0.0)
+                      for key in keys]
             trunc = curv_coef * curv**2
-            var = fallback[1] ** 2 + max(spread, trunc**2) + v_centre * g2
+            var = fallback[1] ** 2 + np.mean(excess + [trunc**2]) + v_centre * g2
             jac[a], sd[a], status[a] = fallback[0], np.sqrt(var), 1
         elif fallback is not None:
             jac[a], sd[a], status[a], dofs[a] = (fallback[0],

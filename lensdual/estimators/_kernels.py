@@ -874,15 +874,18 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
 
     If none passes, the reported fits that pass the chi-square test on their
     own are used: the one with the smallest error scaled by its
-    leave-one-out (PRESS) misfit, widened by the model spread (the mean,
+    leave-one-out (PRESS) misfit, widened by its model error: the mean,
     over the other self-consistent fits and the next ``lookahead`` larger
     neighbourhoods of its degree, of the squared change of ``ln|det J|``
-    beyond each fit's noise; the maximum over them, used before, doubled
-    the errors of galaxy-scale arcs) or by a truncation error
-    ``_ADAPTIVE_CURV_COEF * c^2``, whichever is larger: both estimate the
-    chosen fit's bias, and their sum counted it twice (``ADAPTIVE_MISFIT``,
-    when at least
-    ``min_candidates`` fits are self-consistent). ``c``, the chosen fit's
+    beyond each fit's noise (the maximum over them, used before, doubled
+    the errors of galaxy-scale arcs), with the square of a truncation error
+    ``_ADAPTIVE_CURV_COEF * c^2`` as one more term of that mean. Both
+    estimate the chosen fit's bias: with few comparisons (8 sources) the
+    truncation term carries the mean, with many the comparisons do (the
+    larger of the two, used before, let the truncation term double the
+    errors of fits with dozens of comparisons; their sum counted the bias
+    twice) (``ADAPTIVE_MISFIT``, when at least ``min_candidates`` fits are
+    self-consistent). ``c``, the chosen fit's
     curvature, is the largest ``|tr(J^-1 dJ(u))| - _ADAPTIVE_CURV_NSIG sd``
     over the neighbourhood's offsets ``u``: ``dJ(u)`` the change of the
     Jacobian that the fit's second-order terms predict there, ``sd`` the
@@ -1204,9 +1207,9 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
         return np.sqrt(best_sd * best_sd + v_centre * best_g2), ADAPTIVE_OK, np.inf
     if fallback and n_consistent >= min_candidates:
         _copy_jacobian(jf, jac_out)
-        # model uncertainty: the mean squared change of ln|det J| beyond noise
-        # among the other self-consistent fits, and when the neighbourhood of the
-        # chosen fit grows by up to ``lookahead`` points at the same degree
+        # model uncertainty: the squared changes of ln|det J| beyond noise among
+        # the other self-consistent fits, and when the neighbourhood of the chosen
+        # fit grows by up to ``lookahead`` points at the same degree (their sum)
         spread = 0.0
         n_spread = 0
         for i in range(n_cand):
@@ -1217,15 +1220,14 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
                 # a difference beyond that fit's own noise is evidence of bias
                 spread += max((cand_ln[i] - best_fb_ln) ** 2 - cand_var[i], 0.0)
                 n_spread += 1
-        if n_spread > 0:
-            spread /= n_spread
         # truncation error the residuals cannot show (too few of them): grows
         # with how much the fitted map bends across the neighbourhood
         trunc = _ADAPTIVE_CURV_COEF * best_fb_curv ** 2
-        # the spread and the truncation term are two estimates of the same model
-        # error (the chosen fit's bias): the larger counts, not their sum
-        return (np.sqrt(best_fb * best_fb + max(spread, trunc * trunc) + v_centre * best_fb_g2),
-                ADAPTIVE_MISFIT, best_fb_dof)
+        # the comparisons and the truncation term estimate the same model error
+        # (the chosen fit's bias): the term is one more entry of their mean
+        model = (spread + trunc * trunc) / (n_spread + 1.0)
+        return (np.sqrt(best_fb * best_fb + model + v_centre * best_fb_g2), ADAPTIVE_MISFIT,
+                best_fb_dof)
     if fallback:  # one self-consistent fit only: its model error cannot be judged
         _copy_jacobian(jf, jac_out)
         return np.sqrt(best_fb * best_fb + v_centre * best_fb_g2), ADAPTIVE_UNTESTABLE, best_fb_dof

@@ -558,10 +558,10 @@ def size_magnification(
     samples it at this precision), the reported fits that are consistent
     with the errors on their own (chi-square test of the reported fit)
     are used: the one with the smallest error, scaled by its leave-one-out
-    (PRESS) misfit, and widened by the larger of two estimates of its bias:
-    the mean squared difference beyond noise between its ``ln mu_size``
-    and that of the other self-consistent fits (the model uncertainty),
-    and a truncation error that grows as
+    (PRESS) misfit, and widened by an estimate of its bias: the mean of the
+    squared differences beyond noise between its ``ln mu_size`` and that of
+    the other self-consistent fits (the model uncertainty) and of one more
+    term, the square of a truncation error that grows as
     the square of the fit's curvature (the largest change of
     ``ln|det J|`` across its neighbourhood that its second-order terms
     predict, less twice its noise: with few residuals a strongly bent map
