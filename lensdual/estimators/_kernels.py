@@ -687,13 +687,16 @@ def _centre_gradient2(L, pr, scale, work, beta, g00, g01, g10, g11, hmax, cv):
             _inverse_entry(L[comp], pr, scale, 3 + j, 3 + j, work)
             for i in range(3):
                 cv[i, j] = work[3 + i] * scale[3 + i] * scale[3 + j]
-        var += (ax0 * (cv[0, 0] * ax0 + cv[0, 1] * ax1 + cv[0, 2] * ax2)
-                + ax1 * (cv[1, 0] * ax0 + cv[1, 1] * ax1 + cv[1, 2] * ax2)
-                + ax2 * (cv[2, 0] * ax0 + cv[2, 1] * ax1 + cv[2, 2] * ax2))
-        var += (ay0 * (cv[0, 0] * ay0 + cv[0, 1] * ay1 + cv[0, 2] * ay2)
-                + ay1 * (cv[1, 0] * ay0 + cv[1, 1] * ay1 + cv[1, 2] * ay2)
-                + ay2 * (cv[2, 0] * ay0 + cv[2, 1] * ay1 + cv[2, 2] * ay2))
+        var += _quad_form3(cv, ax0, ax1, ax2) + _quad_form3(cv, ay0, ay1, ay2)
     return max(gx * gx + gy * gy - var, 0.0)
+
+
+@njit(**JIT_OPTIONS)
+def _quad_form3(cv, v0, v1, v2):
+    """``v^T cv v`` for a 3-vector ``v`` and a (3, 3) matrix ``cv``."""
+    return (v0 * (cv[0, 0] * v0 + cv[0, 1] * v1 + cv[0, 2] * v2)
+            + v1 * (cv[1, 0] * v0 + cv[1, 1] * v1 + cv[1, 2] * v2)
+            + v2 * (cv[2, 0] * v0 + cv[2, 1] * v1 + cv[2, 2] * v2))
 
 
 @njit(**JIT_OPTIONS)
