@@ -611,6 +611,17 @@ def _order_change(L, pr, scale, work, beta, U, kk, g00, g01, g10, g11, hmax, n_s
 
 
 @njit(**JIT_OPTIONS)
+def _block_covariance(L, pr, scale, i0, m, work, out):
+    """The covariance of the ``m`` coefficients from ``i0`` of both components'
+    fits (``pr`` coefficients, factors ``L``) into ``out[comp, :m, :m]``."""
+    for comp in range(2):
+        for j in range(m):
+            _inverse_entry(L[comp], pr, scale, i0 + j, i0 + j, work)
+            for i in range(m):
+                out[comp, i, j] = work[i0 + i] * scale[i0 + i] * scale[i0 + j]
+
+
+@njit(**JIT_OPTIONS)
 def _order_changes(L, pr, scale, work, beta, U, kk, g00, g01, g10, g11, hmax, n_sig, n_up,
                    deg, cov_o, grad):
     """:func:`_order_change` and, in the same pass, its upper bound: the largest
@@ -620,11 +631,7 @@ def _order_changes(L, pr, scale, work, beta, U, kk, g00, g01, g10, g11, hmax, n_
         return 0.0, 0.0
     i0 = _ncoef(deg - 1)
     m = deg + 1
-    for comp in range(2):
-        for j in range(m):
-            _inverse_entry(L[comp], pr, scale, i0 + j, i0 + j, work)
-            for i in range(m):
-                cov_o[comp, i, j] = work[i0 + i] * scale[i0 + i] * scale[i0 + j]
+    _block_covariance(L, pr, scale, i0, m, work, cov_o)
     out = 0.0
     up = 0.0
     for q in range(kk):
@@ -656,12 +663,12 @@ def _order_changes(L, pr, scale, work, beta, U, kk, g00, g01, g10, g11, hmax, n_
 
 
 @njit(**JIT_OPTIONS)
-def _centre_gradient2(L, pr, scale, work, beta, g00, g01, g10, g11, hmax, cv):
+def _centre_gradient2(L, pr, scale, work, beta, g00, g01, g10, g11, hmax, cov_o):
     """``|grad ln|det J||^2`` at the pair from a fit's second-order terms, less
     its noise (the trace of its covariance from the fit's, J held fixed; 0 at
     least). ``beta`` holds the fit's coefficients (``pr >= 6``), ``g`` the
-    gradient ``d ln|det| / dJ'`` of the rotated Jacobian, ``cv`` a (3, 3)
-    scratch array.
+    gradient ``d ln|det| / dJ'`` of the rotated Jacobian, ``cov_o`` the
+    (2, 4, 4) scratch of :func:`_order_changes`.
 
     The offsets of a pair's neighbours are taken from its own noisy L2
     position, so the fits estimate the Jacobian at that position, not at
@@ -671,6 +678,7 @@ def _centre_gradient2(L, pr, scale, work, beta, g00, g01, g10, g11, hmax, cv):
     if pr < 6:
         return 0.0  # no second-order terms
     h2 = hmax * hmax
+    _block_covariance(L, pr, scale, 3, 3, work, cov_o)
     gx = 0.0
     gy = 0.0
     var = 0.0
@@ -683,17 +691,14 @@ def _centre_gradient2(L, pr, scale, work, beta, g00, g01, g10, g11, hmax, cv):
         ay0, ay1, ay2 = 0.0, ga / h2, 2.0 * gb / h2
         gx += ax0 * beta[comp, 3] + ax1 * beta[comp, 4]
         gy += ay1 * beta[comp, 4] + ay2 * beta[comp, 5]
-        for j in range(3):
-            _inverse_entry(L[comp], pr, scale, 3 + j, 3 + j, work)
-            for i in range(3):
-                cv[i, j] = work[3 + i] * scale[3 + i] * scale[3 + j]
+        cv = cov_o[comp]
         var += _quad_form3(cv, ax0, ax1, ax2) + _quad_form3(cv, ay0, ay1, ay2)
     return max(gx * gx + gy * gy - var, 0.0)
 
 
 @njit(**JIT_OPTIONS)
 def _quad_form3(cv, v0, v1, v2):
-    """``v^T cv v`` for a 3-vector ``v`` and a (3, 3) matrix ``cv``."""
+    """``v^T cv v`` for a 3-vector ``v`` and the leading (3, 3) block of ``cv``."""
     return (v0 * (cv[0, 0] * v0 + cv[0, 1] * v1 + cv[0, 2] * v2)
             + v1 * (cv[1, 0] * v0 + cv[1, 1] * v1 + cv[1, 2] * v2)
             + v2 * (cv[2, 0] * v0 + cv[2, 1] * v1 + cv[2, 2] * v2))
@@ -774,7 +779,7 @@ def _two_scale_slopes(sl_h, al_h, cv_h, beta, s13, s33, sl, cv):
 
 @njit(**JIT_OPTIONS)
 def _two_scale(L, scale, work, beta, U, kk, hmax, h_k, h_sl, h_al, h_cv, n_h, c, s, pilot_ranks,
-               q, best_rank, s13, s33, cov_o, grad_o, cv3, jb):
+               q, best_rank, s13, s33, cov_o, grad_o, jb):
     """Two-scale estimates at the ``kk`` points whose quadratic fit (``beta``,
     factor ``L``) passed its test: each stored linear fit of ``h < kk``
     points, less the alias of this quadratic's second-order terms (robust
@@ -829,7 +834,8 @@ def _two_scale(L, scale, work, beta, U, kk, hmax, h_k, h_sl, h_al, h_cv, n_h, c,
         if rank < best_rank:
             best_rank = rank
             best_sd = np.sqrt(var_ln)
-            best_g2 = _centre_gradient2(L, 6, scale, work, beta, g00, g01, g10, g11, hmax, cv3)
+            best_g2 = _centre_gradient2(L, 6, scale, work, beta, g00, g01, g10, g11, hmax,
+                                        cov_o)
             _rotate_back(c, s, jr00, jr01, jr10, jr11, jb)
     return best_rank, best_sd, best_g2
 
@@ -1013,7 +1019,6 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
     best_un_g2 = 0.0
     best_un_dof = 0.0
     cov = np.empty((2, 3))
-    cv3 = np.empty((3, 3))
     spow = np.empty(4)
     jb = np.empty((2, 2))
     jf = np.empty((2, 2))
@@ -1099,7 +1104,7 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
             if passed and bias_fit:
                 rank2, sd2, g2 = _two_scale(L, scale, work, beta, U, kk, hmax, h_k, h_sl, h_al,
                                             h_cv, n_h, c, s, pilot_ranks, qv, best_rank, s13, s33,
-                                            cov_o, grad_o, cv3, jb)
+                                            cov_o, grad_o, jb)
                 if sd2 > 0.0:
                     best_rank = rank2
                     best_sd = sd2
@@ -1138,7 +1143,7 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
                     best_rank = rank
                     best_sd = sd
                     best_g2 = _centre_gradient2(L, pr, scale, work, beta, g00, g01, g10, g11,
-                                                hmax, cv3)
+                                                hmax, cov_o)
                     found = True
                     _rotate_back(c, s, jr00, jr01, jr10, jr11, jb)
             if not found:
@@ -1185,7 +1190,7 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
                         best_fb = sdf
                         best_fb_dof = float(dof_r)
                         best_fb_g2 = _centre_gradient2(L, pr, scale, work, beta, g00, g01, g10,
-                                                       g11, hmax, cv3)
+                                                       g11, hmax, cov_o)
                         # curvature: the largest change of ln|det J| over the
                         # neighbourhood that the fit's second-order terms predict,
                         # less twice its noise (a noisy fit's second-order terms
@@ -1199,7 +1204,7 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
                     best_un = sdf
                     best_un_dof = float(dof_r)
                     best_un_g2 = _centre_gradient2(L, pr, scale, work, beta, g00, g01, g10, g11,
-                                                   hmax, cv3)
+                                                   hmax, cov_o)
                     untestable = True
                     _rotate_back(c, s, jr00, jr01, jr10, jr11, ju)
     # the pair's own L2 noise moves the point where the fits take the Jacobian
