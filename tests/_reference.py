@@ -365,7 +365,9 @@ def adaptive(t1, t2, s1, s2, pilot, chi2_crit, min_extra=1, report_extra=1, min_
                         fallback = (j, sf, np.log(abs(det)), dr, k, dof_r, curv,
                                     _centre_gradient2(t1, t2, a, idx, dr, s1, s2, pilot[a]))
                 elif worst is None or sf < worst[1]:
-                    worst = (j, sf, dof_r, _centre_gradient2(t1, t2, a, idx, dr, s1, s2, pilot[a]))
+                    curv = _curvature(t1, t2, a, idx, dr, s1, s2, pilot[a])
+                    worst = (j, sf, np.log(abs(det)), dr, k, dof_r, curv,
+                             _centre_gradient2(t1, t2, a, idx, dr, s1, s2, pilot[a]))
         if report_extra == 1:
             best = _two_scale_best(t1, t2, a, order, s1, s2, pilot[a], chi2_crit, min_extra,
                                    g_pilot, best, top_coef, top_nsig, two_gate, two_gate_nsig)
@@ -374,8 +376,12 @@ def adaptive(t1, t2, s1, s2, pilot, chi2_crit, min_extra=1, report_extra=1, min_
         if best is not None:
             jac[a], sd[a], status[a], dofs[a] = (best[0], np.sqrt(best[1] ** 2
                                                                   + v_centre * best[3]), 0, np.inf)
-        elif fallback is not None and len(consistent) >= min_candidates:
-            _, _, l_best, d_best, k_best, dofs[a], curv, g2 = fallback
+        else:
+            # a fallback fit: the self-consistent one, else the least-bad one
+            chosen = fallback if fallback is not None else worst
+            if chosen is None:
+                continue
+            j, sf, l_best, d_best, k_best, dofs[a], curv, g2 = chosen
             # the mean excess over the other self-consistent fits and the next
             # larger neighbourhoods of the chosen degree (each fit once)
             near = {(d, k) for (d, k) in reported
@@ -385,14 +391,9 @@ def adaptive(t1, t2, s1, s2, pilot, chi2_crit, min_extra=1, report_extra=1, min_
             excess = [max((reported[key][0] - l_best) ** 2 - reported[key][1], 0.0)
                       for key in keys]
             trunc = curv_coef * curv**2
-            var = fallback[1] ** 2 + np.mean(excess + [trunc**2]) + v_centre * g2
-            jac[a], sd[a], status[a] = fallback[0], np.sqrt(var), 1
-        elif fallback is not None:
-            jac[a], sd[a], status[a], dofs[a] = (fallback[0],
-                                                 np.sqrt(fallback[1] ** 2 + v_centre * fallback[7]),
-                                                 3, fallback[5])
-        elif worst is not None:
-            jac[a], sd[a], status[a], dofs[a] = (worst[0],
-                                                 np.sqrt(worst[1] ** 2 + v_centre * worst[3]),
-                                                 3, worst[2])
+            var = sf**2 + np.mean(excess + [trunc**2]) + v_centre * g2
+            # tested ("misfit") with enough self-consistent fits to judge the
+            # model error; otherwise reported with it but "untestable"
+            tested = fallback is not None and len(consistent) >= min_candidates
+            jac[a], sd[a], status[a] = j, np.sqrt(var), 1 if tested else 3
     return jac, sd, status, dofs

@@ -750,7 +750,10 @@ def _adaptive_table(t1, t2, sigma, wp, sigma_pos, max_neighbours=DEFAULT_MAX_NEI
     _warn_adaptive(status)
     det = jac[:, 0, 0] * jac[:, 1, 1] - jac[:, 0, 1] * jac[:, 1, 0]
     mu = np.abs(det)
-    pct = np.vstack([mu * np.exp(-ln_sd), mu, mu * np.exp(ln_sd)])
+    # an error of ln mu_size beyond ~709 (|det J| ~ 0, or a map no polynomial
+    # follows) has an unbounded upper limit: inf, without an overflow warning
+    with np.errstate(over="ignore"):
+        pct = np.vstack([mu * np.exp(-ln_sd), mu, mu * np.exp(ln_sd)])
     names = np.array([ADAPTIVE_STATUS[int(c)] for c in status])
     dof = np.where(status == _kernels.ADAPTIVE_FAILED, np.nan, dof)
     table = _size_table(det, jac, pct, ln_sd, np.zeros(len(mu), dtype=int), names, dof)
