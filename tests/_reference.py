@@ -314,9 +314,34 @@ def _two_scale_best(t1, t2, a, order, s1, s2, pilot, chi2_crit, min_extra, g_pil
     return best
 
 
+def _cubic_alias_bias2(t1, t2, a, idx, s1, s2, pilot, j, n_sig):
+    """Squared bias of ln|det J| of the quadratic fit on ``idx`` (Jacobian
+    ``j``) from the cubic terms of the map, beyond ``n_sig`` times its noise:
+    ``(|b| - n_sig sd(b))_+^2``. ``b = g . dJ``, ``dJ`` the slopes that the
+    GLS quadratic takes up from the cubic terms fitted by a GLS cubic on
+    every point, ``sd(b)`` from that cubic fit's covariance."""
+    n = len(t1)
+    _, H, _ = _gls_operator(t2, a, idx, 2, s1, s2, pilot)  # beta (2 x 6) = H y
+    _, x3, _, _, beta3, cinv3 = _gls_beta(t1, t2, a, np.arange(n), 3, s1, s2, pilot)
+    u3 = _monomials(t2[idx] - t2[a], 3)[:, 6:10]
+    g = _ln_det_gradient(j)
+    # b is linear in the cubic coefficients c (2 x 4): b = sum_km v[k, m] c[k, m]
+    v = np.zeros((2, 4))
+    for k in range(2):
+        for m in range(4):
+            y = np.zeros((len(idx), 2))
+            y[:, k] = u3[:, m]
+            beta = (H @ y.ravel()).reshape(2, 6)
+            v[k, m] = g @ np.array([beta[0, 1], beta[0, 2], beta[1, 1], beta[1, 2]])
+    rows = [k * 10 + 6 + m for k in range(2) for m in range(4)]
+    b = v.ravel() @ beta3.ravel()[rows]
+    sd_b = np.sqrt(v.ravel() @ cinv3[np.ix_(rows, rows)] @ v.ravel())
+    return max(abs(b) - n_sig * sd_b, 0.0) ** 2
+
+
 def adaptive(t1, t2, s1, s2, pilot, chi2_crit, min_extra=1, report_extra=1, min_candidates=2,
              lookahead=5, curv_coef=0.1, top_coef=0.6, top_nsig=1.5, two_gate=0.5,
-             two_gate_nsig=2.0):
+             two_gate_nsig=2.0, cubic_nsig=1.5):
     """One pass of the adaptive estimator given pilot Jacobians (N, 2, 2).
 
     Returns J (N, 2, 2), the error of ln|det J|, the status (0 ok,
@@ -354,8 +379,13 @@ def adaptive(t1, t2, s1, s2, pilot, chi2_crit, min_extra=1, report_extra=1, min_
                     rank += (top_coef * _top_change(t1, t2, a, idx, dr, s1, s2, pilot[a],
                                                     n_sig=top_nsig)) ** 2
                     if best is None or rank < best[2]:
+                        # a quadratic licensed by a linear test also holds the
+                        # bias the row's cubic terms alias into its slopes
+                        bias2 = (_cubic_alias_bias2(t1, t2, a, idx, s1, s2, pilot[a], j,
+                                                    cubic_nsig)
+                                 if dt == 1 and dr == 2 and n >= 10 + min_extra else 0.0)
                         best = (j, s, rank, _centre_gradient2(t1, t2, a, idx, dr, s1, s2,
-                                                              pilot[a]))
+                                                              pilot[a]), bias2)
                     continue
                 sf = s * np.sqrt(max(1.0, _press_ratio(t1, t2, a, idx, dr, s1, s2, pilot[a])))
                 if chi2_r <= chi2_crit[dof_r]:
@@ -374,8 +404,9 @@ def adaptive(t1, t2, s1, s2, pilot, chi2_crit, min_extra=1, report_extra=1, min_
         # the pair's own L2 noise moves the point where the fits take J
         v_centre = s2[a] ** 2
         if best is not None:
-            jac[a], sd[a], status[a], dofs[a] = (best[0], np.sqrt(best[1] ** 2
-                                                                  + v_centre * best[3]), 0, np.inf)
+            bias2 = best[4] if len(best) > 4 else 0.0  # two-scale estimates have none
+            jac[a], sd[a], status[a], dofs[a] = (
+                best[0], np.sqrt(best[1] ** 2 + v_centre * best[3] + bias2), 0, np.inf)
         else:
             # a fallback fit: the self-consistent one, else the least-bad one
             chosen = fallback if fallback is not None else worst
