@@ -322,7 +322,7 @@ def _cubic_alias_bias2(t1, t2, a, idx, s1, s2, pilot, j, n_sig):
     every point, ``sd(b)`` from that cubic fit's covariance."""
     n = len(t1)
     _, H, _ = _gls_operator(t2, a, idx, 2, s1, s2, pilot)  # beta (2 x 6) = H y
-    _, x3, _, _, beta3, cinv3 = _gls_beta(t1, t2, a, np.arange(n), 3, s1, s2, pilot)
+    _, _, _, _, beta3, cinv3 = _gls_beta(t1, t2, a, np.arange(n), 3, s1, s2, pilot)
     u3 = _monomials(t2[idx] - t2[a], 3)[:, 6:10]
     g = _ln_det_gradient(j)
     # b is linear in the cubic coefficients c (2 x 4): b = sum_km v[k, m] c[k, m]

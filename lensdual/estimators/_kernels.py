@@ -470,12 +470,12 @@ _ADAPTIVE_TOP_NSIG = 1.5
 # 10-20 mas were flagged 0.8-1.6 %: their truncation bias, hidden before in
 # the larger error of the one-scale estimate).
 _ADAPTIVE_TWO_GATE = 0.5
+_ADAPTIVE_TWO_GATE_NSIG = 2.0
 # An "ok" quadratic report licensed by a linear test holds the bias its cubic
 # terms alias into its slopes, estimated from the cubic fit of the whole row,
 # less _ADAPTIVE_CUBIC_NSIG times that estimate's noise: see _cubic_alias_bias2
 _ADAPTIVE_CUBIC_BIAS = True
 _ADAPTIVE_CUBIC_NSIG = 1.5
-_ADAPTIVE_TWO_GATE_NSIG = 2.0
 
 
 @njit(**JIT_OPTIONS)
@@ -845,9 +845,6 @@ def _two_scale(L, scale, work, beta, U, kk, hmax, h_k, h_sl, h_al, h_cv, n_h, c,
     return best_rank, best_sd, best_g2
 
 
-# Kept whole (noqa): one jitted function keeps the incremental Cholesky state (L, scale,
-# work) in local arrays while candidates are added one by one; split into helpers, the
-# innermost loop would pay call and argument overhead for every candidate.
 @njit(**JIT_OPTIONS)
 def _cubic_alias(L, scale, A, g00, g01, g10, g11, hmax, rhs_al, sol_al, v3):
     """How the slopes of a quadratic fit (factors ``L`` of its normal
@@ -927,6 +924,9 @@ def _model_error(cand_ln, cand_var, cand_k, cand_dr, cand_ok, n_cand, ln_c, k_c,
     return (spread + trunc * trunc) / (n_spread + 1.0)
 
 
+# Kept whole (noqa): one jitted function keeps the incremental Cholesky state (L, scale,
+# work) in local arrays while candidates are added one by one; split into helpers, the
+# innermost loop would pay call and argument overhead for every candidate.
 @njit(**JIT_OPTIONS)
 def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_extra,  # noqa: C901, PLR0915
                    min_candidates, lookahead, k_dense, order, dsort, U, Yr, W, A, rhs, L, scale,
