@@ -439,3 +439,30 @@ models = ["{MACS1149 / 'best.par'}"]
     # most knots agree with the model within the combined errors
     assert np.mean(tab["snr_macs1149_v4"] < 3) > 0.8
     assert (out / "knots_1.1_1.3.png").stat().st_size > 10000
+
+
+def test_plot_size_vs_model_takes_unbounded_errors():
+    """A pair whose error of ln mu is beyond exp's range (an untestable fit
+    with |det J| near 0) gets an unbounded bar, without an overflow warning
+    (the suite turns warnings into errors), and every point is drawn."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from astropy.table import Table
+
+    from lensdual.parametric import plot_size_vs_model
+
+    t = Table()
+    t["pair_id"] = [0, 1, 2]
+    t["mu_size"] = [1.0, 1.2, 0.8]
+    t["ln_mu_size_err"] = [0.05, 0.1, 800.0]
+    t["mu_size_status"] = ["ok", "misfit", "untestable"]
+    t["mu_cats"] = [1.05, 1.1, 0.9]
+    t["ln_mu_cats_err"] = [0.02, 0.02, 0.02]
+    t["disagree_cats"] = [False, False, False]
+    t.meta["models"] = ["cats"]
+    ax = plot_size_vs_model(t)
+    drawn = sum(len(c.get_children()[0].get_xdata()) for c in ax.containers)
+    assert drawn == 3
+    labels = [x.get_text() for x in ax.texts]
+    assert labels == ["0", "1", "2"]

@@ -243,8 +243,12 @@ def plot_size_vs_model(table, model=None, ax=None, *, label_pairs=True):
                             (bad, dict(fmt="o", color="C3"), "disagree (> threshold)"),
                             (~testable, dict(fmt="x", color="0.5"), "untestable")):
         if sel.any():
-            xerr = [mu_m[sel] * (1 - np.exp(-ln_m[sel])), mu_m[sel] * (np.exp(ln_m[sel]) - 1)]
-            yerr = [mu_s[sel] * (1 - np.exp(-ln_s[sel])), mu_s[sel] * (np.exp(ln_s[sel]) - 1)]
+            # an error of ln mu beyond ~709 is an unbounded bar (inf), not a warning
+            with np.errstate(over="ignore"):
+                xerr = [mu_m[sel] * (1 - np.exp(-ln_m[sel])),
+                        mu_m[sel] * (np.exp(ln_m[sel]) - 1)]
+                yerr = [mu_s[sel] * (1 - np.exp(-ln_s[sel])),
+                        mu_s[sel] * (np.exp(ln_s[sel]) - 1)]
             ax.errorbar(mu_m[sel], mu_s[sel], xerr=xerr, yerr=yerr, ms=4, capsize=2,
                         linestyle="none", label=lab, **style)
     finite = np.isfinite(mu_s) & np.isfinite(mu_m) & (mu_s > 0) & (mu_m > 0)
