@@ -587,6 +587,17 @@ def test_reverse_map_where_the_forward_fit_is_untestable(monkeypatch):
     # the square root is no polynomial at 0.5 mas: most forward fits are untestable
     assert (st_fwd == _kernels.ADAPTIVE_UNTESTABLE).sum() >= 8
     expect = ~np.isin(st_fwd, ok_codes) & np.isin(st_r, ok_codes)
+    # the reverse fit runs on the pairs that need it only: a subset of the
+    # pairs gets the estimates of a run on all of them, bit for bit
+    sub = np.flatnonzero(~np.isin(st_fwd, ok_codes))
+    assert 0 < sub.size < len(t1)
+    js, sd_s, st_s, dof_s = core._adaptive_forward(o2, o1, sig[::-1].copy(), 2.0, rows=sub)
+    np.testing.assert_array_equal(js[sub], jr[sub])
+    np.testing.assert_array_equal(sd_s[sub], sd_r[sub])
+    np.testing.assert_array_equal(st_s[sub], st_r[sub])
+    np.testing.assert_array_equal(dof_s[sub], dof_r[sub])
+    rest = np.setdiff1d(np.arange(len(t1)), sub)
+    assert np.isnan(sd_s[rest]).all() and (st_s[rest] == _kernels.ADAPTIVE_FAILED).all()
     jac, sd, st, dof, rev = core._adaptive(o1, o2, sig, 2.0)
     np.testing.assert_array_equal(rev, expect)
     # those pairs take the inverse of the L1 -> L2 fit, with its error and status

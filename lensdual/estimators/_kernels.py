@@ -1378,23 +1378,38 @@ def adaptive_jacobians_knn(t1, t2, nbr, s1, s2, chi2_crit, min_extra, report_ext
 def adaptive_range_knn(t1, t2, nbr, s1, s2, chi2_crit, min_extra, report_extra,
                        min_candidates, lookahead, k_dense, n_pass, weight_power, cond_max,
                        start, stop, jac, ln_sd, status, dof):
-    """:func:`adaptive_jacobians_knn` for the pairs ``start <= a < stop`` only.
+    """:func:`adaptive_jacobians_knn` for the pairs ``start <= a < stop`` only
+    (:func:`adaptive_rows_knn` on that range)."""
+    adaptive_rows_knn(t1, t2, nbr, s1, s2, chi2_crit, min_extra, report_extra, min_candidates,
+                      lookahead, k_dense, n_pass, weight_power, cond_max,
+                      np.arange(start, stop), jac, ln_sd, status, dof)
+
+
+@njit(**JIT_OPTIONS)
+def adaptive_rows_knn(t1, t2, nbr, s1, s2, chi2_crit, min_extra, report_extra,
+                      min_candidates, lookahead, k_dense, n_pass, weight_power, cond_max,
+                      rows, jac, ln_sd, status, dof):
+    """:func:`adaptive_jacobians_knn` for the pairs ``rows`` only (the other
+    entries of the outputs are left as they are).
 
     Each pair's estimate depends on its own row and pilot only, so disjoint
-    ranges can run in separate threads (the kernels release the GIL). With a
+    sets of pairs can run in separate threads (the kernels release the GIL),
+    and a subset gives the same estimates as the whole, bit for bit. With a
     cap (``k_dense`` below the row length ``K``) the pilot passes use the
     ``2 k_dense`` nearest points of each row only.
     """
     k = nbr.shape[1]
-    pilot = np.empty((stop - start, 2, 2))
+    m = rows.shape[0]
+    pilot = np.empty((m, 2, 2))
     acc = np.empty(7)
     Aq = np.empty((k - 1, 2))
     Yq = np.empty((k - 1, 2))
     sol = np.empty((2, 2))
-    for a in range(start, stop):
+    for r in range(m):
+        a = rows[r]
         # the first-order Quad pilot, on the pair's row
         _pair_sums(t1, t2, _row(nbr, a), a, weight_power, acc)
-        pa = pilot[a - start]
+        pa = pilot[r]
         ok = _solve_normal(acc, pa)
         if not ok:
             ok = _jacobian_quad(t1, t2, a, _row(nbr, a), 1, weight_power, cond_max, Aq, Yq,
@@ -1419,17 +1434,19 @@ def adaptive_range_knn(t1, t2, nbr, s1, s2, chi2_crit, min_extra, report_extra,
         # with a cap (k_dense < K), the passes that only make the next pass's
         # pilot use the 2 k_dense nearest points
         k_row = k if (p + 1 == n_pass or k_dense >= k) else min(k, 2 * k_dense)
-        for a in range(start, stop):
+        for r in range(m):
+            a = rows[r]
             ln_sd[a], status[a], dof[a] = _adaptive_pair(
-                t1, t2, s1, s2, a, _row(nbr, a)[:k_row], pilot[a - start], chi2_crit, min_extra,
+                t1, t2, s1, s2, a, _row(nbr, a)[:k_row], pilot[r], chi2_crit, min_extra,
                 report_extra, min_candidates, lookahead, k_dense, order, dsort, U, Yr, W, A, rhs, L,
                 scale, beta, work, jac[a])
         if p + 1 < n_pass:
-            for a in range(start, stop):
+            for r in range(m):
+                a = rows[r]
                 if status[a] != ADAPTIVE_FAILED:
                     for i in range(2):
                         for j in range(2):
-                            pilot[a - start, i, j] = jac[a, i, j]
+                            pilot[r, i, j] = jac[a, i, j]
 
 
 @njit(**JIT_OPTIONS)
@@ -1453,6 +1470,21 @@ def adaptive_batch_knn(t1, t2, nbr, noise1, noise2, s1, s2, chi2_crit, min_extra
     error of its logarithm, the status code and the error's degrees of
     freedom. The neighbour rows stay fixed.
     """
+    need = np.ones(noise1.shape[:2], dtype=np.bool_)
+    adaptive_batch_rows_knn(t1, t2, nbr, noise1, noise2, s1, s2, chi2_crit, min_extra,
+                            report_extra, min_candidates, lookahead, k_dense, n_pass,
+                            weight_power, cond_max, need, det_out, ln_sd_out, status_out,
+                            dof_out)
+
+
+@njit(**JIT_OPTIONS)
+def adaptive_batch_rows_knn(t1, t2, nbr, noise1, noise2, s1, s2, chi2_crit, min_extra,
+                            report_extra, min_candidates, lookahead, k_dense, n_pass,
+                            weight_power, cond_max, need, det_out, ln_sd_out, status_out,
+                            dof_out):
+    """:func:`adaptive_batch_knn` for the pairs of each copy where ``need``
+    (B, N) is true (:func:`adaptive_rows_knn`); the others get a NaN
+    determinant and error and ``ADAPTIVE_FAILED``."""
     nb = noise1.shape[0]
     n = t1.shape[0]
     p1 = np.empty((n, 2))
@@ -1466,9 +1498,14 @@ def adaptive_batch_knn(t1, t2, nbr, noise1, noise2, s1, s2, chi2_crit, min_extra
             for d in range(2):
                 p1[i, d] = t1[i, d] + noise1[k, i, d]
                 p2[i, d] = t2[i, d] + noise2[k, i, d]
-        adaptive_jacobians_knn(p1, p2, nbr, s1, s2, chi2_crit, min_extra, report_extra,
-                               min_candidates, lookahead, k_dense, n_pass, weight_power, cond_max,
-                               jac, sd, st, df)
+        for i in range(n):
+            jac[i, :, :] = np.nan
+            sd[i] = np.nan
+            st[i] = ADAPTIVE_FAILED
+            df[i] = 0.0
+        adaptive_rows_knn(p1, p2, nbr, s1, s2, chi2_crit, min_extra, report_extra,
+                          min_candidates, lookahead, k_dense, n_pass, weight_power, cond_max,
+                          np.flatnonzero(need[k]), jac, sd, st, df)
         for i in range(n):
             det_out[k, i] = jac[i, 0, 0] * jac[i, 1, 1] - jac[i, 0, 1] * jac[i, 1, 0]
             ln_sd_out[k, i] = sd[i]

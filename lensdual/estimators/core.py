@@ -338,8 +338,10 @@ def _adaptive(t1, t2, sigma, wp, max_neighbours=DEFAULT_MAX_NEIGHBOURS):
     jac, ln_sd, status, dof = _adaptive_forward(t1, t2, sigma, wp, max_neighbours)
     reverse = np.zeros(t1.shape[0], dtype=bool)
     if _ADAPTIVE_REVERSE and not _testable_codes(status).all():
+        # the reverse fit of the pairs that need it only (the others: "failed")
         jr, sr, str_, dr = _adaptive_forward(t2, t1, np.ascontiguousarray(sigma[::-1]), wp,
-                                             max_neighbours)
+                                             max_neighbours,
+                                             rows=np.flatnonzero(~_testable_codes(status)))
         with np.errstate(invalid="ignore"):
             reverse = _reverse_wins(status, str_, np.linalg.det(jr))
         jac[reverse] = np.linalg.inv(jr[reverse])
@@ -349,27 +351,30 @@ def _adaptive(t1, t2, sigma, wp, max_neighbours=DEFAULT_MAX_NEIGHBOURS):
     return jac, ln_sd, status, dof, reverse
 
 
-def _adaptive_forward(t1, t2, sigma, wp, max_neighbours=DEFAULT_MAX_NEIGHBOURS):
+def _adaptive_forward(t1, t2, sigma, wp, max_neighbours=DEFAULT_MAX_NEIGHBOURS, rows=None):
     """Run the adaptive kernel on the L2-to-L1 map: Jacobians, errors of
-    ln|det J|, status codes and the errors' degrees of freedom."""
+    ln|det J|, status codes and the errors' degrees of freedom; for the pairs
+    ``rows`` only where given (the others NaN and "failed"; each pair's
+    estimate is the same as in a run on every pair)."""
     n = t1.shape[0]
     nbr = _neighbour_rows(t2, max_neighbours)
-    jac = np.empty((n, 2, 2))
-    ln_sd = np.empty(n)
-    status = np.empty(n, dtype=np.int64)
-    dof = np.empty(n)
+    jac = np.full((n, 2, 2), np.nan)
+    ln_sd = np.full(n, np.nan)
+    status = np.full(n, _kernels.ADAPTIVE_FAILED, dtype=np.int64)
+    dof = np.zeros(n)
+    rows = np.arange(n) if rows is None else np.asarray(rows, dtype=np.int64)
     settings = _adaptive_settings(nbr, n, wp)
     threads = available_threads(_MAX_THREADS)
-    if n < _THREAD_MIN_PAIRS or threads < 2:
-        _kernels.adaptive_jacobians_knn(t1, t2, nbr, sigma[0], sigma[1], *settings, jac, ln_sd,
-                                        status, dof)
+    if rows.size < _THREAD_MIN_PAIRS or threads < 2:
+        _kernels.adaptive_rows_knn(t1, t2, nbr, sigma[0], sigma[1], *settings, rows, jac, ln_sd,
+                                   status, dof)
         return jac, ln_sd, status, dof
-    # independent pairs: ranges in threads (same result as one call, bit for bit)
-    edges = np.linspace(0, n, 4 * threads + 1).astype(int)
+    # independent pairs: chunks in threads (same result as one call, bit for bit)
+    edges = np.linspace(0, rows.size, 4 * threads + 1).astype(int)
 
     def run(i):
-        _kernels.adaptive_range_knn(t1, t2, nbr, sigma[0], sigma[1], *settings,
-                                    int(edges[i]), int(edges[i + 1]), jac, ln_sd, status, dof)
+        _kernels.adaptive_rows_knn(t1, t2, nbr, sigma[0], sigma[1], *settings,
+                                   rows[edges[i]:edges[i + 1]], jac, ln_sd, status, dof)
 
     with ThreadPoolExecutor(threads) as pool:
         list(pool.map(run, range(len(edges) - 1)))
@@ -395,9 +400,10 @@ def _adaptive_batch(t1, t2, noise1, noise2, sigma, wp=2.0,
     # the copies that need it only
     rows = np.flatnonzero(~testable.all(axis=1)) if _ADAPTIVE_REVERSE else np.empty(0, int)
     if rows.size:
+        # and on their untestable pairs only
         dr, sr, str_, dfr = _adaptive_batch_forward(t2, t1, noise2[rows], noise1[rows],
                                                     np.ascontiguousarray(sigma[::-1]), wp,
-                                                    max_neighbours)
+                                                    max_neighbours, need=~testable[rows])
         r, c = np.nonzero(_reverse_wins(status[rows], str_, dr))
         det[rows[r], c] = 1.0 / dr[r, c]
         ln_sd[rows[r], c] = sr[r, c]
@@ -406,17 +412,21 @@ def _adaptive_batch(t1, t2, noise1, noise2, sigma, wp=2.0,
     return np.abs(det), ln_sd, testable, dof
 
 
-def _adaptive_batch_forward(t1, t2, noise1, noise2, sigma, wp, max_neighbours):
+def _adaptive_batch_forward(t1, t2, noise1, noise2, sigma, wp, max_neighbours, need=None):
     """The adaptive kernel on noisy copies, L2-to-L1 map only: signed
-    determinants, errors, status codes and degrees of freedom, each (B, N)."""
+    determinants, errors, status codes and degrees of freedom, each (B, N);
+    where ``need`` (B, N) is given, for those pairs only (the others NaN and
+    "failed")."""
     b, n = noise1.shape[:2]
     nbr = _neighbour_rows(t2, max_neighbours)
     det = np.empty((b, n))
     ln_sd = np.empty((b, n))
     status = np.empty((b, n), dtype=np.int64)
     dof = np.empty((b, n))
-    _kernels.adaptive_batch_knn(t1, t2, nbr, noise1, noise2, sigma[0], sigma[1],
-                                *_adaptive_settings(nbr, n, wp), det, ln_sd, status, dof)
+    need = np.ones((b, n), dtype=bool) if need is None else np.ascontiguousarray(need)
+    _kernels.adaptive_batch_rows_knn(t1, t2, nbr, noise1, noise2, sigma[0], sigma[1],
+                                     *_adaptive_settings(nbr, n, wp), need, det, ln_sd, status,
+                                     dof)
     return det, ln_sd, status, dof
 
 
