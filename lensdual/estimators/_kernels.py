@@ -1096,12 +1096,7 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
     best_sd = np.inf
     best_g2 = 0.0
     best_rank = np.inf
-    best_fb = np.inf
-    best_un = np.inf
     found = False
-    fallback = False
-    untestable = False
-    ju = np.empty((2, 2))
     cand_ln = np.empty(4 * n)
     cand_var = np.empty(4 * n)
     cand_k = np.empty(4 * n, dtype=np.int64)
@@ -1110,22 +1105,19 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
     n_cand = 0
     n_consistent = 0
     k_last = 0
-    best_fb_ln = 0.0
-    best_fb_k = 0
-    best_fb_dr = 0
-    best_fb_dof = 0.0
-    best_fb_curv = 0.0
-    best_fb_g2 = 0.0
-    best_un_g2 = 0.0
-    best_un_dof = 0.0
-    best_un_ln = 0.0
-    best_un_k = 0
-    best_un_dr = 0
-    best_un_curv = 0.0
+    # the fallback fits while none passes, by slot: 0 the best self-consistent
+    # one, 1 the least-bad of the others (smallest PRESS-scaled error each)
+    fb_sd = np.full(2, np.inf)
+    fb_ln = np.zeros(2)
+    fb_k = np.zeros(2, dtype=np.int64)
+    fb_dr = np.zeros(2, dtype=np.int64)
+    fb_dof = np.zeros(2)
+    fb_curv = np.zeros(2)
+    fb_g2 = np.zeros(2)
+    jfb = np.empty((2, 2, 2))
     cov = np.empty((2, 3))
     spow = np.empty(4)
     jb = np.empty((2, 2))
-    jf = np.empty((2, 2))
     ywy = np.zeros(2)
     cov_o = np.empty((2, 4, 4))
     grad_o = np.empty(4)
@@ -1298,36 +1290,23 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
                     n_cand += 1
                 if consistent:
                     n_consistent += 1
-                    if sdf < best_fb:
-                        best_fb_ln = np.log(abs(det))
-                        best_fb_k = kk
-                        best_fb_dr = dt + report_extra
-                        best_fb = sdf
-                        best_fb_dof = float(dof_r)
-                        best_fb_g2 = _centre_gradient2(L, pr, scale, work, beta, g00, g01, g10,
-                                                       g11, hmax, cov_o)
-                        # curvature: the largest change of ln|det J| over the
-                        # neighbourhood that the fit's second-order terms predict,
-                        # less twice its noise (a noisy fit's second-order terms
-                        # would otherwise pass for curvature)
-                        best_fb_curv = _order_change(L, pr, scale, work, beta, U, kk, g00,
-                                                     g01, g10, g11, hmax, _ADAPTIVE_CURV_NSIG,
-                                                     2, cov_o, grad_o)
-                        fallback = True
-                        _rotate_back(c, s, jr00, jr01, jr10, jr11, jf)
-                elif sdf < best_un:
-                    best_un = sdf
-                    best_un_ln = np.log(abs(det))
-                    best_un_k = kk
-                    best_un_dr = dt + report_extra
-                    best_un_curv = _order_change(L, pr, scale, work, beta, U, kk, g00, g01, g10,
-                                                 g11, hmax, _ADAPTIVE_CURV_NSIG, 2, cov_o,
-                                                 grad_o)
-                    best_un_dof = float(dof_r)
-                    best_un_g2 = _centre_gradient2(L, pr, scale, work, beta, g00, g01, g10, g11,
-                                                   hmax, cov_o)
-                    untestable = True
-                    _rotate_back(c, s, jr00, jr01, jr10, jr11, ju)
+                slot = 0 if consistent else 1
+                if sdf < fb_sd[slot]:
+                    fb_sd[slot] = sdf
+                    fb_ln[slot] = np.log(abs(det))
+                    fb_k[slot] = kk
+                    fb_dr[slot] = dt + report_extra
+                    fb_dof[slot] = float(dof_r)
+                    fb_g2[slot] = _centre_gradient2(L, pr, scale, work, beta, g00, g01, g10,
+                                                    g11, hmax, cov_o)
+                    # curvature: the largest change of ln|det J| over the
+                    # neighbourhood that the fit's second-order terms predict,
+                    # less twice its noise (a noisy fit's second-order terms
+                    # would otherwise pass for curvature)
+                    fb_curv[slot] = _order_change(L, pr, scale, work, beta, U, kk, g00, g01,
+                                                  g10, g11, hmax, _ADAPTIVE_CURV_NSIG, 2, cov_o,
+                                                  grad_o)
+                    _rotate_back(c, s, jr00, jr01, jr10, jr11, jfb[slot])
     # the pair's own L2 noise moves the point where the fits take the Jacobian
     # (every offset is measured from it): s2^2 |grad ln|det J||^2
     v_centre = s2[a] * s2[a]
@@ -1337,21 +1316,17 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
         if best_lin and n >= _ncoef(3) + min_extra:
             bias2 = _cubic_alias_bias2(A, L, scale, rhs, beta, work, cov_o, best_v3)
         return np.sqrt(best_sd * best_sd + v_centre * best_g2 + bias2), ADAPTIVE_OK, np.inf
-    if fallback:
-        _copy_jacobian(jf, jac_out)
-        model = _model_error(cand_ln, cand_var, cand_k, cand_dr, cand_ok, n_cand, best_fb_ln,
-                             best_fb_k, best_fb_dr, lookahead, best_fb_curv)
-        sd = np.sqrt(best_fb * best_fb + model + v_centre * best_fb_g2)
-        if n_consistent >= min_candidates:
-            return sd, ADAPTIVE_MISFIT, best_fb_dof
-        # one self-consistent fit only: the error is reported, the pair not tested
-        return sd, ADAPTIVE_UNTESTABLE, best_fb_dof
-    if untestable:  # no fit is consistent with the noise: reported, not tested
-        _copy_jacobian(ju, jac_out)
-        model = _model_error(cand_ln, cand_var, cand_k, cand_dr, cand_ok, n_cand, best_un_ln,
-                             best_un_k, best_un_dr, lookahead, best_un_curv)
-        return (np.sqrt(best_un * best_un + model + v_centre * best_un_g2), ADAPTIVE_UNTESTABLE,
-                best_un_dof)
+    # else the self-consistent fallback fit, or the least-bad one, widened by its
+    # model error; tested ("misfit") only with enough self-consistent fits to
+    # judge that error, otherwise reported with it but "untestable"
+    for slot in range(2):
+        if fb_sd[slot] < np.inf:
+            _copy_jacobian(jfb[slot], jac_out)
+            model = _model_error(cand_ln, cand_var, cand_k, cand_dr, cand_ok, n_cand,
+                                 fb_ln[slot], fb_k[slot], fb_dr[slot], lookahead, fb_curv[slot])
+            sd = np.sqrt(fb_sd[slot] * fb_sd[slot] + model + v_centre * fb_g2[slot])
+            tested = slot == 0 and n_consistent >= min_candidates
+            return sd, ADAPTIVE_MISFIT if tested else ADAPTIVE_UNTESTABLE, fb_dof[slot]
     jac_out[:, :] = np.nan
     return np.nan, ADAPTIVE_FAILED, 0.0
 
@@ -1369,20 +1344,9 @@ def adaptive_jacobians_knn(t1, t2, nbr, s1, s2, chi2_crit, min_extra, report_ext
     with (see :func:`_adaptive_pair`). ``chi2_crit`` must cover ``2 K``
     degrees of freedom.
     """
-    adaptive_range_knn(t1, t2, nbr, s1, s2, chi2_crit, min_extra, report_extra,
-                       min_candidates, lookahead, k_dense, n_pass, weight_power, cond_max, 0,
-                       t1.shape[0], jac, ln_sd, status, dof)
-
-
-@njit(**JIT_OPTIONS)
-def adaptive_range_knn(t1, t2, nbr, s1, s2, chi2_crit, min_extra, report_extra,
-                       min_candidates, lookahead, k_dense, n_pass, weight_power, cond_max,
-                       start, stop, jac, ln_sd, status, dof):
-    """:func:`adaptive_jacobians_knn` for the pairs ``start <= a < stop`` only
-    (:func:`adaptive_rows_knn` on that range)."""
     adaptive_rows_knn(t1, t2, nbr, s1, s2, chi2_crit, min_extra, report_extra, min_candidates,
-                      lookahead, k_dense, n_pass, weight_power, cond_max,
-                      np.arange(start, stop), jac, ln_sd, status, dof)
+                      lookahead, k_dense, n_pass, weight_power, cond_max, np.arange(t1.shape[0]),
+                      jac, ln_sd, status, dof)
 
 
 @njit(**JIT_OPTIONS)
@@ -1462,29 +1426,16 @@ def adaptive_jacobians(t1, t2, s1, s2, chi2_crit, min_extra, report_extra,
 @njit(**JIT_OPTIONS)
 def adaptive_batch_knn(t1, t2, nbr, noise1, noise2, s1, s2, chi2_crit, min_extra,
                        report_extra, min_candidates, lookahead, k_dense, n_pass, weight_power,
-                       cond_max, det_out, ln_sd_out, status_out, dof_out):
+                       cond_max, need, det_out, ln_sd_out, status_out, dof_out):
     """The adaptive estimator on ``B`` noisy copies of a constellation.
 
     ``noise1``, ``noise2`` are (B, N, 2) offsets; ``det_out``, ``ln_sd_out``,
     ``status_out`` and ``dof_out`` (B, N) receive the signed determinant, the
     error of its logarithm, the status code and the error's degrees of
-    freedom. The neighbour rows stay fixed.
+    freedom, for the pairs of each copy where ``need`` (B, N) is true
+    (:func:`adaptive_rows_knn`); the others get a NaN determinant and error
+    and ``ADAPTIVE_FAILED``. The neighbour rows stay fixed.
     """
-    need = np.ones(noise1.shape[:2], dtype=np.bool_)
-    adaptive_batch_rows_knn(t1, t2, nbr, noise1, noise2, s1, s2, chi2_crit, min_extra,
-                            report_extra, min_candidates, lookahead, k_dense, n_pass,
-                            weight_power, cond_max, need, det_out, ln_sd_out, status_out,
-                            dof_out)
-
-
-@njit(**JIT_OPTIONS)
-def adaptive_batch_rows_knn(t1, t2, nbr, noise1, noise2, s1, s2, chi2_crit, min_extra,
-                            report_extra, min_candidates, lookahead, k_dense, n_pass,
-                            weight_power, cond_max, need, det_out, ln_sd_out, status_out,
-                            dof_out):
-    """:func:`adaptive_batch_knn` for the pairs of each copy where ``need``
-    (B, N) is true (:func:`adaptive_rows_knn`); the others get a NaN
-    determinant and error and ``ADAPTIVE_FAILED``."""
     nb = noise1.shape[0]
     n = t1.shape[0]
     p1 = np.empty((n, 2))
@@ -1517,7 +1468,9 @@ def adaptive_batch_rows_knn(t1, t2, nbr, noise1, noise2, s1, s2, chi2_crit, min_
 def adaptive_batch(t1, t2, noise1, noise2, s1, s2, chi2_crit, min_extra, report_extra,
                    min_candidates, lookahead, k_dense, n_pass, weight_power, cond_max, det_out,
                    ln_sd_out, status_out, dof_out):
-    """:func:`adaptive_batch_knn` with every point for every pair (no cap)."""
+    """:func:`adaptive_batch_knn` with every point for every pair (no cap), on
+    every pair of every copy."""
     adaptive_batch_knn(t1, t2, all_rows(t1.shape[0]), noise1, noise2, s1, s2, chi2_crit,
                        min_extra, report_extra, min_candidates, lookahead, k_dense, n_pass,
-                       weight_power, cond_max, det_out, ln_sd_out, status_out, dof_out)
+                       weight_power, cond_max, np.ones(noise1.shape[:2], dtype=np.bool_),
+                       det_out, ln_sd_out, status_out, dof_out)

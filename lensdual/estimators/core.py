@@ -337,11 +337,11 @@ def _adaptive(t1, t2, sigma, wp, max_neighbours=DEFAULT_MAX_NEIGHBOURS):
     """
     jac, ln_sd, status, dof = _adaptive_forward(t1, t2, sigma, wp, max_neighbours)
     reverse = np.zeros(t1.shape[0], dtype=bool)
-    if _ADAPTIVE_REVERSE and not _testable_codes(status).all():
+    need = np.flatnonzero(~_testable_codes(status))
+    if _ADAPTIVE_REVERSE and need.size:
         # the reverse fit of the pairs that need it only (the others: "failed")
         jr, sr, str_, dr = _adaptive_forward(t2, t1, np.ascontiguousarray(sigma[::-1]), wp,
-                                             max_neighbours,
-                                             rows=np.flatnonzero(~_testable_codes(status)))
+                                             max_neighbours, rows=need)
         with np.errstate(invalid="ignore"):
             reverse = _reverse_wins(status, str_, np.linalg.det(jr))
         jac[reverse] = np.linalg.inv(jr[reverse])
@@ -424,9 +424,8 @@ def _adaptive_batch_forward(t1, t2, noise1, noise2, sigma, wp, max_neighbours, n
     status = np.empty((b, n), dtype=np.int64)
     dof = np.empty((b, n))
     need = np.ones((b, n), dtype=bool) if need is None else np.ascontiguousarray(need)
-    _kernels.adaptive_batch_rows_knn(t1, t2, nbr, noise1, noise2, sigma[0], sigma[1],
-                                     *_adaptive_settings(nbr, n, wp), need, det, ln_sd, status,
-                                     dof)
+    _kernels.adaptive_batch_knn(t1, t2, nbr, noise1, noise2, sigma[0], sigma[1],
+                                *_adaptive_settings(nbr, n, wp), need, det, ln_sd, status, dof)
     return det, ln_sd, status, dof
 
 
