@@ -1462,15 +1462,3 @@ def adaptive_batch_knn(t1, t2, nbr, noise1, noise2, s1, s2, chi2_crit, min_extra
             ln_sd_out[k, i] = sd[i]
             status_out[k, i] = st[i]
             dof_out[k, i] = df[i]
-
-
-@njit(**JIT_OPTIONS)
-def adaptive_batch(t1, t2, noise1, noise2, s1, s2, chi2_crit, min_extra, report_extra,
-                   min_candidates, lookahead, k_dense, n_pass, weight_power, cond_max, det_out,
-                   ln_sd_out, status_out, dof_out):
-    """:func:`adaptive_batch_knn` with every point for every pair (no cap), on
-    every pair of every copy."""
-    adaptive_batch_knn(t1, t2, all_rows(t1.shape[0]), noise1, noise2, s1, s2, chi2_crit,
-                       min_extra, report_extra, min_candidates, lookahead, k_dense, n_pass,
-                       weight_power, cond_max, np.ones(noise1.shape[:2], dtype=np.bool_),
-                       det_out, ln_sd_out, status_out, dof_out)
