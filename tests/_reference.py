@@ -6,6 +6,7 @@ Numba kernels of :mod:`lensdual.estimators._kernels` against them.
 """
 
 import numpy as np
+from scipy.stats import chi2 as _chi2_dist
 
 
 def baselines(theta, a):
@@ -284,15 +285,25 @@ def _two_scale(t1, t2, a, order, h, b, s1, s2, pilot):
     return jac, (g @ v_b @ g.T)[np.ix_(sel, sel)]
 
 
+def _linear_passes(t1, t2, a, idx, s1, s2, pilot, chi2_crit, nest_crit):
+    """The linear test of a neighbourhood: its chi-square at the suite's level
+    and, with ``nest_crit``, the likelihood-ratio test against the quadratic
+    on the same points (the chi-square the quadratic terms remove)."""
+    chi2 = _gls_fit(t1, t2, a, idx, 1, s1, s2, pilot)[2]
+    if chi2 > chi2_crit[2 * (len(idx) - 3)]:
+        return False
+    return nest_crit is None or chi2 - _gls_fit(t1, t2, a, idx, 2, s1, s2, pilot)[2] <= nest_crit
+
+
 def _two_scale_best(t1, t2, a, order, s1, s2, pilot, chi2_crit, min_extra, g_pilot, best,
-                    top_coef, top_nsig, two_gate, two_gate_nsig):
+                    top_coef, top_nsig, two_gate, two_gate_nsig, nest_crit):
     """The best-ranked of ``best`` (J, sd, rank, g2; or None) and the two-scale
     estimates of pair ``a``: a linear fit that passed its test, corrected by
     the quadratic terms of a larger neighbourhood whose quadratic fit passed
     its own, where that quadratic is known to be gentle."""
     n = len(t1)
     lin = [k for k in range(6 + min_extra, n + 1)
-           if _gls_fit(t1, t2, a, order[:k], 1, s1, s2, pilot)[2] <= chi2_crit[2 * (k - 3)]]
+           if _linear_passes(t1, t2, a, order[:k], s1, s2, pilot, chi2_crit, nest_crit)]
     for b in range(6 + min_extra, n + 1):
         if not lin or lin[0] >= b:
             continue
@@ -341,8 +352,11 @@ def _cubic_alias_bias2(t1, t2, a, idx, s1, s2, pilot, j, n_sig):
 
 def adaptive(t1, t2, s1, s2, pilot, chi2_crit, min_extra=1, report_extra=1, min_candidates=2,
              lookahead=5, curv_coef=0.1, top_coef=0.6, top_nsig=1.5, two_gate=0.5,
-             two_gate_nsig=2.0, cubic_nsig=1.5):
+             two_gate_nsig=2.0, cubic_nsig=1.5, nest_alpha=0.01):
     """One pass of the adaptive estimator given pilot Jacobians (N, 2, 2).
+
+    ``nest_alpha`` is the level of the nested test that a passing linear fit
+    also needs (its quadratic terms insignificant; None: no such test).
 
     Returns J (N, 2, 2), the error of ln|det J|, the status (0 ok,
     1 misfit, 2 failed, 3 untestable) and the degrees of freedom of the
@@ -355,6 +369,7 @@ def adaptive(t1, t2, s1, s2, pilot, chi2_crit, min_extra=1, report_extra=1, min_
     sd = np.full(n, np.nan)
     status = np.full(n, 2)
     dofs = np.zeros(n)
+    nest_crit = None if nest_alpha is None else _chi2_dist.isf(nest_alpha, 6)
     for a in range(n):
         order = np.argsort(((t2 - t2[a]) ** 2).sum(axis=1), kind="stable")
         # passing fits are ranked by the variance of ln|det J| along the pilot's
@@ -374,7 +389,9 @@ def adaptive(t1, t2, s1, s2, pilot, chi2_crit, min_extra=1, report_extra=1, min_
                 det = np.linalg.det(j)
                 s, rank = _error_and_rank(j, cj, g_pilot)
                 reported[(dr, k)] = (np.log(abs(det)), s**2)
-                if chi2 <= chi2_crit[dof]:
+                # a linear test also needs its quadratic terms insignificant
+                nested_ok = dt != 1 or nest_crit is None or chi2 - chi2_r <= nest_crit
+                if chi2 <= chi2_crit[dof] and nested_ok:
                     # the truncation the fit cannot test: its top-order change
                     rank += (top_coef * _top_change(t1, t2, a, idx, dr, s1, s2, pilot[a],
                                                     n_sig=top_nsig)) ** 2
@@ -400,7 +417,8 @@ def adaptive(t1, t2, s1, s2, pilot, chi2_crit, min_extra=1, report_extra=1, min_
                              _centre_gradient2(t1, t2, a, idx, dr, s1, s2, pilot[a]))
         if report_extra == 1:
             best = _two_scale_best(t1, t2, a, order, s1, s2, pilot[a], chi2_crit, min_extra,
-                                   g_pilot, best, top_coef, top_nsig, two_gate, two_gate_nsig)
+                                   g_pilot, best, top_coef, top_nsig, two_gate, two_gate_nsig,
+                                   nest_crit)
         # the pair's own L2 noise moves the point where the fits take J
         v_centre = s2[a] ** 2
         if best is not None:

@@ -476,6 +476,14 @@ _ADAPTIVE_TWO_GATE_NSIG = 2.0
 # less _ADAPTIVE_CUBIC_NSIG times that estimate's noise: see _cubic_alias_bias2
 _ADAPTIVE_CUBIC_BIAS = True
 _ADAPTIVE_CUBIC_NSIG = 1.5
+# A linear test also needs the quadratic terms of its neighbourhood to be
+# insignificant: the likelihood-ratio (nested) test of the linear against the
+# quadratic fit on the same points, 2 x 3 degrees of freedom, at
+# _ADAPTIVE_NEST_ALPHA (0.01; the critical value below is
+# scipy.stats.chi2.isf(0.01, 6), checked by the tests). See _adaptive_pair.
+_ADAPTIVE_NEST = True
+_ADAPTIVE_NEST_ALPHA = 0.01
+_ADAPTIVE_NEST_CRIT6 = 16.811893829770927
 
 
 @njit(**JIT_OPTIONS)
@@ -899,6 +907,22 @@ def _cubic_alias_bias2(A, L, scale, rhs, beta, work, cov_o, v3):
 
 
 @njit(**JIT_OPTIONS)
+def _nested_chi2(L, p, scale, rhs, ywy, sol):
+    """Weighted chi-square of both components' fits with ``p`` coefficients
+    (the leading block of the factors ``L``), from the normal sums alone: at
+    the least-squares solution ``beta`` (into ``sol``), ``r^T W r = y^T W y -
+    beta^T rhs``."""
+    chi2 = 0.0
+    for comp in range(2):
+        _factored_solve(L[comp], p, scale, rhs[comp], sol[comp])
+        w_sum = ywy[comp]
+        for i in range(p):
+            w_sum -= sol[comp, i] * rhs[comp, i]
+        chi2 += max(w_sum, 0.0)
+    return chi2
+
+
+@njit(**JIT_OPTIONS)
 def _model_error(cand_ln, cand_var, cand_k, cand_dr, cand_ok, n_cand, ln_c, k_c, dr_c,
                  lookahead, curv):
     """Model error (variance of ``ln|det J|``) of the chosen fallback fit
@@ -1134,6 +1158,7 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
     s33 = np.empty((2, 3, 3))
     qv = np.array([q00, q01, q10, q11])  # the pilot's gradient, for _two_scale
     best_lin = False
+    beta_n = np.empty((2, _ADAPTIVE_NCOEF_MAX))
     best_v3 = np.empty((2, 4))
     rhs_al6 = np.empty(6)
     sol_al6 = np.empty(6)
@@ -1183,18 +1208,14 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
             if kk < pr + min_extra and not bias_fit:
                 continue
             # test fit: chi-square of both components at degree dt
-            chi2 = 0.0
             if n_fac < pt:
                 continue
-            for comp in range(2):
-                _factored_solve(L[comp], pt, scale, rhs[comp], beta[comp])
-                # at the least-squares solution, r^T W r = y^T W y - beta^T rhs
-                w_sum = ywy[comp]
-                for i in range(pt):
-                    w_sum -= beta[comp, i] * rhs[comp, i]
-                chi2 += max(w_sum, 0.0)
+            chi2 = _nested_chi2(L, pt, scale, rhs, ywy, beta)
             dof = 2 * (kk - pt)
             passed = chi2 <= chi2_crit[dof]
+            if passed and dt == 1 and pr - pt == 3 and n_fac >= pr and _ADAPTIVE_NEST:
+                # the nested test: the chi-square the quadratic terms remove
+                passed = chi2 - _nested_chi2(L, pr, scale, rhs, ywy, beta_n) <= _ADAPTIVE_NEST_CRIT6
             if passed and two_scale and dt == 1:
                 # keep the linear fit: a quadratic fit of a larger neighbourhood
                 # that passes its own test may correct its bias (_two_scale)

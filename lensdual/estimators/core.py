@@ -545,7 +545,9 @@ def size_magnification(
     position errors of both arcs enter as the effective variance
     ``sigma1^2 + sigma2^2 J J^T`` of each point. A fit of degree ``d`` is
     accepted when its chi-square is consistent with those errors (5 %
-    test); the estimate of that neighbourhood is then the fit of degree
+    test; a linear fit also needs its quadratic terms to be insignificant,
+    by the likelihood-ratio test against the quadratic at 1 %); the
+    estimate of that neighbourhood is then the fit of degree
     ``d + 1`` on the same points, whose truncation bias is one order
     smaller than the tested fit's misfit (robust bias correction). A
     linear fit that passed its test may also take its bias correction from
