@@ -35,9 +35,9 @@ noise, and each estimator is run on them. Reported per cell:
 
 Families: those of :mod:`lensdual.simulation.families` (cluster fold and
 cusp with members, a galaxy-scale EPL + shear fold, the SMACS0723 analogue,
-the real SMACS0723 Lenstool model, and four CATS Lenstool models no choice
-was tuned on, MACS J1149, Abell 2744, Abell 370 and Abell S1063, where
-``../shared/data`` is present),
+the real SMACS0723 Lenstool model, and four CATS Lenstool models added as
+lenses the estimator was not developed on, MACS J1149, Abell 2744, Abell
+370 and Abell S1063, where ``../shared/data`` is present),
 each with 8, 20 and 40 resolvable sources. ``ffr_exact`` uses exact flux
 ratios (quoted errors 1 % per image), ``ffr`` noisy ones.
 """

@@ -15,7 +15,8 @@ flags), to paste into
 
 import argparse
 
-#: The families no choice of the estimator was tuned on (their own tables).
+#: The families added as lenses the estimator was not developed on (their own
+#: tables; the calibration page says which later choices looked at them).
 UNTUNED = ("macs1149_lenstool", "a2744_lenstool", "a370_lenstool", "as1063_lenstool")
 
 

@@ -964,8 +964,13 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
     so each is a weighted polynomial fit of its own. Candidate fits use the
     ``k`` nearest neighbours of ``a`` in L2 (``a`` included): a fit of degree
     ``d`` (1 or 2) tests whether the map is that smooth there (chi-square of
-    both components against ``chi2_crit[dof]``), and the estimate reported
-    for that neighbourhood is the fit of degree ``d + report_extra`` on the
+    both components against ``chi2_crit[dof]``; a linear one also needs the
+    quadratic terms of the same points to be insignificant, the nested
+    likelihood-ratio test at ``_ADAPTIVE_NEST_ALPHA``: the chi-square test
+    spreads its power over ``2 (k - 3)`` degrees of freedom and passes large
+    neighbourhoods whose curvature the nested test sees plainly, and with it
+    the truncation of the quadratic reported for them), and the estimate
+    reported for that neighbourhood is the fit of degree ``d + report_extra`` on the
     same points, whose truncation bias is one order smaller (robust bias
     correction). A linear fit that passed its test on ``h`` points also
     gives *two-scale* estimates (:func:`_two_scale`): its slopes less the
