@@ -17,7 +17,8 @@ import argparse
 
 #: The families added as lenses the estimator was not developed on (their own
 #: tables; the calibration page says which later choices looked at them).
-UNTUNED = ("macs1149_lenstool", "a2744_lenstool", "a370_lenstool", "as1063_lenstool")
+UNTUNED = ("macs1149_lenstool", "a2744_lenstool", "a370_lenstool", "as1063_lenstool",
+           "as1063_s13_lenstool")
 
 
 def read(path):

@@ -157,7 +157,7 @@ def test_smacs_lenstool_without_data_raises(monkeypatch, tmp_path):
 
 
 @pytest.mark.parametrize("family", ["macs1149_lenstool", "a2744_lenstool", "a370_lenstool",
-                                    "as1063_lenstool"])
+                                    "as1063_lenstool", "as1063_s13_lenstool"])
 def test_hff_lenstool_without_data_raises(family, monkeypatch, tmp_path):
     monkeypatch.setenv("LENSDUAL_HFF_DIR", str(tmp_path))
     monkeypatch.setattr(fam_module, "_calibrated", fam_module._calibrated.__wrapped__)

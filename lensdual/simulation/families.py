@@ -74,6 +74,12 @@ separations on an arc):
     a helper after every choice of the estimator was made; the nested test
     of the adaptive estimator's linear fits was chosen after its first run,
     with it among the families.
+``as1063_s13_lenstool``
+    The same model at the redshift of its system 13 (z = 4.113); sources
+    next to the fold that makes images 13.1 (L1) and 13.2 (L2), 6.5 arcsec
+    apart: ``|mu| ~ 15-31``, ``mu_true`` 1.03-1.16, baselines 1.9-2.6
+    arcsec. The helper's second fold of that model, added after the nested
+    test was chosen: no choice of the estimator looked at it.
 
 How the regions were found
 --------------------------
@@ -124,7 +130,8 @@ __all__ = [
 
 #: The lens families of :func:`clean_constellation`.
 FAMILIES = ("cluster_fold", "cluster_cusp", "galaxy_fold", "smacs_analog", "smacs_lenstool",
-            "macs1149_lenstool", "a2744_lenstool", "a370_lenstool", "as1063_lenstool")
+            "macs1149_lenstool", "a2744_lenstool", "a370_lenstool", "as1063_lenstool",
+            "as1063_s13_lenstool")
 
 #: Folder of the real SMACS0723 Lenstool model (``best.par``) used by the
 #: ``smacs_lenstool`` family; the environment variable
@@ -319,6 +326,24 @@ FAMILY_PARAMETERS = {
                    "grid_spacing": 0.1 * u.arcsec},
         "link_length": 1.0 * u.arcsec,
     },
+    # the smoother fold of the same model the helper found (system 13), added
+    # after the nested test was chosen: no choice looked at it
+    "as1063_s13_lenstool": {
+        "description": ("real CATS Lenstool model of Abell S1063 (2017; gold catalogue; with "
+                        "external shear; no choice of the estimator looked at this fold), fold "
+                        "pair of system 13 (images 13.1 and 13.2, z = 4.113)"),
+        "z_source": 4.113,
+        "lenstool": _hff_model("as1063_s13_lenstool", "CATS Lenstool model of Abell S1063",
+                               "abells1063_gold/best.par"),
+        "fold_point": (8.969, 1.127) * u.arcsec,
+        "normal": (-0.888, -0.459),
+        "distance": (0.05, 0.2) * u.arcsec,
+        "half_length": 0.12 * u.arcsec,
+        "reference": ((4.98, -30.48), (10.74, -27.66)) * u.arcsec,
+        "finder": {"center": (7.3, -29.3) * u.arcsec, "half_width": 8.0 * u.arcsec,
+                   "grid_spacing": 0.1 * u.arcsec},
+        "link_length": 1.0 * u.arcsec,
+    },
 }
 
 
@@ -398,6 +423,7 @@ _LENS_BUILDERS = {
     "a2744_lenstool": _lenstool_system,
     "a370_lenstool": _lenstool_system,
     "as1063_lenstool": _lenstool_system,
+    "as1063_s13_lenstool": _lenstool_system,
 }
 
 
