@@ -712,3 +712,33 @@ def test_own_position_noise_moves_the_point_where_j_is_taken():
     assert np.median(quoted) == pytest.approx(expected, rel=0.15)
     pulls = (ln_mu - np.log(mu0)) / quoted
     assert 0.85 < np.std(pulls) < 1.15
+
+
+def test_missed_targets_of_the_calibration_tables(tmp_path):
+    """benchmarks/calibration_tables.py --targets: each target, read from a
+    calibration.py output written here (one passing cell, one per reason)."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    from calibration_tables import main, missed_targets, read
+
+    head = ("family n_sources method noise_mas n tested ok ffr ffr_u95 ffr_exact pull_med "
+            "pull_w pull_gw bias sig pow10 pow25 pow50")
+    rows = [
+        "cluster_fold 20 adaptive 5 2e+03 1 1 0.002 0.004 0.001 0 0.9 0.9 0.001 0.05 0.2 0.82 0.99",
+        "cluster_fold 40 adaptive 5 4e+03 1 1 0.002 0.004 0.001 0 0.9 0.9 0.001 0.05 0.2 0.79 0.99",
+        "galaxy_fold 8 adaptive 1 800 0.3 0 0 0.004 0 0 0.9 0.9 0 0.05 0 0 0",
+        "galaxy_fold 20 adaptive 2 2e+03 1 1 0.006 0.008 0.006 0 1.3 1.25 0.03 0.06 0 0 0",
+        "galaxy_fold 20 quad2 2 2e+03 1 1 0.5 0.6 0.5 0 5 5 0.3 0.01 1 1 1",
+    ]
+    path = tmp_path / "cal.txt"
+    path.write_text("\n".join([head, *rows]) + "\n")
+    missed = missed_targets(read(path))
+    assert set(missed) == {("cluster_fold", 40, 5.0), ("galaxy_fold", 8, 1.0),
+                           ("galaxy_fold", 20, 2.0)}
+    assert missed[("cluster_fold", 40, 5.0)] == ["power 79 %"]
+    assert missed[("galaxy_fold", 8, 1.0)] == ["30 % of the pairs testable"]
+    assert missed[("galaxy_fold", 20, 2.0)] == ["false flags 0.60 %", "width 1.25",
+                                                "bias 3.00 % (sigma 6.00 %)"]
+    main([str(path), "--targets"])
