@@ -413,17 +413,13 @@ def _lenstool_system(p):
     return read_lenstool(path).lens_system(z_source=p["z_source"])
 
 
+# the builders of the families on lenstronomy profiles; every family whose
+# parameters hold a "lenstool" record is built by _lenstool_system
 _LENS_BUILDERS = {
     "cluster_fold": _cluster_components,
     "cluster_cusp": _cluster_components,
     "galaxy_fold": _galaxy_components,
     "smacs_analog": _smacs_analog_system,
-    "smacs_lenstool": _lenstool_system,
-    "macs1149_lenstool": _lenstool_system,
-    "a2744_lenstool": _lenstool_system,
-    "a370_lenstool": _lenstool_system,
-    "as1063_lenstool": _lenstool_system,
-    "as1063_s13_lenstool": _lenstool_system,
 }
 
 
@@ -517,7 +513,7 @@ def _calibrated(family):
 
 def _build(family, p):
     """The system and info of a family from its parameters (uncached)."""
-    system = _LENS_BUILDERS[family](p)
+    system = (_lenstool_system if "lenstool" in p else _LENS_BUILDERS[family])(p)
     vertices = _region(p)
     centre = _polygon_centroid(vertices)
     info = {
