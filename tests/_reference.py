@@ -296,11 +296,12 @@ def _linear_passes(t1, t2, a, idx, s1, s2, pilot, chi2_crit, nest_crit):
 
 
 def _two_scale_best(t1, t2, a, order, s1, s2, pilot, chi2_crit, min_extra, g_pilot, best,
-                    top_coef, top_nsig, two_gate, two_gate_nsig, nest_crit):
+                    top_coef, top_nsig, two_gate, two_gate_nsig, nest_crit, two_nest_crit):
     """The best-ranked of ``best`` (J, sd, rank, g2; or None) and the two-scale
     estimates of pair ``a``: a linear fit that passed its test, corrected by
     the quadratic terms of a larger neighbourhood whose quadratic fit passed
-    its own, where that quadratic is known to be gentle."""
+    its own (and, with ``two_nest_crit``, the nested test against the cubic),
+    where that quadratic is known to be gentle."""
     n = len(t1)
     lin = [k for k in range(6 + min_extra, n + 1)
            if _linear_passes(t1, t2, a, order[:k], s1, s2, pilot, chi2_crit, nest_crit)]
@@ -309,6 +310,10 @@ def _two_scale_best(t1, t2, a, order, s1, s2, pilot, chi2_crit, min_extra, g_pil
             continue
         _, _, chi2, dof = _gls_fit(t1, t2, a, order[:b], 2, s1, s2, pilot)
         if chi2 > chi2_crit[dof]:
+            continue
+        # its cubic terms insignificant too, where b points allow a cubic
+        if (two_nest_crit is not None and b >= 10 + min_extra
+                and chi2 - _gls_fit(t1, t2, a, order[:b], 3, s1, s2, pilot)[2] > two_nest_crit):
             continue
         for h in (k for k in lin if k < b):
             j, cj = _two_scale(t1, t2, a, order, h, b, s1, s2, pilot)
@@ -352,11 +357,13 @@ def _cubic_alias_bias2(t1, t2, a, idx, s1, s2, pilot, j, n_sig):
 
 def adaptive(t1, t2, s1, s2, pilot, chi2_crit, min_extra=1, report_extra=1, min_candidates=2,
              lookahead=5, curv_coef=0.1, top_coef=0.6, top_nsig=1.5, two_gate=0.5,
-             two_gate_nsig=2.0, cubic_nsig=1.5, nest_alpha=0.01):
+             two_gate_nsig=2.0, cubic_nsig=1.5, nest_alpha=0.01, two_nest_alpha=0.05):
     """One pass of the adaptive estimator given pilot Jacobians (N, 2, 2).
 
     ``nest_alpha`` is the level of the nested test that a passing linear fit
-    also needs (its quadratic terms insignificant; None: no such test).
+    also needs (its quadratic terms insignificant; None: no such test);
+    ``two_nest_alpha`` that of the nested test (cubic terms insignificant)
+    that the larger neighbourhood of a two-scale estimate needs.
 
     Returns J (N, 2, 2), the error of ln|det J|, the status (0 ok,
     1 misfit, 2 failed, 3 untestable) and the degrees of freedom of the
@@ -370,6 +377,7 @@ def adaptive(t1, t2, s1, s2, pilot, chi2_crit, min_extra=1, report_extra=1, min_
     status = np.full(n, 2)
     dofs = np.zeros(n)
     nest_crit = None if nest_alpha is None else _chi2_dist.isf(nest_alpha, 6)
+    two_nest_crit = None if two_nest_alpha is None else _chi2_dist.isf(two_nest_alpha, 8)
     for a in range(n):
         order = np.argsort(((t2 - t2[a]) ** 2).sum(axis=1), kind="stable")
         # passing fits are ranked by the variance of ln|det J| along the pilot's
@@ -418,7 +426,7 @@ def adaptive(t1, t2, s1, s2, pilot, chi2_crit, min_extra=1, report_extra=1, min_
         if report_extra == 1:
             best = _two_scale_best(t1, t2, a, order, s1, s2, pilot[a], chi2_crit, min_extra,
                                    g_pilot, best, top_coef, top_nsig, two_gate, two_gate_nsig,
-                                   nest_crit)
+                                   nest_crit, two_nest_crit)
         # the pair's own L2 noise moves the point where the fits take J
         v_centre = s2[a] ** 2
         if best is not None:

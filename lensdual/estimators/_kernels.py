@@ -484,6 +484,17 @@ _ADAPTIVE_CUBIC_NSIG = 1.5
 _ADAPTIVE_NEST = True
 _ADAPTIVE_NEST_ALPHA = 0.01
 _ADAPTIVE_NEST_CRIT6 = 16.811893829770927
+# The larger neighbourhood of a two-scale estimate (see _two_scale) also needs
+# its cubic terms to be insignificant: the likelihood-ratio test of its
+# quadratic against the cubic on the same points, 2 x 4 degrees of freedom, at
+# _ADAPTIVE_TWO_NEST_ALPHA (0.05; scipy.stats.chi2.isf(0.05, 8) below, checked
+# by the tests). The quadratic terms it lends the smaller fit are otherwise
+# those of a region where the map bends more than a quadratic (a cluster
+# member next to the pair), and the estimate, the most precise of all, is
+# biased by several times its error.
+_ADAPTIVE_TWO_NEST = True
+_ADAPTIVE_TWO_NEST_ALPHA = 0.05
+_ADAPTIVE_TWO_NEST_CRIT8 = 15.507313055865453
 
 
 @njit(**JIT_OPTIONS)
@@ -975,10 +986,13 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
     correction). A linear fit that passed its test on ``h`` points also
     gives *two-scale* estimates (:func:`_two_scale`): its slopes less the
     alias of the quadratic terms of each larger neighbourhood ``b > h``
-    whose quadratic fit passes its own test, provided that quadratic is
-    known to be gentle (its change of ``ln|det J|`` across the ``b``
-    points plus ``_ADAPTIVE_TWO_GATE_NSIG`` times its noise at most
-    ``_ADAPTIVE_TWO_GATE``); its ``c_top`` is that quadratic's change.
+    whose quadratic fit passes its own test and whose cubic terms are
+    insignificant (the nested test of the quadratic against the cubic on the
+    ``b`` points, at ``_ADAPTIVE_TWO_NEST_ALPHA``, where ``b`` is enough for a
+    cubic), provided that quadratic is known to be gentle (its change of
+    ``ln|det J|`` across the ``b`` points plus ``_ADAPTIVE_TWO_GATE_NSIG``
+    times its noise at most ``_ADAPTIVE_TWO_GATE``); its ``c_top`` is that
+    quadratic's change.
     Among the passing estimates, the one whose
     reported fit has the smallest variance of ``ln|det J|`` *along the
     pilot's gradient* plus ``(_ADAPTIVE_TOP_COEF c_top)^2`` wins
@@ -1227,7 +1241,13 @@ def _adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, min_extra, report_e
                 _store_linear(L, scale, A, beta, work, rhs_al, sol_al, h_sl, h_al, h_cv, n_h)
                 h_k[n_h] = kk
                 n_h += 1
-            if passed and bias_fit:
+            # the two-scale estimates also need the quadratic's cubic terms to be
+            # insignificant (the nested test of the larger neighbourhood)
+            two_passed = passed
+            if passed and bias_fit and _ADAPTIVE_TWO_NEST and n_fac >= _ncoef(3):
+                two_passed = (chi2 - _nested_chi2(L, _ncoef(3), scale, rhs, ywy, beta_n)
+                              <= _ADAPTIVE_TWO_NEST_CRIT8)
+            if two_passed and bias_fit:
                 rank2, sd2, g2 = _two_scale(L, scale, work, beta, U, kk, hmax, h_k, h_sl, h_al,
                                             h_cv, n_h, c, s, pilot_ranks, qv, best_rank, s13, s33,
                                             cov_o, grad_o, jb)

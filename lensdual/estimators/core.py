@@ -551,11 +551,12 @@ def size_magnification(
     ``d + 1`` on the same points, whose truncation bias is one order
     smaller than the tested fit's misfit (robust bias correction). A
     linear fit that passed its test may also take its bias correction from
-    a larger neighbourhood whose quadratic fit passed its own: the linear
-    fit's slopes less the alias of that quadratic's terms (a *two-scale*
-    estimate, with less variance than the quadratic on the smaller
-    neighbourhood). It is used only where that quadratic is known to be
-    gentle: the change of ``ln|det J|`` across the larger neighbourhood
+    a larger neighbourhood whose quadratic fit passed its own and whose
+    cubic terms are insignificant (likelihood-ratio test against the cubic
+    at 5 %): the linear fit's slopes less the alias of that quadratic's
+    terms (a *two-scale* estimate, with less variance than the quadratic on
+    the smaller neighbourhood). It is used only where that quadratic is
+    known to be gentle: the change of ``ln|det J|`` across the larger neighbourhood
     that it predicts, plus twice its noise, is at most 0.5. Among
     the accepted estimates the one with the smallest error wins, with
     a penalty for the change of ``ln|det J|`` across the neighbourhood that
