@@ -570,39 +570,28 @@ def test_nested_test_critical_value():
 
 
 @pytest.mark.filterwarnings("ignore::lensdual.exceptions.EstimatorWarning")
-def test_nested_test_of_the_two_scale_neighbourhood_matches_reference():
-    """The larger neighbourhood of a two-scale estimate also needs its cubic
-    terms to be insignificant (likelihood-ratio test, 8 degrees of freedom):
-    on a map with cubic terms (24 points, 10 mas), kernel and twin agree, and
-    the twin without that test chooses other estimates for some "ok" pairs."""
+@pytest.mark.parametrize("coef, noise, off", [
+    # a linear test also needs the quadratic terms of its neighbourhood to be
+    # insignificant (6 degrees of freedom): twice the curvature of _curved_map
+    ((0.12, -0.08, 0.02, 0.0, 0.1, 0.03), 0.02, "nest_alpha"),
+    # the larger neighbourhood of a two-scale estimate also needs its cubic
+    # terms to be insignificant (8 degrees of freedom): a map with cubic terms
+    ((0.06, -0.04, 0.0, 0.1, 0.05, 0.1), 0.01, "two_nest_alpha"),
+])
+def test_nested_tests_match_reference(coef, noise, off):
+    """The nested (likelihood-ratio) tests of steps 2 and 3, on maps where they
+    matter (24 points): kernel and twin agree, and the twin without the test
+    (``off=None``) chooses other estimates for some "ok" pairs (so the test is
+    exercised)."""
     n = 24
     t2 = np.random.default_rng(0).uniform(-1, 1, (n, 2))
     x, y = t2.T
-    t1 = np.column_stack([0.8 * x + 0.2 * y + 0.06 * x**2 - 0.04 * x * y + 0.1 * x**3,
-                          0.1 * x - 0.7 * y + 0.05 * y**2 + 0.1 * x**2 * y])
-    s = np.full(n, 0.01)
+    a, b, c, d, e, f = coef
+    t1 = np.column_stack([0.8 * x + 0.2 * y + a * x**2 + b * x * y + c * y**3 + d * x**3,
+                          0.1 * x - 0.7 * y + e * y**2 + f * x**2 * y])
+    s = np.full(n, noise)
     t1, t2, st, sd_ref, pilot = _kernel_matches_twin(t1, t2, s, np.random.default_rng(10))
-    _, sd_no, st_no, _ = ref.adaptive(t1, t2, s, s, pilot, _chi2_critical(n),
-                                      two_nest_alpha=None)
-    changed = (st == 0) & (st_no == 0) & ~np.isclose(sd_ref, sd_no)
-    assert changed.sum() >= 3
-
-
-@pytest.mark.filterwarnings("ignore::lensdual.exceptions.EstimatorWarning")
-def test_nested_test_of_the_linear_license_matches_reference():
-    """A linear test also needs the quadratic terms of its neighbourhood to be
-    insignificant (likelihood-ratio test, 6 degrees of freedom): on a map with
-    twice the curvature of :func:`_curved_map` at 20 mas, kernel and twin
-    agree, and the twin without the nested test chooses other neighbourhoods
-    for some "ok" pairs (so the test is exercised)."""
-    n = 24
-    t2 = np.random.default_rng(0).uniform(-1, 1, (n, 2))
-    x, y = t2.T
-    t1 = np.column_stack([0.8 * x + 0.2 * y + 0.12 * x**2 - 0.08 * x * y + 0.02 * y**3,
-                          0.1 * x - 0.7 * y + 0.1 * y**2 + 0.03 * x**2 * y])
-    s = np.full(n, 0.02)
-    t1, t2, st, sd_ref, pilot = _kernel_matches_twin(t1, t2, s, np.random.default_rng(10))
-    _, sd_no, st_no, _ = ref.adaptive(t1, t2, s, s, pilot, _chi2_critical(n), nest_alpha=None)
+    _, sd_no, st_no, _ = ref.adaptive(t1, t2, s, s, pilot, _chi2_critical(n), **{off: None})
     changed = (st == 0) & (st_no == 0) & ~np.isclose(sd_ref, sd_no)
     assert changed.sum() >= 3
 
