@@ -556,8 +556,8 @@ def size_magnification(
     at 5 %): the linear fit's slopes less the alias of that quadratic's
     terms (a *two-scale* estimate, with less variance than the quadratic on
     the smaller neighbourhood). It is used only where that quadratic is
-    known to be gentle: the change of ``ln|det J|`` across the larger neighbourhood
-    that it predicts, plus twice its noise, is at most 0.5. Among
+    known to be gentle: the change of ``ln|det J|`` across the larger
+    neighbourhood that it predicts, plus twice its noise, is at most 0.5. Among
     the accepted estimates the one with the smallest error wins, with
     a penalty for the change of ``ln|det J|`` across the neighbourhood that
     the reported fit's highest-degree terms predict beyond their noise (a
