@@ -5,13 +5,19 @@ detection catalogues and manual pairs.)
 
 Every command writes into a temporary sibling of its output directory and moves
 the files there only once all of them have been written
-(:func:`atomic_directory`); a manifest lists what lensdual wrote, so that stale
-outputs of an earlier run can be removed without touching other files.
+(:func:`atomic_directory`). A manifest records each file lensdual wrote there
+with its SHA-256 digest, so that lensdual replaces or removes only files that it
+wrote and that nobody changed since; any other file of the directory is left as
+it is, and a run that would replace one stops instead.
 """
 
+import hashlib
+import json
 import os
 import shutil
+import socket
 import tempfile
+import time
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -19,6 +25,9 @@ import numpy as np
 
 #: The file in an output directory that lists what lensdual wrote there.
 MANIFEST = ".lensdual-outputs"
+#: Files that ``lensdual demo --write-config`` writes for the user to run and
+#: edit (a directory ends with "/"): a later command never removes them.
+USER_FILES = ("run.toml", "data/")
 #: The columns of ``pairs.ecsv``, for the commands' help.
 PAIRS_TABLE_COLUMNS_DOC = """\
 pairs.ecsv columns (one row per pair; see the "pairs table" page of the docs):
@@ -28,33 +37,128 @@ flux2_<band>, flux_err1_<band>, flux_err2_<band>, jacobian, parity, mu_size,
 mu_size_err, mu_size_p16, mu_size_p84, mu_flux_<band>, mu_flux_err_<band>,
 mu_flux, mu_flux_err, duality_ratio, duality_ratio_err, snr, snr_paper,
 anomalous."""
-#: lensdual's own output names, recognised without a manifest (older versions).
-KNOWN_OUTPUTS = ("pairs.ecsv", "catalog_L1.ecsv", "catalog_L2.ecsv", "pairing_map.png",
-                  "duality.png", "report.txt", "parametric.ecsv", "parametric.png",
-                  "truth_comparison.ecsv", "run.toml", "knot_images.ecsv", "pairs.reg",
-                  "sources_L1.reg", "sources_L2.reg", "constellation.png")
+#: The fixed names an image analysis writes at the top of its output directory.
+ANALYSIS_OUTPUTS = ("pairs.ecsv", "catalog_L1.ecsv", "catalog_L2.ecsv", "pairing_map.png",
+                    "duality.png", "report.txt", "pairs.reg", "sources_L1.reg",
+                    "sources_L2.reg", "constellation.png")
+#: The files of the parametric comparison.
+PARAMETRIC_OUTPUTS = ("parametric.ecsv", "parametric.png")
+#: The fixed names of a catalogue-only (knots) run.
+KNOT_OUTPUTS = ("knot_images.ecsv", "report.txt")
+#: A temporary directory whose process is gone is removed after this long when
+#: its name does not say which process made it.
+_ORPHAN_AGE_S = 3600.0
+
+
+class OutputConflictError(FileExistsError):
+    """A command would replace a file of its output directory that lensdual did not write.
+
+    Nothing is written then; the message names the file.
+    """
+
+
+def _digest(path):
+    """The SHA-256 digest of a file's contents (hex)."""
+    sha = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            sha.update(block)
+    return sha.hexdigest()
+
+
+def _is_user_file(name):
+    return any(name == f or (f.endswith("/") and name.startswith(f)) for f in USER_FILES)
+
+
+def read_manifest(outdir):
+    """``{relative name: SHA-256 or None}`` of what lensdual wrote into ``outdir``.
+
+    None stands for a file listed by an older manifest without digests. A
+    missing or unreadable manifest gives an empty dict: then nothing in
+    ``outdir`` counts as lensdual's.
+    """
+    manifest = Path(outdir) / MANIFEST
+    if not manifest.is_file():
+        return {}
+    try:
+        text = manifest.read_text()
+    except (OSError, UnicodeDecodeError):
+        return {}
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError:
+        names = [line.strip() for line in text.splitlines() if line.strip()]
+        return {n: None for n in names if ".." not in Path(n).parts}
+    files = data.get("files", {}) if isinstance(data, dict) else {}
+    return {n: (d if isinstance(d, str) else None) for n, d in files.items()
+            if isinstance(n, str) and ".." not in Path(n).parts}
+
+
+def _unchanged(outdir, name, digest):
+    """Whether ``outdir/name`` is a file lensdual wrote and nobody changed since."""
+    path = outdir / name
+    if not path.is_file():
+        return False
+    return digest is None or _digest(path) == digest
 
 
 def earlier_outputs(outdir):
-    """Files of ``outdir`` that an earlier lensdual run wrote (relative paths)."""
-    manifest = outdir / MANIFEST
-    if manifest.is_file():
-        names = [line.strip() for line in manifest.read_text().splitlines() if line.strip()]
-        return [n for n in names if (outdir / n).is_file() and ".." not in Path(n).parts]
-    found = [n for n in KNOWN_OUTPUTS if (outdir / n).is_file()]
-    found += sorted(p.name for p in outdir.glob("knots_*.ecsv"))
-    found += sorted(p.name for p in outdir.glob("knots_*.png"))
-    return found
+    """Files of ``outdir`` that an earlier lensdual run wrote and nobody changed since.
+
+    The files written for the user (`USER_FILES`) are not among them, nor
+    the files of an older manifest without digests.
+    """
+    outdir = Path(outdir)
+    return [n for n, d in read_manifest(outdir).items()
+            if d is not None and not _is_user_file(n) and _unchanged(outdir, n, d)]
 
 
-def check_output_directory(outdir):
+def conflicting_files(outdir, names):
+    """The files among ``names`` in ``outdir`` that a command may not replace.
+
+    A file may be replaced only when lensdual wrote it there and it is
+    unchanged since (the manifest says so).
+    """
+    outdir = Path(outdir)
+    if not outdir.is_dir():
+        return []
+    manifest = read_manifest(outdir)
+    conflicts = []
+    for name in names:
+        path = outdir / name
+        if not (path.exists() or path.is_symlink()):
+            continue
+        if path.is_symlink() or not path.is_file() or name not in manifest \
+                or not _unchanged(outdir, name, manifest[name]):
+            conflicts.append(name)
+    return conflicts
+
+
+def _conflict_message(outdir, names):
+    listed = ", ".join(names[:5]) + (f" and {len(names) - 5} more" if len(names) > 5 else "")
+    return (f"the output directory {outdir} already holds {listed}, which lensdual did not "
+            "write there or which changed since; lensdual never replaces such files. Move "
+            "them away or choose another output directory (nothing was written)")
+
+
+def check_output_directory(outdir, names=()):
     """Fail early, before any analysis, when ``outdir`` cannot be written.
+
+    Parameters
+    ----------
+    outdir : path-like
+        The output directory.
+    names : sequence of str
+        Names the command will write there: none of them may be a file that
+        lensdual did not write (see `conflicting_files`).
 
     Raises
     ------
     OSError
         ``outdir`` (or a parent) is not a directory, cannot be created, or
         is not writable; the message names the path.
+    OutputConflictError
+        A file of ``names`` in ``outdir`` is not lensdual's to replace.
     """
     outdir = Path(outdir)
     if outdir.exists() and not outdir.is_dir():
@@ -62,7 +166,7 @@ def check_output_directory(outdir):
     parent = outdir.resolve().parent
     try:
         parent.mkdir(parents=True, exist_ok=True)
-        probe = Path(tempfile.mkdtemp(prefix=f".{outdir.name}.probe-", dir=parent))
+        probe = Path(tempfile.mkdtemp(prefix=f".{outdir.resolve().name}.probe-", dir=parent))
         probe.rmdir()
     except OSError as err:
         raise OSError(f"cannot write the output directory {outdir}: {err.strerror or err} "
@@ -70,6 +174,75 @@ def check_output_directory(outdir):
     if outdir.exists() and not os.access(outdir, os.W_OK | os.X_OK):
         raise PermissionError(f"output directory {outdir} is not writable; choose another "
                               "--outdir")
+    conflicts = conflicting_files(outdir, names)
+    if conflicts:
+        raise OutputConflictError(_conflict_message(outdir, conflicts))
+
+
+def _partial_prefix(outdir):
+    return f".{outdir.name}.partial-"
+
+
+def _process_alive(pid):
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def remove_orphaned_partials(outdir):
+    """Remove the temporary directories of killed commands beside ``outdir``.
+
+    A command's temporary directory is named after its host and process; one
+    whose process no longer runs on this host is removed, and so is one of an
+    unknown process that has not changed for an hour. The directories of
+    commands still running are kept.
+
+    Returns
+    -------
+    list of `~pathlib.Path`
+        The directories removed.
+    """
+    outdir = Path(outdir).resolve()
+    prefix = _partial_prefix(outdir)
+    host = socket.gethostname()
+    removed = []
+    if not outdir.parent.is_dir():
+        return removed
+    for path in outdir.parent.glob(prefix + "*"):
+        if not path.is_dir() or path.is_symlink():
+            continue
+        parts = path.name[len(prefix):].split("~")
+        if len(parts) == 3 and parts[1].isdigit():
+            if parts[0] != host or _process_alive(int(parts[1])):
+                continue
+        elif time.time() - path.stat().st_mtime < _ORPHAN_AGE_S:
+            continue
+        shutil.rmtree(path, ignore_errors=True)
+        removed.append(path)
+    return removed
+
+
+def _remove_stale(outdir, stale):
+    """Remove the files ``stale`` of ``outdir``, then their directories left empty."""
+    for name in stale:
+        (outdir / name).unlink(missing_ok=True)
+        parent = (outdir / name).parent
+        while parent != outdir and parent.is_dir() and not any(parent.iterdir()):
+            parent.rmdir()
+            parent = parent.parent
+
+
+def _write_manifest(outdir, written, before):
+    """The manifest of ``outdir``: this run's files and the user files kept from ``before``."""
+    files = {n: d for n, d in before.items()
+             if _is_user_file(n) and n not in written and _unchanged(outdir, n, d)}
+    files.update({n: _digest(outdir / n) for n in written})
+    text = json.dumps({"lensdual_manifest": 2, "files": dict(sorted(files.items()))}, indent=1)
+    (outdir / MANIFEST).write_text(text + "\n")
 
 
 @contextmanager
@@ -77,19 +250,30 @@ def atomic_directory(outdir, removed=None):
     """Write into a temporary sibling of ``outdir``; move the files there on success.
 
     Nothing is left in ``outdir`` when the block raises: files already there
-    are only replaced once every output has been written. Then lensdual's own
-    outputs of an earlier run that this run did not write again are removed
-    (their names are appended to ``removed``), so that no stale file sits
-    next to new ones; other files are never touched.
+    are only replaced once every output has been written, and only when
+    lensdual wrote them and nobody changed them since; any other file of the
+    same name stops the command with `OutputConflictError` before anything
+    is moved. Then lensdual's unchanged outputs of an earlier run that this
+    run did not write again are removed (their names are appended to
+    ``removed``), so that no stale file sits next to new ones; the files
+    written for the user (`USER_FILES`) and all other files are never
+    touched. Temporary directories of killed commands are removed first
+    (`remove_orphaned_partials`).
     """
-    outdir = Path(outdir)
-    parent = outdir.resolve().parent
+    outdir = Path(outdir).resolve()
+    parent = outdir.parent
     parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{outdir.name}.partial-", dir=parent))
+    remove_orphaned_partials(outdir)
+    tmp = Path(tempfile.mkdtemp(
+        prefix=f"{_partial_prefix(outdir)}{socket.gethostname()}~{os.getpid()}~", dir=parent))
     try:
         yield tmp
-        outdir.mkdir(parents=True, exist_ok=True)
         written = sorted(str(p.relative_to(tmp)) for p in tmp.rglob("*") if p.is_file())
+        conflicts = conflicting_files(outdir, written)
+        if conflicts:
+            raise OutputConflictError(_conflict_message(outdir, conflicts))
+        outdir.mkdir(parents=True, exist_ok=True)
+        before = read_manifest(outdir)
         stale = [n for n in earlier_outputs(outdir) if n not in written]
         for path in sorted(tmp.rglob("*")):
             target = outdir / path.relative_to(tmp)
@@ -97,11 +281,10 @@ def atomic_directory(outdir, removed=None):
                 target.mkdir(parents=True, exist_ok=True)
             else:
                 os.replace(path, target)
-        for name in stale:
-            (outdir / name).unlink(missing_ok=True)
+        _write_manifest(outdir, written, before)
+        _remove_stale(outdir, stale)
         if removed is not None:
             removed.extend(stale)
-        (outdir / MANIFEST).write_text("\n".join(written) + "\n")
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
 

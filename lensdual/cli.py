@@ -16,7 +16,8 @@ and writes the files and shows progress. ``analyse``, ``Analysis``,
 :mod:`lensdual.pipeline` and :mod:`lensdual.demo`.
 
 Exit codes: 0 success, 1 the analysis failed, 2 bad command line or
-configuration (nothing is written then).
+configuration (nothing is written then), 130 interrupted by Ctrl-C (nothing is
+written then either).
 """
 
 import argparse
@@ -29,7 +30,10 @@ from pathlib import Path
 # The pipeline and the demo live in lensdual.pipeline and lensdual.demo; the names
 # marked "re-exported" stay importable from lensdual.cli for existing scripts.
 from ._outputs import (
+    ANALYSIS_OUTPUTS,
+    KNOT_OUTPUTS,
     PAIRS_TABLE_COLUMNS_DOC,
+    PARAMETRIC_OUTPUTS,
     atomic_directory,
     check_output_directory,
     fit_kwargs,
@@ -71,7 +75,7 @@ __all__ = [
     "DEMO_SUBHALOES",
 ]
 
-EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
+EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
 
 
 # ---------------------------------------------------------------------------
@@ -153,8 +157,11 @@ def _cmd_demo(args):
     from .simulation import write_mock_images
 
     start = time.perf_counter()
+    names = ANALYSIS_OUTPUTS + ("truth_comparison.ecsv",)
+    names += ("run.toml",) if args.write_config else ()
+    names += PARAMETRIC_OUTPUTS if args.parametric else ()
     try:
-        check_output_directory(args.outdir)
+        check_output_directory(args.outdir, names)
     except OSError as err:
         print(f"lensdual demo: {err}", file=sys.stderr)
         return EXIT_FAILED
@@ -214,8 +221,12 @@ def _cmd_run(args):
     except ConfigError as err:
         print(f"lensdual run: {err}", file=sys.stderr)
         return EXIT_USAGE
+    if config.knots is not None:
+        names = KNOT_OUTPUTS
+    else:
+        names = ANALYSIS_OUTPUTS + (PARAMETRIC_OUTPUTS if config.parametric else ())
     try:
-        check_output_directory(config.outdir)
+        check_output_directory(config.outdir, names)
     except OSError as err:
         print(f"lensdual run: {err}", file=sys.stderr)
         return EXIT_FAILED
@@ -359,13 +370,17 @@ def build_parser():
                     "members, one sub-halo 2 mas from the L2 image of one point source), "
                     "render two-band JWST-like mock images (F150W, F200W), then detect, pair "
                     "automatically, measure by PSF photometry, estimate the size "
-                    "magnification with bootstrap errors and test duality, without using "
+                    "magnification (with errors that include the estimator's own) and test "
+                    "duality, without using "
                     "the truth; at the end, compare with the injected truth. Writes the "
                     "images (FITS), catalogues and the pairs table (ECSV), the pairing map "
                     "and the duality figure (PNG) and a report to OUTDIR.",
         epilog=PAIRS_TABLE_COLUMNS_DOC)
     demo.add_argument("--outdir", default="lensdual-demo", type=Path,
-                      help="output directory (created; files in it are replaced)")
+                      help="output directory (created if needed). lensdual replaces only "
+                           "the files it wrote there itself and nobody changed since, and "
+                           "removes those of its earlier outputs that this run does not "
+                           "write again; the files of --write-config are never removed")
     demo.add_argument("--subhalo", choices=DEMO_SUBHALOES, default="overconcentrated",
                       help="the injected sub-halo: 1e8 Msun with c = 100 "
                            "(overconcentrated), 1e9 Msun (massive) or 1e8 Msun (small) on the "
@@ -375,7 +390,9 @@ def build_parser():
     demo.add_argument("--n-sources", type=_int_range(3, 18), default=12,
                       help="point sources in the constellation (3-18)")
     demo.add_argument("--n-bootstrap", type=_int_range(10), default=1000,
-                      help="bootstrap realisations of the positional noise")
+                      help="bootstrap realisations of the positional noise, for the "
+                           "quad2, quad and 2v estimators (the adaptive estimator's errors "
+                           "are analytic and need none)")
     demo.add_argument("--estimator", choices=sorted(METHODS), default="adaptive",
                       help="size-magnification estimator (adaptive: local fits chosen by the "
                            "data, errors that include the estimator's own; quad2, quad, 2v: "
@@ -404,9 +421,14 @@ def build_parser():
                     "(images, error or weight maps, PSFs per band and arc; optional "
                     "cut-outs, catalogues, manual pairs, parametric models). The whole "
                     "file is checked before any work starts: every problem is listed in "
-                    "one message and the exit code is 2. Outputs (catalogue_L1/L2.ecsv, "
-                    "pairs.ecsv, pairing_map.png, duality.png, report.txt) appear in the "
-                    "output directory only when all of them have been written. "
+                    "one message and the exit code is 2. Outputs (catalog_L1.ecsv, "
+                    "catalog_L2.ecsv, pairs.ecsv, pairing_map.png, duality.png, "
+                    "constellation.png, report.txt, DS9 regions) appear in the output "
+                    "directory only when all of them have been written. A run replaces only "
+                    "the files lensdual wrote there and nobody changed since, removes those "
+                    "of its earlier outputs that it does not write again (and says which), "
+                    "never touches other files, and refuses an output directory that holds "
+                    "any of its inputs. "
                     "'lensdual demo --write-config' writes an example.",
         epilog=PAIRS_TABLE_COLUMNS_DOC + "\n\nThe configuration file (relative paths are "
                "relative to it; angles are strings with units):\n\n" + _config_schema())
@@ -430,14 +452,19 @@ def main(argv=None):
     -------
     int
         The exit code: 0 success, 1 the analysis failed, 2 bad command line or
-        configuration.
+        configuration, 130 interrupted (Ctrl-C).
     """
     parser = build_parser()
     try:
         args = parser.parse_args(argv)
     except SystemExit as exc:  # --help, --version, usage errors
         return int(exc.code or 0)
-    return args.func(args)
+    try:
+        return args.func(args)
+    except KeyboardInterrupt:
+        print(f"\nlensdual {args.command}: interrupted; the output directory was left as it "
+              "was", file=sys.stderr)
+        return EXIT_INTERRUPTED
 
 
 if __name__ == "__main__":  # pragma: no cover

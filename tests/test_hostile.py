@@ -159,22 +159,6 @@ def test_nan_mu_size_is_never_a_pass():
     assert "No pair could be tested" in text and "no conclusion" in text
 
 
-def test_stale_outputs_are_removed_and_other_files_kept(demo_dir, tmp_path, capsys):
-    cfg = absolute_config(demo_dir)
-    out = tmp_path / "out"
-    out.mkdir()
-    for name in ("parametric.ecsv", "parametric.png", "notes.txt"):
-        (out / name).write_text("old")
-    assert main(["run", str(write(tmp_path / "c.toml", cfg)), "--outdir", str(out)]) == 0
-    printed = capsys.readouterr().out
-    assert "Removed 2 output(s) of an earlier lensdual run" in printed
-    assert not (out / "parametric.ecsv").exists() and not (out / "parametric.png").exists()
-    assert (out / "notes.txt").read_text() == "old"
-    # the manifest lists what this run wrote; DS9 regions are among them
-    manifest = (out / ".lensdual-outputs").read_text().split()
-    assert {"pairs.ecsv", "pairs.reg", "sources_L1.reg", "report.txt"} <= set(manifest)
-
-
 def test_unwritable_output_fails_before_the_analysis(demo_dir, tmp_path, capsys, monkeypatch):
     import lensdual.cli as cli
 

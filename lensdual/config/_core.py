@@ -377,6 +377,27 @@ class RunConfig:
     parametric: ParametricSpec | None = None
     knots: KnotSpec | None = None
 
+    def input_files(self):
+        """Every file the run reads: the configuration and the files it names.
+
+        Returns
+        -------
+        list of `~pathlib.Path`
+            Absolute paths, each once, the configuration file first.
+        """
+        files = [self.path]
+        for band in self.bands.values():
+            files.append(band.psf)
+        for arc in self.arcs.values():
+            for spec in arc.images.values():
+                files += [spec.image, spec.error, spec.weight]
+        files += list((self.catalogs or {}).values()) + [self.pairs_file]
+        if self.parametric is not None:
+            files.append(self.parametric.lenstool)
+        if self.knots is not None:
+            files += [self.knots.catalogue, self.knots.mapping, *self.knots.models]
+        return list(dict.fromkeys(f for f in files if f is not None))
+
 
 
 
@@ -1170,6 +1191,19 @@ class _Validator:
 
     # --- all ------------------------------------------------------------
 
+    def inputs_outside(self, config):
+        """The output directory must hold none of the files the run reads."""
+        if config.outdir is None:
+            return
+        where = "outdir (argument)" if self.outdir_arg is not None else "[output] outdir"
+        inside = [f for f in config.input_files() if f.is_relative_to(config.outdir)]
+        if inside:
+            names = ", ".join(str(f.relative_to(config.outdir)) for f in inside[:4])
+            more = f" and {len(inside) - 4} more" if len(inside) > 4 else ""
+            self.add(f"{where}: the output directory {config.outdir} holds {names}{more}, "
+                     "read by this run; a run never replaces or removes its own inputs, so "
+                     "choose an output directory that holds none of them")
+
     def run(self):
         self.check_root()
         outdir = self.output()
@@ -1178,18 +1212,23 @@ class _Validator:
             knots = self.knots()
             if self.problems:
                 raise ConfigError(self.problems, self.path)
-            return RunConfig(path=self.path, outdir=outdir, bands={}, arcs={}, knots=knots,
-                             **analysis)
-        bands = self.bands()
-        arcs = self.arcs()
-        catalogs, catalog_ids = self.catalogs()
-        method, pairs_file = self.pairing(catalog_ids)
-        parametric = self.parametric()
+            config = RunConfig(path=self.path, outdir=outdir, bands={}, arcs={}, knots=knots,
+                               **analysis)
+        else:
+            bands = self.bands()
+            arcs = self.arcs()
+            catalogs, catalog_ids = self.catalogs()
+            method, pairs_file = self.pairing(catalog_ids)
+            parametric = self.parametric()
+            if self.problems:
+                raise ConfigError(self.problems, self.path)
+            config = RunConfig(path=self.path, outdir=outdir, bands=bands, arcs=arcs,
+                               catalogs=catalogs, pairing_method=method,
+                               pairs_file=pairs_file, parametric=parametric, **analysis)
+        self.inputs_outside(config)
         if self.problems:
             raise ConfigError(self.problems, self.path)
-        return RunConfig(path=self.path, outdir=outdir, bands=bands, arcs=arcs,
-                         catalogs=catalogs, pairing_method=method, pairs_file=pairs_file,
-                         parametric=parametric, **analysis)
+        return config
 
 
 def load_config(path, *, outdir=None):
