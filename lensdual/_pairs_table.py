@@ -258,6 +258,38 @@ def band_fluxes(pairs, band):
     return f1, f2, e1, e2
 
 
+def repeated_pair_ids(values):
+    """The ``pair_id`` values that occur more than once (sorted), and their rows.
+
+    Parameters
+    ----------
+    values : array-like
+        The ``pair_id`` column.
+
+    Returns
+    -------
+    repeated : list
+        The repeated values.
+    rows : list of int
+        The rows that hold them.
+    """
+    values = np.asarray(values)
+    uniq, counts = np.unique(values, return_counts=True)
+    repeated = uniq[counts > 1]
+    rows = np.flatnonzero(np.isin(values, repeated))
+    return repeated.tolist(), rows.tolist()
+
+
+def check_unique_pair_ids(pairs, name="pairs table"):
+    """Raise ValueError when the ``pair_id`` column of ``pairs`` repeats a value."""
+    if PAIR_ID not in pairs.colnames:
+        return
+    repeated, rows = repeated_pair_ids(pairs[PAIR_ID])
+    if repeated:
+        raise ValueError(f"{name}: pair_id must identify one pair, but {repeated} occur more "
+                         f"than once (rows {rows}); renumber the pairs or drop the duplicates")
+
+
 def _check_ids(pairs):
     missing = [c for c in ID_COLUMNS if c not in pairs.colnames]
     if missing:
@@ -314,8 +346,9 @@ def check_pairs_table(pairs, need=("positions",), *, bands=None):
         ``pairs`` is not a table, a position is not an angle, a sky column not a
         SkyCoord.
     ValueError
-        A missing column (named), flux units that do not match, non-positive
-        fluxes or errors, no band, an unknown part in ``need``.
+        A missing column (named), a repeated ``pair_id``, flux units that do
+        not match, non-positive fluxes or errors, no band, an unknown part in
+        ``need``.
 
     Examples
     --------
@@ -339,6 +372,7 @@ def check_pairs_table(pairs, need=("positions",), *, bands=None):
     if unknown:
         raise ValueError(f"need has unknown part(s) {unknown}; choose from {list(NEEDS)}")
     tab = pairs if isinstance(pairs, QTable) else QTable(pairs, copy=False)
+    check_unique_pair_ids(tab)
     if "positions" in need:
         positions(tab)
     if "position_errors" in need:

@@ -452,8 +452,8 @@ def check_duality(
     TypeError
         ``pairs`` is not a table, or positions lack angular units.
     ValueError
-        Missing columns, non-positive fluxes or flux errors, mismatched flux
-        units, and the bad inputs listed in
+        Missing columns, a repeated ``pair_id``, non-positive fluxes or flux
+        errors, mismatched flux units, and the bad inputs listed in
         :func:`~lensdual.estimators.relative_jacobian`.
 
     Notes
@@ -493,6 +493,7 @@ def check_duality(
     (8, 1)
     """
     tab = _as_qtable(pairs)
+    _pairs_table.check_unique_pair_ids(tab)
     if not isinstance(snr_definition, str) or snr_definition not in SNR_DEFINITIONS:
         raise ValueError(
             f"snr_definition must be one of {list(SNR_DEFINITIONS)}, got {snr_definition!r}"

@@ -36,6 +36,7 @@ from ._pairs_table import (
     ID_COLUMNS,
     PAIR_ID,
     SKY_COLUMNS,
+    check_unique_pair_ids,
     flux_col,
     flux_err_col,
     positions,
@@ -846,6 +847,7 @@ def _pairs_table(id_pairs, ids1, ids2, p, q, sky1, sky2, i, j):
     """
     out = QTable()
     if isinstance(id_pairs, Table) and PAIR_ID in id_pairs.colnames:
+        check_unique_pair_ids(id_pairs, "the id pairs given")
         out[PAIR_ID] = np.asarray(id_pairs[PAIR_ID])
     else:
         out[PAIR_ID] = np.arange(1, len(i) + 1)

@@ -103,6 +103,8 @@ def data_dir(tmp_path_factory):
     write_ecsv(Table({"name": [1, 2], "ra": [1.0, 2.0], "dec": [1.0, 2.0]}), d / "noid.ecsv")
     write_ecsv(Table({"id": [1, 2, 3], "x": [1.0, 2.0, 3.0]}), d / "nosky.ecsv")
     write_ecsv(Table({"id1": [1, 2, 3], "id2": [11, 12, 13]}), d / "pairs.ecsv")
+    write_ecsv(Table({"pair_id": [1, 2, 1], "id1": [1, 2, 3], "id2": [11, 12, 13]}),
+               d / "pairs_dup_pair_id.ecsv")
     write_ecsv(Table({"id1": [1, 2, 3]}), d / "pairs_noid2.ecsv")
     write_ecsv(Table({"id1": [1.0, 2.0, 3.0], "id2": [11, 12, 13]}), d / "pairs_float.ecsv")
     write_ecsv(Table({"id1": [1, 2, 99], "id2": [11, 12, 13]}), d / "pairs_unknown.ecsv")
@@ -420,6 +422,8 @@ BAD = [
      "column 'id1' of {d}/pairs_float.ecsv must hold integers"),
     ("pairs-unknown-id", _set("pairing", "file", "pairs_unknown.ecsv"),
      "id1 value(s) [99] of {d}/pairs_unknown.ecsv are not in the [catalogs] L1 catalogue"),
+    ("pairs-repeated-pair-id", _set("pairing", "file", "pairs_dup_pair_id.ecsv"),
+     "pair_id value(s) [1] of {d}/pairs_dup_pair_id.ecsv occur more than once (rows [0, 2])"),
     ("fit-not-bool", _set("parametric", "fit", "yes"),
      "[parametric] fit: expected a boolean (true or false), got a string ('yes')"),
     ("model-string", _set("parametric", "model", "SIE"),

@@ -225,3 +225,28 @@ def test_measured_table_passes():
     for band in mock.bands:
         for arc in (1, 2):
             assert flags_col(arc, band) in out.colnames
+
+
+def test_a_repeated_pair_id_is_refused_everywhere_a_pairs_table_enters():
+    """check_pairs_table, check_duality and manual pairing name the repeated ids and rows."""
+    from lensdual.duality import check_duality
+    from lensdual.pairing import pairs_from_ids
+
+    tab = make_pairs(8)
+    tab["pair_id"][5] = 2
+    with pytest.raises(ValueError, match=r"pair_id must identify one pair, but \[2\] occur "
+                                         r"more than once \(rows \[1, 5\]\)"):
+        check_pairs_table(tab)
+    with pytest.raises(ValueError, match=r"\[2\] occur more than once"):
+        check_duality(tab, method="quad", sigma_pos=0.01 * u.arcsec)
+    ids = Table({"pair_id": [4, 4, 5], "id1": [0, 1, 2], "id2": [100, 101, 102]})
+    rng = np.random.default_rng(1)
+    cat1 = QTable({"id": np.arange(3), "x": rng.normal(size=3) * u.arcsec,
+                   "y": rng.normal(size=3) * u.arcsec})
+    cat2 = QTable({"id": np.arange(3) + 100, "x": rng.normal(size=3) * u.arcsec,
+                   "y": rng.normal(size=3) * u.arcsec})
+    with pytest.raises(ValueError, match=r"the id pairs given: pair_id .* \[4\] occur"):
+        pairs_from_ids(cat1, cat2, ids)
+    # distinct ids pass
+    tab["pair_id"][5] = 99
+    check_pairs_table(tab)

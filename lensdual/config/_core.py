@@ -17,6 +17,7 @@ from astropy.coordinates import SkyCoord
 from astropy.nddata.utils import NoOverlapError
 from astropy.table import Table
 
+from .._pairs_table import repeated_pair_ids
 from . import _schema
 from ._fits import (
     _cutout,
@@ -1019,6 +1020,11 @@ class _Validator:
             return
         if len(tab) < _MIN_PAIRS:
             self.add(f"{loc}: {path} lists {len(tab)} pair(s); at least {_MIN_PAIRS} are needed")
+        if "pair_id" in tab.colnames:
+            repeated, rows = repeated_pair_ids(tab["pair_id"])
+            if repeated:
+                self.add(f"{loc}: pair_id value(s) {repeated} of {path} occur more than once "
+                         f"(rows {rows}); each pair needs its own pair_id")
         for name, arc in (("id1", "L1"), ("id2", "L2")):
             values = self.int_column(tab, name, path, loc)
             if values is None:

@@ -195,7 +195,8 @@ _F = Field
 #: Every key of a configuration file, table by table, in the order of the documentation.
 FIELDS = (
     _F("output", "outdir", "directory", "lensdual-output",
-       "the output directory (relative to the configuration file's directory)",
+       "the output directory (relative to the configuration file's directory); it may "
+       "hold none of the files the run reads",
        note="optional; default {default}"),
 
     _F("analysis", "estimator", "string", DEFAULT_METHOD,
