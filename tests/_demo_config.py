@@ -1,7 +1,20 @@
-"""The demo's run configuration with absolute paths, for tests that break a copy of it
-(test_cli, test_hostile)."""
+"""The demo's outputs and run configuration for the tests that run ``lensdual run`` on
+them or on a broken copy of them."""
 
 import tomllib
+
+#: Settings of the small demo most command tests share (10 sources, 100 bootstraps,
+#: no null calibration).
+FAST = ["--n-sources", "10", "--n-bootstrap", "100", "--seed", "5", "--null-realisations", "0"]
+
+
+def run_demo(tmp_path_factory, name, args=FAST):
+    """Run ``lensdual demo --write-config`` with ``args`` into a new folder; its path."""
+    from lensdual.cli import main
+
+    out = tmp_path_factory.mktemp(name) / "demo"
+    assert main(["demo", "--outdir", str(out), "--write-config", "--quiet", *args]) == 0
+    return out
 
 
 def absolute_config(demo_dir):

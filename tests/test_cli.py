@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from _demo_config import absolute_config as _absolute_config
+from _demo_config import run_demo
 from _demo_config import write as _write
 from astropy.table import QTable
 
@@ -33,9 +34,7 @@ OUTPUTS = ["pairs.ecsv", "catalog_L1.ecsv", "catalog_L2.ecsv", "pairing_map.png"
 @pytest.fixture(scope="module")
 def demo_dir(tmp_path_factory):
     """One small demo run (8 sources, 200 bootstraps) with its run config."""
-    out = tmp_path_factory.mktemp("cli") / "demo"
-    assert main(["demo", "--outdir", str(out), "--write-config", "--quiet", *FAST]) == 0
-    return out
+    return run_demo(tmp_path_factory, "cli", FAST)
 
 
 def test_demo_writes_everything(demo_dir):

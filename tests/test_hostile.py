@@ -12,15 +12,6 @@ from astropy.table import QTable
 
 from lensdual.cli import format_pairs_table, main, verdict
 
-FAST = ["--n-sources", "10", "--n-bootstrap", "100", "--seed", "5", "--null-realisations", "0"]
-
-
-@pytest.fixture(scope="module")
-def demo_dir(tmp_path_factory):
-    out = tmp_path_factory.mktemp("hostile") / "demo"
-    assert main(["demo", "--outdir", str(out), "--write-config", "--quiet", *FAST]) == 0
-    return out
-
 
 def no_leftovers(tmp_path, out):
     assert not out.exists()

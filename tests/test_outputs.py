@@ -17,20 +17,11 @@ import sys
 import textwrap
 
 import pytest
-from _demo_config import absolute_config, write
+from _demo_config import FAST, absolute_config, write
 
 from lensdual import _outputs
 from lensdual._outputs import MANIFEST, OutputConflictError, atomic_directory
 from lensdual.cli import main
-
-FAST = ["--n-sources", "10", "--n-bootstrap", "100", "--seed", "5", "--null-realisations", "0"]
-
-
-@pytest.fixture(scope="module")
-def demo_dir(tmp_path_factory):
-    out = tmp_path_factory.mktemp("outputs") / "demo"
-    assert main(["demo", "--outdir", str(out), "--write-config", "--quiet", *FAST]) == 0
-    return out
 
 
 def sha256(path):
