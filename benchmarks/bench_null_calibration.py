@@ -68,7 +68,7 @@ def main():
 
 def reverse_cost(n=20, sigma=0.001, n_realisations=300):
     """The null calibration with and without the reverse map, galaxy fold at 1 mas."""
-    from lensdual.estimators import core
+    from lensdual.estimators import _adaptive
 
     pairs = pairs_table(n=n, sigma=sigma, family="galaxy_fold")
     sig = sigma * u.arcsec
@@ -76,7 +76,7 @@ def reverse_cost(n=20, sigma=0.001, n_realisations=300):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         for reverse in (True, False):
-            core._ADAPTIVE_REVERSE = reverse
+            _adaptive.SETTINGS = _adaptive.AdaptiveSettings(reverse=reverse)
             try:
                 t0 = time.perf_counter()
                 res = null_calibration(pairs, sigma_pos=sig, n_realisations=n_realisations,
@@ -84,7 +84,7 @@ def reverse_cost(n=20, sigma=0.001, n_realisations=300):
                 times[reverse] = (time.perf_counter() - t0,
                                   int(np.isfinite(np.asarray(res["null_snr"])).sum()))
             finally:
-                core._ADAPTIVE_REVERSE = True
+                _adaptive.SETTINGS = _adaptive.AdaptiveSettings()
     (t_on, n_on), (t_off, n_off) = times[True], times[False]
     print(f"galaxy fold, {n} pairs at {sigma * 1000:g} mas, {n_realisations} realisations: "
           f"with the reverse map {t_on:.2f} s ({n_on} null pairs tested), forward only "

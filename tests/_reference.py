@@ -2,7 +2,8 @@
 
 They follow the paper's definitions literally, one pair at a time, with
 ``numpy.linalg.lstsq`` and ``numpy.linalg.solve``; the tests compare the
-Numba kernels of :mod:`lensdual.estimators._kernels` against them.
+Numba kernels of :mod:`lensdual.estimators._kernels` (the paper's estimators) and
+:mod:`lensdual.estimators._adaptive` (the adaptive one) against them.
 """
 
 import numpy as np

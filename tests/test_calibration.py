@@ -17,7 +17,7 @@ from lensdual.duality import (
     holm_adjust,
     null_calibration,
 )
-from lensdual.estimators import _kernels, relative_jacobian, size_magnification
+from lensdual.estimators import _adaptive, relative_jacobian, size_magnification
 from lensdual.estimators.core import _chi2_critical
 from lensdual.exceptions import EstimatorWarning
 
@@ -52,8 +52,8 @@ def _kernel_one_pass(t1, t2, s1, s2):
     sd = np.empty(n)
     st = np.empty(n, dtype=np.int64)
     dof = np.empty(n)
-    _kernels.adaptive_jacobians(t1, t2, s1, s2, crit, 1, 1, 2, 5, n, 1, 2.0, 1e10, jac, sd,
-                                st, dof)
+    _adaptive.adaptive_jacobians(t1, t2, s1, s2, crit, n, 2.0,
+                                 _adaptive.SETTINGS._replace(n_pass=1), jac, sd, st, dof)
     return (jac, sd, st, dof), ref.adaptive(t1, t2, s1, s2, pilot, crit)
 
 
@@ -563,10 +563,9 @@ def test_adaptive_two_scale_estimates_match_reference():
 
 def test_nested_test_critical_value():
     """The kernel's nested-test thresholds are the chi-square quantiles they claim."""
-    assert _kernels._ADAPTIVE_NEST_CRIT6 == pytest.approx(
-        chi2.isf(_kernels._ADAPTIVE_NEST_ALPHA, 6), rel=1e-12)
-    assert _kernels._ADAPTIVE_TWO_NEST_CRIT8 == pytest.approx(
-        chi2.isf(_kernels._ADAPTIVE_TWO_NEST_ALPHA, 8), rel=1e-12)
+    st = _adaptive.SETTINGS
+    assert st.nest_crit6 == pytest.approx(chi2.isf(st.nest_alpha, 6), rel=1e-12)
+    assert st.two_nest_crit8 == pytest.approx(chi2.isf(st.two_nest_alpha, 8), rel=1e-12)
 
 
 @pytest.mark.filterwarnings("ignore::lensdual.exceptions.EstimatorWarning")
@@ -616,11 +615,11 @@ def test_reverse_map_where_the_forward_fit_is_untestable(monkeypatch):
     sig = np.full((2, len(t1)), s)
     o1 = t1 + s * rng.standard_normal(t1.shape)
     o2 = t2 + s * rng.standard_normal(t2.shape)
-    ok_codes = (_kernels.ADAPTIVE_OK, _kernels.ADAPTIVE_MISFIT)
+    ok_codes = (_adaptive.ADAPTIVE_OK, _adaptive.ADAPTIVE_MISFIT)
     _, _, st_fwd, _ = core._adaptive_forward(o1, o2, sig, 2.0)
     jr, sd_r, st_r, dof_r = core._adaptive_forward(o2, o1, sig[::-1].copy(), 2.0)
     # the square root is no polynomial at 0.5 mas: most forward fits are untestable
-    assert (st_fwd == _kernels.ADAPTIVE_UNTESTABLE).sum() >= 8
+    assert (st_fwd == _adaptive.ADAPTIVE_UNTESTABLE).sum() >= 8
     expect = ~np.isin(st_fwd, ok_codes) & np.isin(st_r, ok_codes)
     # the reverse fit runs on the pairs that need it only: a subset of the
     # pairs gets the estimates of a run on all of them, bit for bit
@@ -632,7 +631,7 @@ def test_reverse_map_where_the_forward_fit_is_untestable(monkeypatch):
     np.testing.assert_array_equal(st_s[sub], st_r[sub])
     np.testing.assert_array_equal(dof_s[sub], dof_r[sub])
     rest = np.setdiff1d(np.arange(len(t1)), sub)
-    assert np.isnan(sd_s[rest]).all() and (st_s[rest] == _kernels.ADAPTIVE_FAILED).all()
+    assert np.isnan(sd_s[rest]).all() and (st_s[rest] == _adaptive.ADAPTIVE_FAILED).all()
     jac, sd, st, dof, rev = core._adaptive(o1, o2, sig, 2.0)
     np.testing.assert_array_equal(rev, expect)
     # those pairs take the inverse of the L1 -> L2 fit, with its error and status
@@ -678,7 +677,7 @@ def test_reverse_map_where_the_forward_fit_is_untestable(monkeypatch):
         np.testing.assert_array_equal(sd_b[k][ok_b[k]], sdk[ok_b[k]])
         np.testing.assert_array_equal(dof_b[k][ok_b[k]], dofk[ok_b[k]])
     # without the reverse map those pairs stay untestable
-    monkeypatch.setattr(core, "_ADAPTIVE_REVERSE", False)
+    monkeypatch.setattr(_adaptive, "SETTINGS", _adaptive.SETTINGS._replace(reverse=False))
     _, _, st_off, _, rev_off = core._adaptive(o1, o2, sig, 2.0)
     assert not rev_off.any()
     np.testing.assert_array_equal(st_off, st_fwd)

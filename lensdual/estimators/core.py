@@ -18,6 +18,7 @@ from .._validation import (
     check_unique_rows,
 )
 from ..exceptions import EstimatorWarning
+from . import _adaptive as _adaptive_kernels
 from . import _kernels
 
 __all__ = ["METHODS", "DEFAULT_METHOD", "DEFAULT_N_BOOTSTRAP", "DEFAULT_MAX_NEIGHBOURS",
@@ -43,45 +44,21 @@ _METHOD_CODES = {
     "2v": _kernels.METHOD_2V,
     "quad": _kernels.METHOD_QUAD,
     "quad2": _kernels.METHOD_QUAD2,
-    "adaptive": _kernels.METHOD_ADAPTIVE,
+    "adaptive": _adaptive_kernels.METHOD_ADAPTIVE,
 }
 
 #: Status of an adaptive estimate (column ``mu_size_status``).
 ADAPTIVE_STATUS = {
-    _kernels.ADAPTIVE_OK: "ok",
-    _kernels.ADAPTIVE_MISFIT: "misfit",
-    _kernels.ADAPTIVE_FAILED: "failed",
-    _kernels.ADAPTIVE_UNTESTABLE: "untestable",
+    _adaptive_kernels.ADAPTIVE_OK: "ok",
+    _adaptive_kernels.ADAPTIVE_MISFIT: "misfit",
+    _adaptive_kernels.ADAPTIVE_FAILED: "failed",
+    _adaptive_kernels.ADAPTIVE_UNTESTABLE: "untestable",
 }
 
 #: Statuses whose pairs :func:`~lensdual.duality.check_duality` tests.
 TESTABLE_STATUS = ("ok", "misfit")
 
-# Significance of the chi-square test that decides whether a local
-# polynomial describes the map within the position noise.
-_ADAPTIVE_ALPHA = 0.05
-# Degrees of freedom a reported fit keeps beyond its coefficients.
-_ADAPTIVE_MIN_EXTRA = 1
-# Degrees the reported fit lies above the tested one (1: robust bias correction).
-_ADAPTIVE_REPORT_EXTRA = 1
-# Self-consistent fits a "misfit" estimate needs (their spread is its model error).
-_ADAPTIVE_MIN_CANDIDATES = 2
-# Larger neighbourhoods (same degree) whose change widens a "misfit" error.
-_ADAPTIVE_LOOKAHEAD = 5
-# Passes of the effective-variance iteration (pilot Jacobian -> estimate).
-_ADAPTIVE_PASSES = 2
-# Where no L2-to-L1 fit is testable, fit the L1-to-L2 map and invert it (see
-# _adaptive; False: the L2-to-L1 map only).
-_ADAPTIVE_REVERSE = True
-# With a neighbour cap in force (more pairs than max_neighbours), every
-# neighbourhood of up to this many points is tried, larger ones on a
-# geometric grid (steps of 1/8). Without a cap (N <= max_neighbours) every
-# neighbourhood is tried.
-_ADAPTIVE_K_DENSE = 10
-
-# Largest condition estimate accepted for the (column-equilibrated)
-# least-squares design of the Quad estimators.
-_COND_MAX = 1e10
+_COND_MAX = _kernels.COND_MAX
 
 #: Default cap on the points each pair's estimate uses: the pair and its
 #: ``DEFAULT_MAX_NEIGHBOURS - 1`` nearest neighbours in L2. Constellations of
@@ -298,24 +275,25 @@ def relative_jacobian(theta1, theta2, method="quad", *, weight_power=2, min_angl
 
 def _chi2_critical(n, alpha=None):
     """Upper ``alpha`` quantiles of chi-square for 0..2n degrees of freedom."""
-    alpha = _ADAPTIVE_ALPHA if alpha is None else alpha
+    alpha = _adaptive_kernels.SETTINGS.alpha if alpha is None else alpha
     crit = np.full(2 * n + 1, np.inf)
     crit[1:] = _chi2.isf(alpha, np.arange(1, 2 * n + 1))
     return crit
 
 
 def _adaptive_settings(nbr, n_points, wp):
-    """The adaptive kernels' settings after the errors, for the neighbour rows
-    ``nbr`` of ``n_points`` points (capped when the rows are shorter)."""
+    """The adaptive kernels' arguments after the errors (critical values,
+    ``k_dense``, weight power, :class:`~lensdual.estimators._adaptive_kernels.AdaptiveSettings`)
+    for the neighbour rows ``nbr`` of ``n_points`` points (capped when the
+    rows are shorter)."""
+    st = _adaptive_kernels.SETTINGS
     k = nbr.shape[1]
-    k_dense = _ADAPTIVE_K_DENSE if k < n_points else k
-    return (_chi2_critical(k), _ADAPTIVE_MIN_EXTRA, _ADAPTIVE_REPORT_EXTRA,
-            _ADAPTIVE_MIN_CANDIDATES, _ADAPTIVE_LOOKAHEAD, k_dense, _ADAPTIVE_PASSES,
-            float(wp), _COND_MAX)
+    k_dense = st.k_dense if k < n_points else k
+    return _chi2_critical(k), k_dense, float(wp), st
 
 
 def _testable_codes(status):
-    return (status == _kernels.ADAPTIVE_OK) | (status == _kernels.ADAPTIVE_MISFIT)
+    return (status == _adaptive_kernels.ADAPTIVE_OK) | (status == _adaptive_kernels.ADAPTIVE_MISFIT)
 
 
 def _reverse_wins(status, status_rev, det_rev):
@@ -338,7 +316,7 @@ def _adaptive(t1, t2, sigma, wp, max_neighbours=DEFAULT_MAX_NEIGHBOURS):
     jac, ln_sd, status, dof = _adaptive_forward(t1, t2, sigma, wp, max_neighbours)
     reverse = np.zeros(t1.shape[0], dtype=bool)
     need = np.flatnonzero(~_testable_codes(status))
-    if _ADAPTIVE_REVERSE and need.size:
+    if _adaptive_kernels.SETTINGS.reverse and need.size:
         # the reverse fit of the pairs that need it only (the others: "failed")
         jr, sr, str_, dr = _adaptive_forward(t2, t1, np.ascontiguousarray(sigma[::-1]), wp,
                                              max_neighbours, rows=need)
@@ -360,21 +338,22 @@ def _adaptive_forward(t1, t2, sigma, wp, max_neighbours=DEFAULT_MAX_NEIGHBOURS, 
     nbr = _neighbour_rows(t2, max_neighbours)
     jac = np.full((n, 2, 2), np.nan)
     ln_sd = np.full(n, np.nan)
-    status = np.full(n, _kernels.ADAPTIVE_FAILED, dtype=np.int64)
+    status = np.full(n, _adaptive_kernels.ADAPTIVE_FAILED, dtype=np.int64)
     dof = np.zeros(n)
     rows = np.arange(n) if rows is None else np.asarray(rows, dtype=np.int64)
     settings = _adaptive_settings(nbr, n, wp)
     threads = available_threads(_MAX_THREADS)
     if rows.size < _THREAD_MIN_PAIRS or threads < 2:
-        _kernels.adaptive_rows_knn(t1, t2, nbr, sigma[0], sigma[1], *settings, rows, jac, ln_sd,
-                                   status, dof)
+        _adaptive_kernels.adaptive_rows_knn(t1, t2, nbr, sigma[0], sigma[1], *settings, rows,
+                                            jac, ln_sd, status, dof)
         return jac, ln_sd, status, dof
     # independent pairs: chunks in threads (same result as one call, bit for bit)
     edges = np.linspace(0, rows.size, 4 * threads + 1).astype(int)
 
     def run(i):
-        _kernels.adaptive_rows_knn(t1, t2, nbr, sigma[0], sigma[1], *settings,
-                                   rows[edges[i]:edges[i + 1]], jac, ln_sd, status, dof)
+        _adaptive_kernels.adaptive_rows_knn(t1, t2, nbr, sigma[0], sigma[1], *settings,
+                                            rows[edges[i]:edges[i + 1]], jac, ln_sd, status,
+                                            dof)
 
     with ThreadPoolExecutor(threads) as pool:
         list(pool.map(run, range(len(edges) - 1)))
@@ -398,7 +377,8 @@ def _adaptive_batch(t1, t2, noise1, noise2, sigma, wp=2.0,
     testable = _testable_codes(status)
     # the reverse map where the forward one is not testable (as _adaptive), on
     # the copies that need it only
-    rows = np.flatnonzero(~testable.all(axis=1)) if _ADAPTIVE_REVERSE else np.empty(0, int)
+    rows = (np.flatnonzero(~testable.all(axis=1)) if _adaptive_kernels.SETTINGS.reverse
+            else np.empty(0, int))
     if rows.size:
         # and on their untestable pairs only
         dr, sr, str_, dfr = _adaptive_batch_forward(t2, t1, noise2[rows], noise1[rows],
@@ -424,14 +404,15 @@ def _adaptive_batch_forward(t1, t2, noise1, noise2, sigma, wp, max_neighbours, n
     status = np.empty((b, n), dtype=np.int64)
     dof = np.empty((b, n))
     need = np.ones((b, n), dtype=bool) if need is None else np.ascontiguousarray(need)
-    _kernels.adaptive_batch_knn(t1, t2, nbr, noise1, noise2, sigma[0], sigma[1],
-                                *_adaptive_settings(nbr, n, wp), need, det, ln_sd, status, dof)
+    _adaptive_kernels.adaptive_batch_knn(t1, t2, nbr, noise1, noise2, sigma[0], sigma[1],
+                                         *_adaptive_settings(nbr, n, wp), need, det, ln_sd,
+                                         status, dof)
     return det, ln_sd, status, dof
 
 
 def _warn_adaptive(status):
-    untestable = np.flatnonzero(status == _kernels.ADAPTIVE_UNTESTABLE)
-    failed = np.flatnonzero(status == _kernels.ADAPTIVE_FAILED)
+    untestable = np.flatnonzero(status == _adaptive_kernels.ADAPTIVE_UNTESTABLE)
+    failed = np.flatnonzero(status == _adaptive_kernels.ADAPTIVE_FAILED)
     if untestable.size:
         warnings.warn(
             f"adaptive Jacobian: no local polynomial (up to cubic) describes the map around "
@@ -767,12 +748,12 @@ def _adaptive_table(t1, t2, sigma, wp, sigma_pos, max_neighbours=DEFAULT_MAX_NEI
     with np.errstate(over="ignore"):
         pct = np.vstack([mu * np.exp(-ln_sd), mu, mu * np.exp(ln_sd)])
     names = np.array([ADAPTIVE_STATUS[int(c)] for c in status])
-    dof = np.where(status == _kernels.ADAPTIVE_FAILED, np.nan, dof)
+    dof = np.where(status == _adaptive_kernels.ADAPTIVE_FAILED, np.nan, dof)
     table = _size_table(det, jac, pct, ln_sd, np.zeros(len(mu), dtype=int), names, dof)
     table.meta["method"] = "adaptive"
     table.meta["error_model"] = (
         "linear propagation of sigma_pos through the accepted local fit (chi-square test "
-        f"at {_ADAPTIVE_ALPHA:g}, reported degree one above the tested one)"
+        f"at {_adaptive_kernels.SETTINGS.alpha:g}, reported degree one above the tested one)"
     )
     table.meta["sigma_pos"] = _sigma_meta(sigma_pos)
     table.meta["weight_power"] = wp
