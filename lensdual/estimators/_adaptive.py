@@ -499,15 +499,12 @@ def _model_error(cand_ln, cand_var, cand_k, cand_dr, cand_ok, n_cand, ln_c, k_c,
     return (spread + trunc * trunc) / (n_spread + 1.0)
 
 
-# Kept whole (noqa): one jitted function keeps the incremental Cholesky state (L, scale,
-
-
 # ---------------------------------------------------------------------------
 # one pair
 # ---------------------------------------------------------------------------
 
 
-@njit(**JIT_OPTIONS)
+@njit(**_INLINE)
 def _pilot_frame(pilot):
     """``(c, s, ev0, ev1)``: the rotation ``R = [[c, -s], [s, c]]`` whose columns
     are the eigenvectors of ``P P^T`` (``P`` the pilot), and its eigenvalues."""
@@ -522,7 +519,7 @@ def _pilot_frame(pilot):
     return np.cos(ang), np.sin(ang), ev0, ev1
 
 
-@njit(**JIT_OPTIONS)
+@njit(**_INLINE)
 def _ranked_design(t1, t2, s1, s2, a, row, c, s, ev0, ev1, order, dsort, U, Yr, W, A, rhs):
     """The design of pair ``a``: the points of ``row`` ranked by distance in L2
     (``order``, squared distances ``dsort``), the monomials of their offsets
@@ -567,7 +564,7 @@ def _ranked_design(t1, t2, s1, s2, a, row, c, s, ev0, ev1, order, dsort, U, Yr, 
     return hmax
 
 
-@njit(**JIT_OPTIONS)
+@njit(**_INLINE)
 def _pilot_gradient(pilot, c, s, qv):
     """``d ln|det| / dP'`` of the pilot in the rotated frame (``P' = R^T P``)
     into ``qv`` (zeroed first); returns False for a singular pilot, whose
@@ -599,7 +596,7 @@ def _add_point(A, rhs, ywy, U, Yr, W, k):
                 A[comp, i, j] += wi * U[k, j]
 
 
-@njit(**JIT_OPTIONS)
+@njit(**_INLINE)
 def _largest_fit(kk, st):
     """Coefficients of the largest reported fit ``kk`` points allow (0: none)."""
     p_max = 0
@@ -609,7 +606,7 @@ def _largest_fit(kk, st):
     return p_max
 
 
-@njit(**JIT_OPTIONS)
+@njit(**_INLINE)
 def _factor_neighbourhood(A, L, scale, spow, hr, p_max):
     """Factor both normal matrices up to ``p_max`` coefficients, each monomial
     of degree ``d`` scaled by ``hr^d`` (``hr = hmax / h_k``: the offsets in
@@ -624,7 +621,7 @@ def _factor_neighbourhood(A, L, scale, spow, hr, p_max):
     return min(n_fac0, n_fac1)
 
 
-@njit(**JIT_OPTIONS)
+@njit(**_INLINE)
 def _residual_pass(U, W, Yr, L, scale, beta, work, kk, pr):
     """The reported fit's (``pr`` coefficients) weighted chi-square on the ``kk``
     points, its PRESS (leave-one-out residuals from the leverages
@@ -654,13 +651,182 @@ def _residual_pass(U, W, Yr, L, scale, beta, work, kk, pr):
     return chi2_r, press, press_null
 
 
-# Kept whole (noqa): the per-neighbourhood state (the best estimate, the stored linear
-# fits, the fallback candidates) lives in this function's locals; the helpers that run
-# for every neighbourhood take plain arrays (see the module docstring for why not
-# namedtuples of them).
+@njit(**_INLINE)
+def _pair_state(n):
+    """The per-pair arrays of :func:`adaptive_pair` for a row of ``n`` points.
+
+    In order: the fallback candidates (``cand_f``: ln|det J| and its
+    variance; ``cand_i``: points and degree; ``cand_ok``: consistent on its
+    own), the two fallback slots (``fb_f``: PRESS-scaled error, ln|det J|,
+    degrees of freedom, curvature, centre gradient; ``fb_i``: points and
+    degree; ``jfb``: Jacobians; slot 0 the best self-consistent fit, slot 1
+    the least-bad other one), the stored linear fits of the two-scale
+    estimates (``h_k``, ``h_sl``, ``h_al``, ``h_cv``), the best estimate's
+    Jacobian and cubic alias (``jb``, ``v3``), and scratch.
+    """
+    fb_f = np.zeros((5, 2))
+    fb_f[0, :] = np.inf
+    return (np.empty((2, 4 * n)), np.empty((2, 4 * n), dtype=np.int64),
+            np.empty(4 * n, dtype=np.bool_), fb_f, np.zeros((2, 2), dtype=np.int64),
+            np.empty((2, 2, 2)), np.empty(n, dtype=np.int64), np.empty((n, 2, 2)),
+            np.empty((n, 2, 2, 3)), np.empty((n, 2, 3)), np.empty((2, 2)), np.empty((2, 4)),
+            np.empty((2, 3)), np.empty(4), np.zeros(2), np.empty((2, 4, 4)), np.empty(4),
+            np.empty((2, NCOEF_MAX)), np.empty(3), np.empty(3), np.empty((2, 2, 3)),
+            np.empty((2, 3, 3)), np.empty(6), np.empty(6), np.zeros(4))
+
+
+@njit(**_INLINE)
+def _test_fit(L, scale, rhs, ywy, beta, beta_n, chi2_crit, kk, dt, pt, pr, n_fac, bias_fit, st):
+    """The chi-square test of degree ``dt`` (``pt`` coefficients) on the ``kk``
+    points and its nested tests; ``(passed, two_passed)``.
+
+    A linear fit also needs its quadratic terms to be insignificant (the
+    likelihood-ratio test at ``st.nest_alpha``). A quadratic test serving
+    the two-scale estimates (``bias_fit``) also needs its cubic terms to be
+    insignificant (``st.two_nest_alpha``) for ``two_passed``. ``beta`` is
+    left holding the tested fit.
+    """
+    chi2 = _nested_chi2(L, pt, scale, rhs, ywy, beta)
+    passed = chi2 <= chi2_crit[2 * (kk - pt)]
+    if passed and dt == 1 and pr - pt == 3 and n_fac >= pr:
+        # the nested test: the chi-square the quadratic terms remove
+        passed = chi2 - _nested_chi2(L, pr, scale, rhs, ywy, beta_n) <= st.nest_crit6
+    two_passed = passed
+    if passed and bias_fit and n_fac >= _ncoef(3):
+        two_passed = (chi2 - _nested_chi2(L, _ncoef(3), scale, rhs, ywy, beta_n)
+                      <= st.two_nest_crit8)
+    return passed, two_passed
+
+
+@njit(**_INLINE)
+def _reported_fit(L, scale, rhs, beta, work, cov, pr, hmax):
+    """Solve the reported fit (``pr`` coefficients) with its slopes' covariance
+    ``cov``; its rotated Jacobian, ``det J'``, ``d ln|det| / dJ'`` and the
+    variance of ``ln|det J|`` (:func:`_slopes_jacobian`)."""
+    for comp in range(2):
+        factored_solve(L[comp], pr, scale, rhs[comp], beta[comp])
+        slope_covariance(L[comp], pr, scale, work, cov[comp])
+    return _slopes_jacobian(beta[0, 1], beta[0, 2], beta[1, 1], beta[1, 2], cov, hmax)
+
+
+@njit(**_INLINE)
+def _passing_rank(L, scale, work, beta, U, cov, cov_o, grad_o, qv, pilot_ranks, kk, deg, pr,
+                  hmax, g, var_ln, best_rank, st):
+    """The rank of a passing reported fit of degree ``deg``: its variance of
+    ``ln|det J|`` along the pilot's gradient ``qv`` (its own variance for a
+    singular pilot), plus ``(st.top_coef c_top)^2`` where that can still
+    beat ``best_rank`` (``c_top``: the truncation the fit cannot test, its
+    top-order change)."""
+    rank = var_ln
+    if pilot_ranks:
+        rank = _ln_det_form(cov, qv[0], qv[1], qv[2], qv[3], hmax)
+        if not rank > 0.0:
+            rank = var_ln
+    if rank < best_rank and st.top_coef > 0.0:
+        ctop = _order_change(L, pr, scale, work, beta, U, kk, g[0], g[1], g[2], g[3], hmax,
+                             st.top_nsig, deg, cov_o, grad_o)
+        rank += (st.top_coef * ctop) ** 2
+    return rank
+
+
+@njit(**_INLINE)
+def _accept(L, scale, work, beta, A, cov_o, rhs_al6, sol_al6, v3, jb, c, s, jr, g, hmax, dt, pr):
+    """Make a passing reported fit the estimate: its Jacobian into ``jb``;
+    returns its centre gradient (:func:`_centre_gradient2`) and whether it
+    is a quadratic licensed by a linear test, whose cubic alias then goes
+    into ``v3`` (:func:`_cubic_alias`)."""
+    g2 = _centre_gradient2(L, pr, scale, work, beta, g[0], g[1], g[2], g[3], hmax, cov_o)
+    _rotate_back(c, s, jr[0], jr[1], jr[2], jr[3], jb)
+    lin = dt == 1 and pr == 6
+    if lin:
+        _cubic_alias(L, scale, A, g[0], g[1], g[2], g[3], hmax, rhs_al6, sol_al6, v3)
+    return g2, lin
+
+
+@njit(**_INLINE)
+def _fallback_fit(U, W, Yr, L, scale, beta, work, chi2_crit, kk, pr, var_ln):
+    """A reported fit as a fallback: its error scaled by its PRESS misfit,
+    whether it is consistent with the noise on its own, and its residual
+    degrees of freedom."""
+    chi2_r, press, press_null = _residual_pass(U, W, Yr, L, scale, beta, work, kk, pr)
+    dof_r = 2 * (kk - pr)
+    sdf = np.sqrt(var_ln) * np.sqrt(max(1.0, press / press_null))
+    return sdf, chi2_r <= chi2_crit[dof_r], dof_r
+
+
+@njit(**_INLINE)
+def _add_candidate(cand_f, cand_i, cand_ok, n_cand, ln, var_ln, kk, dr, consistent):
+    """Record a fallback candidate (room permitting); the new count."""
+    if n_cand >= cand_ok.shape[0]:
+        return n_cand
+    cand_f[0, n_cand] = ln
+    cand_f[1, n_cand] = var_ln
+    cand_i[0, n_cand] = kk
+    cand_i[1, n_cand] = dr
+    cand_ok[n_cand] = consistent
+    return n_cand + 1
+
+
+@njit(**_INLINE)
+def _keep_fallback(fb_f, fb_i, jfb, slot, sdf, ln, kk, dr, dof_r, L, scale, work, beta, U,
+                   cov_o, grad_o, c, s, jr, g, hmax, pr, st):
+    """Keep a fit in its fallback ``slot`` when its PRESS-scaled error ``sdf``
+    is the smallest there, with its centre gradient and its curvature: the
+    largest change of ``ln|det J|`` over the neighbourhood that its
+    second-order terms predict, less ``st.curv_nsig`` times its noise (a
+    noisy fit's second-order terms would otherwise pass for curvature)."""
+    if not sdf < fb_f[0, slot]:
+        return
+    fb_f[0, slot] = sdf
+    fb_f[1, slot] = ln
+    fb_i[0, slot] = kk
+    fb_i[1, slot] = dr
+    fb_f[2, slot] = float(dof_r)
+    fb_f[4, slot] = _centre_gradient2(L, pr, scale, work, beta, g[0], g[1], g[2], g[3], hmax,
+                                      cov_o)
+    fb_f[3, slot] = _order_change(L, pr, scale, work, beta, U, kk, g[0], g[1], g[2], g[3], hmax,
+                                  st.curv_nsig, 2, cov_o, grad_o)
+    _rotate_back(c, s, jr[0], jr[1], jr[2], jr[3], jfb[slot])
+
+
+@njit(**_INLINE)
+def _fallback_error(fb_f, fb_i, jfb, cand_f, cand_i, cand_ok, n_cand, n_consistent, v_centre,
+                    st, jac_out):
+    """``(ln_sd, status, dof)`` without a passing fit: the self-consistent
+    fallback fit, or else the least-bad one, widened by its model error
+    (:func:`_model_error`) and the pair's own L2 noise; "misfit" with at
+    least ``st.min_candidates`` self-consistent fits, "untestable"
+    otherwise, "failed" without any."""
+    for slot in range(2):
+        if fb_f[0, slot] < np.inf:
+            _copy_jacobian(jfb[slot], jac_out)
+            model = _model_error(cand_f[0], cand_f[1], cand_i[0], cand_i[1], cand_ok, n_cand,
+                                 fb_f[1, slot], fb_i[0, slot], fb_i[1, slot], st.lookahead,
+                                 fb_f[3, slot], st.curv_coef)
+            sd = np.sqrt(fb_f[0, slot] * fb_f[0, slot] + model + v_centre * fb_f[4, slot])
+            tested = slot == 0 and n_consistent >= st.min_candidates
+            return sd, ADAPTIVE_MISFIT if tested else ADAPTIVE_UNTESTABLE, fb_f[2, slot]
+    jac_out[:, :] = np.nan
+    return np.nan, ADAPTIVE_FAILED, 0.0
+
+
+@njit(**_INLINE)
+def _winner_error(jb, best_sd, best_g2, best_lin, v3, A, L, scale, rhs, beta, work, cov_o, n,
+                  v_centre, st, jac_out):
+    """The error of the winning estimate: its own, the pair's own L2 noise
+    (``v_centre`` times its squared centre gradient) and, for a quadratic
+    licensed by a linear test, the cubic alias bias of the whole row
+    (:func:`_cubic_alias_bias2`)."""
+    _copy_jacobian(jb, jac_out)
+    bias2 = 0.0
+    if best_lin and n >= _ncoef(3) + st.min_extra:
+        bias2 = _cubic_alias_bias2(A, L, scale, rhs, beta, work, cov_o, v3, st.cubic_nsig)
+    return np.sqrt(best_sd * best_sd + v_centre * best_g2 + bias2)
+
+
 @njit(**JIT_OPTIONS)
-def adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, k_dense, st,  # noqa: C901, PLR0915
-                  order, dsort, U, Yr, W, A, rhs, L, scale, beta, work, jac_out):
+def adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, k_dense, st, order, dsort, U, Yr,
+                  W, A, rhs, L, scale, beta, work, jac_out):
     """Adaptive local-polynomial Jacobian at pair ``a``; returns (ln_sd, status, dof).
 
     The points are those of the neighbour ``row`` of ``a`` (``a`` included),
@@ -775,66 +941,24 @@ def adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, k_dense, st,  # noqa
     if not hmax > 0.0:
         jac_out[:, :] = np.nan
         return np.nan, ADAPTIVE_FAILED, 0.0
-    qv = np.zeros(4)  # the pilot's gradient, which ranks the passing fits
+    (cand_f, cand_i, cand_ok, fb_f, fb_i, jfb, h_k, h_sl, h_al, h_cv, jb, v3, cov, spow, ywy,
+     cov_o, grad_o, beta_n, rhs_al, sol_al, s13, s33, rhs_al6, sol_al6, qv) = _pair_state(n)
     pilot_ranks = _pilot_gradient(pilot, c, s, qv)
-    best_sd = np.inf
+    best_rank = best_sd = np.inf
     best_g2 = 0.0
-    best_rank = np.inf
-    found = False
-    cand_ln = np.empty(4 * n)
-    cand_var = np.empty(4 * n)
-    cand_k = np.empty(4 * n, dtype=np.int64)
-    cand_dr = np.empty(4 * n, dtype=np.int64)
-    cand_ok = np.empty(4 * n, dtype=np.bool_)
-    n_cand = 0
-    n_consistent = 0
-    k_last = 0
-    # the fallback fits while none passes, by slot: 0 the best self-consistent
-    # one, 1 the least-bad of the others (smallest PRESS-scaled error each)
-    fb_sd = np.full(2, np.inf)
-    fb_ln = np.zeros(2)
-    fb_k = np.zeros(2, dtype=np.int64)
-    fb_dr = np.zeros(2, dtype=np.int64)
-    fb_dof = np.zeros(2)
-    fb_curv = np.zeros(2)
-    fb_g2 = np.zeros(2)
-    jfb = np.empty((2, 2, 2))
-    cov = np.empty((2, 3))
-    spow = np.empty(4)
-    jb = np.empty((2, 2))
-    ywy = np.zeros(2)
-    cov_o = np.empty((2, 4, 4))
-    grad_o = np.empty(4)
-    # linear fits that passed their test, for the two-scale estimates
+    found = best_lin = False
+    n_cand = n_consistent = n_h = k_last = 0
+    # stored linear fits serve the two-scale estimates (report_extra == 1 only)
     two_scale = st.report_extra == 1
-    n_h = 0
-    h_k = np.empty(n, dtype=np.int64)
-    h_sl = np.empty((n, 2, 2))
-    h_al = np.empty((n, 2, 2, 3))
-    h_cv = np.empty((n, 2, 3))
-    rhs_al = np.empty(3)
-    sol_al = np.empty(3)
-    s13 = np.empty((2, 2, 3))
-    s33 = np.empty((2, 3, 3))
-    best_lin = False
-    beta_n = np.empty((2, NCOEF_MAX))
-    best_v3 = np.empty((2, 4))
-    rhs_al6 = np.empty(6)
-    sol_al6 = np.empty(6)
     for k in range(n):
         _add_point(A, rhs, ywy, U, Yr, W, k)
         kk = k + 1
         hk = np.sqrt(dsort[k])
-        if not hk > 0.0:
-            continue
         # beyond k_dense points, fits are tried on a geometric grid of
         # neighbourhood sizes only (steps of about 1/8), and at the full row
-        if kk > k_dense and kk < n:
-            if 8 * (kk - k_last) < k_last:
-                continue
+        if not hk > 0.0 or (kk > k_dense and kk < n and 8 * (kk - k_last) < k_last):
+            continue
         k_last = kk
-        # the largest fit of this neighbourhood; one factorisation per component
-        # serves all fits (the leading blocks of the factor)
         p_max = _largest_fit(kk, st)
         if p_max == 0:
             continue
@@ -846,138 +970,59 @@ def adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, k_dense, st,  # noqa
             # linear fits, from fewer points than its own reported (cubic) fit needs
             # (stored fits come in increasing size: the first is the smallest)
             bias_fit = two_scale and dt == 2 and n_h > 0 and h_k[0] < kk and kk >= pt + st.min_extra
-            if kk < pr + st.min_extra and not bias_fit:
+            if (kk < pr + st.min_extra and not bias_fit) or n_fac < pt:
                 continue
-            # test fit: chi-square of both components at degree dt
-            if n_fac < pt:
-                continue
-            chi2 = _nested_chi2(L, pt, scale, rhs, ywy, beta)
-            dof = 2 * (kk - pt)
-            passed = chi2 <= chi2_crit[dof]
-            if passed and dt == 1 and pr - pt == 3 and n_fac >= pr:
-                # the nested test: the chi-square the quadratic terms remove
-                passed = (chi2 - _nested_chi2(L, pr, scale, rhs, ywy, beta_n)
-                          <= st.nest_crit6)
+            passed, two_passed = _test_fit(L, scale, rhs, ywy, beta, beta_n, chi2_crit, kk, dt,
+                                           pt, pr, n_fac, bias_fit, st)
             if passed and two_scale and dt == 1:
-                # keep the linear fit: a quadratic fit of a larger neighbourhood
-                # that passes its own test may correct its bias (_two_scale)
                 _store_linear(L, scale, A, beta, work, rhs_al, sol_al, h_sl, h_al, h_cv, n_h)
                 h_k[n_h] = kk
                 n_h += 1
-            # the two-scale estimates also need the quadratic's cubic terms to be
-            # insignificant (the nested test of the larger neighbourhood)
-            two_passed = passed
-            if passed and bias_fit and n_fac >= _ncoef(3):
-                two_passed = (chi2 - _nested_chi2(L, _ncoef(3), scale, rhs, ywy, beta_n)
-                              <= st.two_nest_crit8)
             if two_passed and bias_fit:
                 rank2, sd2, g2 = _two_scale(L, scale, work, beta, U, kk, hmax, h_k, h_sl, h_al,
                                             h_cv, n_h, c, s, pilot_ranks, qv, best_rank, s13, s33,
                                             cov_o, grad_o, jb, st)
-                if sd2 > 0.0:
-                    best_rank = rank2
-                    best_sd = sd2
-                    best_g2 = g2
-                    found = True
-                    best_lin = False
-            if kk < pr + st.min_extra:
+                # (the rank comes back unchanged unless a two-scale estimate won)
+                won = sd2 > 0.0
+                best_rank = rank2
+                best_sd = sd2 if won else best_sd
+                best_g2 = g2 if won else best_g2
+                found = found or won
+                best_lin = best_lin and not won
+            # only a better-ranked passing fit can change a result once found
+            if kk < pr + st.min_extra or (found and not passed) or n_fac < pr:
                 continue
-            if found and not passed:
-                continue  # only a better-ranked passing fit can change the result
-            # reported fit: degree dt + report_extra on the same points, with
-            # its covariance
-            if n_fac < pr:
-                continue
-            for comp in range(2):
-                factored_solve(L[comp], pr, scale, rhs[comp], beta[comp])
-                slope_covariance(L[comp], pr, scale, work, cov[comp])
-            # J' rows (rotated frame) and d ln|det| / dJ' = J'^-T
-            jr00, jr01, jr10, jr11, det, g00, g01, g10, g11, var_ln = _slopes_jacobian(
-                beta[0, 1], beta[0, 2], beta[1, 1], beta[1, 2], cov, hmax)
+            jr00, jr01, jr10, jr11, det, g00, g01, g10, g11, var_ln = _reported_fit(
+                L, scale, rhs, beta, work, cov, pr, hmax)
             if not var_ln > 0.0:
                 continue
-            sd = np.sqrt(var_ln)
+            jr = (jr00, jr01, jr10, jr11)
+            g = (g00, g01, g10, g11)
             if passed:
-                rank = var_ln
-                if pilot_ranks:
-                    rank = _ln_det_form(cov, qv[0], qv[1], qv[2], qv[3], hmax)
-                    if not rank > 0.0:
-                        rank = var_ln
-                if rank < best_rank and st.top_coef > 0.0:
-                    # the truncation the fit cannot test: its top-order change
-                    ctop = _order_change(L, pr, scale, work, beta, U, kk, g00, g01, g10, g11,
-                                         hmax, st.top_nsig, dt + st.report_extra, cov_o,
-                                         grad_o)
-                    rank += (st.top_coef * ctop) ** 2
+                rank = _passing_rank(L, scale, work, beta, U, cov, cov_o, grad_o, qv, pilot_ranks,
+                                     kk, dt + st.report_extra, pr, hmax, g, var_ln, best_rank, st)
                 if rank < best_rank:
-                    best_rank = rank
-                    best_sd = sd
-                    best_g2 = _centre_gradient2(L, pr, scale, work, beta, g00, g01, g10, g11,
-                                                hmax, cov_o)
-                    found = True
-                    _rotate_back(c, s, jr00, jr01, jr10, jr11, jb)
-                    # a quadratic licensed by a linear test: keep how its slopes
-                    # alias the cubic terms, weighted by d ln|det| / dJ'
-                    best_lin = dt == 1 and pr == 6
-                    if best_lin:
-                        _cubic_alias(L, scale, A, g00, g01, g10, g11, hmax, rhs_al6, sol_al6,
-                                     best_v3)
+                    best_rank, best_sd, found = rank, np.sqrt(var_ln), True
+                    best_g2, best_lin = _accept(L, scale, work, beta, A, cov_o, rhs_al6, sol_al6,
+                                                v3, jb, c, s, jr, g, hmax, dt, pr)
             if not found:
-                chi2_r, press, press_null = _residual_pass(U, W, Yr, L, scale, beta, work, kk,
-                                                           pr)
-                dof_r = 2 * (kk - pr)
-                sdf = sd * np.sqrt(max(1.0, press / press_null))
-                consistent = chi2_r <= chi2_crit[dof_r]
-                if n_cand < cand_ln.shape[0]:
-                    cand_ln[n_cand] = np.log(abs(det))
-                    cand_var[n_cand] = var_ln
-                    cand_k[n_cand] = kk
-                    cand_dr[n_cand] = dt + st.report_extra
-                    cand_ok[n_cand] = consistent
-                    n_cand += 1
-                if consistent:
-                    n_consistent += 1
-                slot = 0 if consistent else 1
-                if sdf < fb_sd[slot]:
-                    fb_sd[slot] = sdf
-                    fb_ln[slot] = np.log(abs(det))
-                    fb_k[slot] = kk
-                    fb_dr[slot] = dt + st.report_extra
-                    fb_dof[slot] = float(dof_r)
-                    fb_g2[slot] = _centre_gradient2(L, pr, scale, work, beta, g00, g01, g10,
-                                                    g11, hmax, cov_o)
-                    # curvature: the largest change of ln|det J| over the
-                    # neighbourhood that the fit's second-order terms predict,
-                    # less twice its noise (a noisy fit's second-order terms
-                    # would otherwise pass for curvature)
-                    fb_curv[slot] = _order_change(L, pr, scale, work, beta, U, kk, g00, g01,
-                                                  g10, g11, hmax, st.curv_nsig, 2, cov_o,
-                                                  grad_o)
-                    _rotate_back(c, s, jr00, jr01, jr10, jr11, jfb[slot])
+                dr = dt + st.report_extra
+                sdf, consistent, dof_r = _fallback_fit(U, W, Yr, L, scale, beta, work,
+                                                       chi2_crit, kk, pr, var_ln)
+                n_cand = _add_candidate(cand_f, cand_i, cand_ok, n_cand, np.log(abs(det)),
+                                        var_ln, kk, dr, consistent)
+                n_consistent += consistent
+                _keep_fallback(fb_f, fb_i, jfb, 0 if consistent else 1, sdf, np.log(abs(det)), kk,
+                               dr, dof_r, L, scale, work, beta, U, cov_o, grad_o, c, s, jr, g,
+                               hmax, pr, st)
     # the pair's own L2 noise moves the point where the fits take the Jacobian
     # (every offset is measured from it): s2^2 |grad ln|det J||^2
     v_centre = s2[a] * s2[a]
     if found:
-        _copy_jacobian(jb, jac_out)
-        bias2 = 0.0
-        if best_lin and n >= _ncoef(3) + st.min_extra:
-            bias2 = _cubic_alias_bias2(A, L, scale, rhs, beta, work, cov_o, best_v3,
-                                       st.cubic_nsig)
-        return np.sqrt(best_sd * best_sd + v_centre * best_g2 + bias2), ADAPTIVE_OK, np.inf
-    # else the self-consistent fallback fit, or the least-bad one, widened by its
-    # model error; tested ("misfit") only with enough self-consistent fits to
-    # judge that error, otherwise reported with it but "untestable"
-    for slot in range(2):
-        if fb_sd[slot] < np.inf:
-            _copy_jacobian(jfb[slot], jac_out)
-            model = _model_error(cand_ln, cand_var, cand_k, cand_dr, cand_ok, n_cand,
-                                 fb_ln[slot], fb_k[slot], fb_dr[slot], st.lookahead,
-                                 fb_curv[slot], st.curv_coef)
-            sd = np.sqrt(fb_sd[slot] * fb_sd[slot] + model + v_centre * fb_g2[slot])
-            tested = slot == 0 and n_consistent >= st.min_candidates
-            return sd, ADAPTIVE_MISFIT if tested else ADAPTIVE_UNTESTABLE, fb_dof[slot]
-    jac_out[:, :] = np.nan
-    return np.nan, ADAPTIVE_FAILED, 0.0
+        return _winner_error(jb, best_sd, best_g2, best_lin, v3, A, L, scale, rhs, beta, work,
+                             cov_o, n, v_centre, st, jac_out), ADAPTIVE_OK, np.inf
+    return _fallback_error(fb_f, fb_i, jfb, cand_f, cand_i, cand_ok, n_cand, n_consistent,
+                           v_centre, st, jac_out)
 
 
 # ---------------------------------------------------------------------------

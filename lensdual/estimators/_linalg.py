@@ -17,10 +17,8 @@ from .._numba import JIT_OPTIONS
 
 __all__ = []
 
-_INLINE = {**JIT_OPTIONS, "inline": "always"}
 
-
-@njit(**_INLINE)
+@njit(**JIT_OPTIONS)
 def _equilibrate(A, ncol, scale):
     """Scale the columns of ``A[:, :ncol]`` to unit norm (norms into ``scale``).
 
@@ -40,7 +38,7 @@ def _equilibrate(A, ncol, scale):
     return True
 
 
-@njit(**_INLINE)
+@njit(**JIT_OPTIONS)
 def _orthonormalise(A, ncol, R):
     """Modified Gram-Schmidt, two passes per column: ``A`` becomes Q, ``R`` the factor.
 
@@ -68,7 +66,7 @@ def _orthonormalise(A, ncol, R):
     return True
 
 
-@njit(**_INLINE)
+@njit(**JIT_OPTIONS)
 def _well_conditioned(R, ncol, cond_max):
     """Whether the smallest pivot of ``R`` exceeds ``1 / cond_max`` of the largest."""
     rmax = 0.0
@@ -80,7 +78,7 @@ def _well_conditioned(R, ncol, cond_max):
     return rmin * cond_max > rmax
 
 
-@njit(**_INLINE)
+@njit(**JIT_OPTIONS)
 def _qr_solve(Q, R, Y, ncol, scale, sol):
     """``sol = S^-1 R^-1 Q^T Y`` for both columns of ``Y`` (``S = diag(scale)``)."""
     M = Q.shape[0]
