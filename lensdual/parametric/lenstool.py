@@ -427,20 +427,8 @@ def _check_nlens(path, blocks, n_potentials):
                         f"{int(nlens)}, which this reader does not emulate")
 
 
-# One validator on purpose (noqa): each branch is one check of the block with its own
-# message, in the order a user fixes them; split, the checks would pass values, lines
-# and spellings between helpers without making any of them simpler.
-def _potential(path, block):  # noqa: C901
-    """The keys of one potential block, validated; returns a dict.
-
-    Keys are stored under their canonical names (``_KEY_ALIASES`` and, once
-    the profile is known, ``_PROFILE_ALIASES``); ``_lines`` maps them to their
-    line and ``_keys`` to the spelling of the file, for the messages.
-    """
-    label = f"{block['section']} {block['label']}".strip()
-    where = f"{path}, line {block['line']}, block '{label}'"
-    items = [(number, key, _KEY_ALIASES.get(key, key), tokens)
-             for number, key, tokens in block["items"]]
+def _block_profile(path, label, where, items):
+    """The profile of a potential block and the line and spelling it is given with."""
     found = [it for it in items if it[2] == "profile"]
     if not found:
         raise ValueError(f"{where}: no 'profile'")
@@ -461,9 +449,15 @@ def _potential(path, block):  # noqa: C901
         what = f"profile {profile} ({name})" if name else f"unknown profile {profile}"
         raise ValueError(f"{pwhere}: {what} is not supported (only profile 81, the dPIE, and "
                          "profile 12, the NFW), besides profile 14, the external shear")
+    return profile, number, key
+
+
+def _block_values(path, label, items, profile, number, key):
+    """The values of a potential block's keys under their canonical names, with
+    the line and the spelling of each (``profile`` given at line ``number`` as
+    ``key``)."""
     allowed = _SHEAR_KEYS if profile == 14 else _COMMON_KEYS | _PROFILE_KEYS[profile]
     aliases = _PROFILE_ALIASES[profile]
-
     values = {"profile": profile}
     lines = {"profile": number}
     spelled = {"profile": key}
@@ -487,6 +481,11 @@ def _potential(path, block):  # noqa: C901
         values[canon] = tokens[0] if canon in _TEXT_KEYS else _number(tokens[0], lwhere, key)
         lines[canon] = number
         spelled[canon] = key
+    return values, lines, spelled
+
+
+def _block_required(path, label, where, values, lines, profile):
+    """The keys a potential block of ``profile`` must (and must not both) give."""
     if "z_lens" not in values:
         raise ValueError(f"{where}: no 'z_lens'")
     for pair in (("x_centre", "x_centre_wcs"), ("y_centre", "y_centre_wcs")):
@@ -505,6 +504,10 @@ def _potential(path, block):  # noqa: C901
     if "ellipticity" in values and "ellip_pot" in values:
         raise ValueError(f"{path}, line {lines['ellip_pot']}, block '{label}': give "
                          "'ellipticite' or 'ellip_pot', not both")
+
+
+def _block_ranges(path, label, values, lines, spelled, profile):
+    """Each value of a potential block within its range."""
 
     def check(key, ok, cond):
         if key in values and not ok(values[key]):
@@ -530,6 +533,25 @@ def _potential(path, block):  # noqa: C901
     check("alpha", lambda v: v in (0.0, 1.0), "0 or 1 (the generalised NFW, alpha != 0 or 1 "
           "in Lenstool, is not supported)")
     check("rc_slope", lambda v: v == 0.0, "0 (not supported for an NFW)")
+
+
+def _potential(path, block):
+    """The keys of one potential block, validated; returns a dict.
+
+    Keys are stored under their canonical names (``_KEY_ALIASES`` and, once
+    the profile is known, ``_PROFILE_ALIASES``); ``_lines`` maps them to their
+    line and ``_keys`` to the spelling of the file, for the messages. The
+    checks run in the order a user fixes them: the profile, each key, the
+    keys the profile needs, the ranges.
+    """
+    label = f"{block['section']} {block['label']}".strip()
+    where = f"{path}, line {block['line']}, block '{label}'"
+    items = [(number, key, _KEY_ALIASES.get(key, key), tokens)
+             for number, key, tokens in block["items"]]
+    profile, number, key = _block_profile(path, label, where, items)
+    values, lines, spelled = _block_values(path, label, items, profile, number, key)
+    _block_required(path, label, where, values, lines, profile)
+    _block_ranges(path, label, values, lines, spelled, profile)
     values["_lines"] = lines
     values["_keys"] = spelled
     values["_label"] = label
