@@ -55,12 +55,15 @@ import warnings
 from pathlib import Path
 
 import numpy as np
+from _shared_data import use_shared_data
 from astropy import units as u
 from scipy.stats import beta as beta_dist
 
 from lensdual.duality import _snr_dof, duality_significance, gaussian_p_value
 from lensdual.estimators import TESTABLE_STATUS, size_magnification
 from lensdual.simulation import FAMILIES, clean_constellation
+
+use_shared_data()
 
 NOISE_MAS = (1, 2, 5, 10, 20)
 N_SOURCES = (8, 20, 40)

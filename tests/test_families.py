@@ -147,6 +147,14 @@ def test_errors():
                             max_tries=2)
 
 
+def test_a_lenstool_family_without_its_environment_variable_says_which(monkeypatch):
+    monkeypatch.delenv("LENSDUAL_SMACS0723_DIR", raising=False)
+    monkeypatch.setattr(fam_module, "_calibrated", fam_module._calibrated.__wrapped__)
+    with pytest.raises(FileNotFoundError, match="set the environment variable "
+                                                "LENSDUAL_SMACS0723_DIR to the folder"):
+        calibration_system("smacs_lenstool")
+
+
 def test_smacs_lenstool_without_data_raises(monkeypatch, tmp_path):
     monkeypatch.setenv("LENSDUAL_SMACS0723_DIR", str(tmp_path))
     monkeypatch.setattr(fam_module, "_calibrated", fam_module._calibrated.__wrapped__)

@@ -36,3 +36,11 @@ def test_the_adaptive_settings_hold_every_tuning_constant():
     unused = [f for f in st._fields if f"st.{f}" not in estimators
               and f"SETTINGS.{f}" not in estimators]
     assert unused == []
+
+
+def test_no_library_module_names_the_workspace_data():
+    """Data folders come from arguments or environment variables, never ../shared."""
+    pattern = re.compile(r"""["']shared["']|shared/data""")
+    found = [f"{p.relative_to(PACKAGE)}:{n}" for p in _sources()
+             for n, line in enumerate(p.read_text().splitlines(), 1) if pattern.search(line)]
+    assert found == []

@@ -123,7 +123,7 @@ from .scenarios import smacs0723_analog
 __all__ = [
     "FAMILIES",
     "FAMILY_PARAMETERS",
-    "SMACS0723_LENSTOOL_DIR",
+    "DATA_ENVIRONMENT",
     "calibration_system",
     "clean_constellation",
 ]
@@ -133,25 +133,19 @@ FAMILIES = ("cluster_fold", "cluster_cusp", "galaxy_fold", "smacs_analog", "smac
             "macs1149_lenstool", "a2744_lenstool", "a370_lenstool", "as1063_lenstool",
             "as1063_s13_lenstool")
 
-#: Folder of the real SMACS0723 Lenstool model (``best.par``) used by the
-#: ``smacs_lenstool`` family; the environment variable
-#: ``LENSDUAL_SMACS0723_DIR`` overrides it.
-SMACS0723_LENSTOOL_DIR = (Path(__file__).resolve().parents[3] / "shared" / "data"
-                          / "smacs0723_mahler2022")
-
-#: Folder of the CATS Lenstool models used by the ``macs1149_lenstool``,
-#: ``a2744_lenstool``, ``a370_lenstool`` and ``as1063_lenstool`` families;
-#: ``LENSDUAL_HFF_DIR`` (the folder holding ``macs1149_v4``, ``abell2744``,
-#: ``abell370`` and ``abells1063_gold``) overrides it.
-HFF_LENSTOOL_DIR = (Path(__file__).resolve().parents[3] / "shared" / "data"
-                    / "hff_cats_lenstool")
+#: The environment variables that name the folders of the real Lenstool models
+#: the ``*_lenstool`` families are built on: ``LENSDUAL_SMACS0723_DIR`` the folder
+#: of the SMACS0723 model (``best.par``, Mahler et al. 2023), ``LENSDUAL_HFF_DIR``
+#: the folder holding the CATS models ``macs1149_v4``, ``abell2744``,
+#: ``abell370`` and ``abells1063_gold``. These models are not part of lensdual.
+DATA_ENVIRONMENT = {"smacs0723": "LENSDUAL_SMACS0723_DIR", "hff": "LENSDUAL_HFF_DIR"}
 
 
 def _hff_model(family, model, file):
-    """The ``"lenstool"`` record of a family on a CATS model under
-    :data:`HFF_LENSTOOL_DIR` (``LENSDUAL_HFF_DIR`` overrides it)."""
-    return {"family": family, "model": model, "folder": HFF_LENSTOOL_DIR, "file": file,
-            "env": "LENSDUAL_HFF_DIR"}
+    """The ``"lenstool"`` record of a family on a CATS model in the folder named
+    by ``LENSDUAL_HFF_DIR``."""
+    return {"family": family, "model": model, "file": file, "env": DATA_ENVIRONMENT["hff"]}
+
 
 #: Smallest and largest number of sources of :func:`clean_constellation`.
 N_SOURCES_RANGE = (8, 40)
@@ -244,8 +238,7 @@ FAMILY_PARAMETERS = {
                         "system 5 (images 5.1 and 5.2, z = 1.425)"),
         "z_source": 1.425,
         "lenstool": {"family": "smacs_lenstool", "model": "SMACS0723 Lenstool model",
-                     "folder": SMACS0723_LENSTOOL_DIR, "file": "best.par",
-                     "env": "LENSDUAL_SMACS0723_DIR"},
+                     "file": "best.par", "env": DATA_ENVIRONMENT["smacs0723"]},
         "fold_point": (4.753, -1.832) * u.arcsec,
         "normal": (-0.462, 0.887),
         "distance": (0.05, 0.2) * u.arcsec,
@@ -399,17 +392,20 @@ def _smacs_analog_system(p):
 
 def _lenstool_system(p):
     """A family on a real Lenstool model: ``p["lenstool"]`` names the family, the model,
-    its default folder, the file under it and the environment variable overriding it."""
+    the file and the environment variable that names its folder."""
     from ..parametric.lenstool import read_lenstool
 
     spec = p["lenstool"]
-    env = os.environ.get(spec["env"])
-    path = (Path(env) if env else spec["folder"]) / spec["file"]
+    env = os.environ.get(spec["env"], "").strip()
+    if not env:
+        raise FileNotFoundError(
+            f"the {spec['family']} family needs the {spec['model']} ({spec['file']}): set the "
+            f"environment variable {spec['env']} to the folder that holds it")
+    path = Path(env).expanduser() / spec["file"]
     if not path.is_file():
         raise FileNotFoundError(
-            f"the {spec['family']} family needs the {spec['model']} {path} (the data folder "
-            f"shared/data/{spec['folder'].name} next to the project, or the folder named by "
-            f"the environment variable {spec['env']}); it is missing")
+            f"the {spec['family']} family needs the {spec['model']} {path} (in the folder "
+            f"named by the environment variable {spec['env']}); it is missing")
     return read_lenstool(path).lens_system(z_source=p["z_source"])
 
 
@@ -579,8 +575,8 @@ def calibration_system(family):
     ValueError
         ``family`` is not one of :data:`FAMILIES`.
     FileNotFoundError
-        ``smacs_lenstool`` without the data folder
-        (:data:`SMACS0723_LENSTOOL_DIR`).
+        A family on a real Lenstool model without its data folder
+        (:data:`DATA_ENVIRONMENT`).
     """
     family = _check_family(family)
     system, info = _calibrated(family)
@@ -677,7 +673,8 @@ def clean_constellation(family, n_sources, *, seed, min_separation=0.08 * u.arcs
         Unknown ``family``, ``n_sources`` outside 8..40, or a non-positive
         ``min_separation``.
     FileNotFoundError
-        ``smacs_lenstool`` without its data folder.
+        A family on a real Lenstool model without its data folder
+        (:data:`DATA_ENVIRONMENT`).
     RuntimeError
         ``n_sources`` resolved sources could not be placed in ``max_tries``
         batches (``min_separation`` too large for the region).
