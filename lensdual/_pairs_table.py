@@ -14,10 +14,14 @@ accepted too), bands by their names::
     ('flux1_F150W', 'flux_err2_F150W', 'pos_err2')
 """
 
+import warnings
+
 import numpy as np
 from astropy import units as u
 from astropy.coordinates import SkyCoord
 from astropy.table import QTable, Table
+
+from .exceptions import MissingValuesWarning
 
 __all__ = [
     "ARCS",
@@ -182,9 +186,34 @@ def arc_xy(pairs, arc):
     return np.column_stack([pairs[x].to_value(u.arcsec), pairs[y].to_value(u.arcsec)])
 
 
+def masked_rows(col):
+    """The rows where ``col`` (a MaskedColumn or Masked Quantity) is masked.
+
+    Parameters
+    ----------
+    col : column-like
+        A table column.
+
+    Returns
+    -------
+    rows : `~numpy.ndarray` of int
+        The masked rows (empty for an unmasked column).
+    """
+    mask = getattr(col, "mask", None)
+    if mask is None or isinstance(col, SkyCoord):
+        return np.empty(0, dtype=int)
+    return np.flatnonzero(np.asarray(mask, dtype=bool).reshape(len(col), -1).any(axis=1))
+
+
 def _angle_column(pairs, name):
-    """A column as an angle Quantity, or TypeError naming it."""
+    """A column as an angle Quantity, or TypeError naming it; ValueError where
+    it is masked (a position cannot be missing)."""
     col = pairs[name]
+    rows = masked_rows(col)
+    if rows.size:
+        raise ValueError(f"pairs column {name!r} has masked (missing) values at row(s) "
+                         f"{rows.tolist()}; a pair needs both positions: remove those pairs "
+                         "or fill in their positions")
     unit = None if isinstance(col, SkyCoord) else getattr(col, "unit", None)
     if unit is None or u.Unit(unit).physical_type != "angle":
         raise TypeError(f"pairs column {name!r} must have angular units (e.g. arcsec), got {unit}")
@@ -204,6 +233,22 @@ def positions(pairs):
     theta1 = np.column_stack([out[0].value, out[1].value]) * u.arcsec
     theta2 = np.column_stack([out[2].value, out[3].value]) * u.arcsec
     return theta1, theta2
+
+
+def _missing_as_nan(names, cols, values, band):
+    """Masked entries of a band's flux columns become NaN ("not measured"), with a
+    warning naming the columns and rows."""
+    masked = []
+    for i, (name, col) in enumerate(zip(names, cols, strict=True)):
+        rows = masked_rows(col)
+        if rows.size:
+            values[i] = np.array(values[i], dtype=np.float64)  # never write into the input
+            values[i][rows] = np.nan
+            masked.append(f"{name} at row(s) {rows.tolist()}")
+    if masked:
+        warnings.warn(f"band {band!r}: masked entries are missing values, read as not "
+                      f"measured (NaN): {'; '.join(masked)}", MissingValuesWarning,
+                      stacklevel=4)
 
 
 def band_fluxes(pairs, band):
@@ -238,6 +283,7 @@ def band_fluxes(pairs, band):
                     f"flux units of band {band!r} do not match: {names[0]} has unit {ref}, "
                     f"{name} has unit {unit}"
                 ) from exc
+    _missing_as_nan(names, cols, values, band)
     f1, f2, e1, e2 = values
     for name, f in zip(names[:2], (f1, f2), strict=True):
         bad = np.isfinite(f) & (f <= 0)

@@ -2,7 +2,7 @@
 
 from astropy.utils.exceptions import AstropyUserWarning
 
-__all__ = ["LensdualWarning", "EstimatorWarning", "NoDetectionsWarning"]
+__all__ = ["LensdualWarning", "EstimatorWarning", "NoDetectionsWarning", "MissingValuesWarning"]
 
 
 class LensdualWarning(AstropyUserWarning):
@@ -18,3 +18,11 @@ class EstimatorWarning(LensdualWarning):
 
 class NoDetectionsWarning(LensdualWarning):
     """A source finder found nothing in the data; it returns None."""
+
+
+class MissingValuesWarning(LensdualWarning):
+    """Masked entries of an input table are treated as missing values.
+
+    A masked flux is "not measured" (NaN); the message names the columns and
+    rows.
+    """

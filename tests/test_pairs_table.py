@@ -1,5 +1,7 @@
 """Tests of lensdual._pairs_table: the column names and the check of a pairs table."""
 
+import warnings
+
 import numpy as np
 import pytest
 from astropy import units as u
@@ -250,3 +252,65 @@ def test_a_repeated_pair_id_is_refused_everywhere_a_pairs_table_enters():
     # distinct ids pass
     tab["pair_id"][5] = 99
     check_pairs_table(tab)
+
+
+def _clean_pairs():
+    from lensdual.simulation import clean_constellation
+
+    return clean_constellation("cluster_fold", 12, seed=1)
+
+
+@pytest.mark.parametrize("kind", ["Table", "QTable"])
+def test_masked_fluxes_are_missing_values_not_data(kind):
+    """Masked flux entries (MaskedColumn, Masked Quantity) are "not measured", with a
+    warning naming the columns and rows; the garbage under the mask is never read."""
+    from astropy.table import MaskedColumn
+    from astropy.utils.masked import Masked
+
+    from lensdual.duality import check_duality
+    from lensdual.exceptions import MissingValuesWarning
+
+    clean = _clean_pairs()
+    tab = (Table if kind == "Table" else QTable)(clean)
+    for band in clean.meta["bands"]:
+        col = flux_col(2, band)
+        data = np.array(clean[col].to_value(u.nJy))
+        data[3] = 1e-18  # what lies under the mask: a flux ratio of 1e18
+        mask = np.zeros(len(tab), bool)
+        mask[3] = True
+        tab[col] = (MaskedColumn(data, mask=mask, unit=u.nJy) if kind == "Table"
+                    else Masked(data * u.nJy, mask=mask))
+    before = np.array(tab[flux_col(2, "F150W")].data if kind == "Table"
+                      else tab[flux_col(2, "F150W")].unmasked.value)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        result = check_duality(tab, sigma_pos=0.005 * u.arcsec)
+    texts = {str(w.message) for w in caught if issubclass(w.category, MissingValuesWarning)}
+    assert any("flux2_F150W at row(s) [3]" in t for t in texts)
+    assert any("flux2_F200W at row(s) [3]" in t for t in texts)
+    others = [f"{w.category.__name__}: {w.message}" for w in caught
+              if not issubclass(w.category, MissingValuesWarning)]
+    assert others == ["LensdualWarning: no band has a finite flux ratio for row(s) [3]; "
+                      "their mu_flux is NaN"], others
+    assert np.isnan(result["mu_flux"][3])
+    assert not result["tested"][3] and not result["anomalous"][3]
+    assert np.isfinite(np.asarray(result["mu_flux"])[np.arange(12) != 3]).all()
+    assert not result["anomalous"].any()
+    # the input table is not changed
+    after = np.array(tab[flux_col(2, "F150W")].data if kind == "Table"
+                     else tab[flux_col(2, "F150W")].unmasked.value)
+    np.testing.assert_array_equal(after, before)
+
+
+def test_a_masked_position_is_refused_by_column_and_row():
+    from astropy.table import MaskedColumn
+
+    from lensdual.duality import check_duality
+
+    tab = Table(_clean_pairs())
+    mask = np.zeros(len(tab), bool)
+    mask[[2, 7]] = True
+    tab["x2"] = MaskedColumn(np.array(tab["x2"]), mask=mask, unit=u.arcsec)
+    with pytest.raises(ValueError, match=r"'x2' has masked \(missing\) values at row\(s\) "
+                                         r"\[2, 7\]"):
+        check_duality(tab, sigma_pos=0.005 * u.arcsec)
