@@ -224,6 +224,7 @@ def analyse(images, *, psf=None, estimator=DEFAULT_METHOD, sigma_pos="auto",
                 raise PipelineError(
                     f"only {len(pairs)} pair(s) found: the {estimator} estimator needs at "
                     f"least {n_min}{_MIN_PAIRS_WHY.get(estimator, '')}")
+            _check_distinct_arcs(pairs)
         with progress.step("PSF photometry of the pairs"):
             measured = measure_pairs(images["L1"], images["L2"], pairs, psf=psf, bands=bands,
                                      oversampling=oversampling or None)
@@ -255,6 +256,25 @@ def analyse(images, *, psf=None, estimator=DEFAULT_METHOD, sigma_pos="auto",
 # ---------------------------------------------------------------------------
 # pairing doubts, flags and the verdict
 # ---------------------------------------------------------------------------
+
+
+#: Pairs whose two images are closer than this on the sky are the same image.
+_SAME_IMAGE_SEPARATION = 1.0 * u.mas
+
+
+def _check_distinct_arcs(pairs):
+    """PipelineError when every pair's two images are the same point of the sky:
+    arcs L1 and L2 are then one image (the same files, or copies of them), and
+    every size magnification and flux ratio would be 1 by construction."""
+    if not {"sky1", "sky2"} <= set(pairs.colnames) or len(pairs) == 0:
+        return
+    sep = pairs["sky1"].separation(pairs["sky2"])
+    if np.all(sep < _SAME_IMAGE_SEPARATION):
+        raise PipelineError(
+            f"arcs L1 and L2 are the same image: all {len(pairs)} pairs have their two images "
+            f"within {_SAME_IMAGE_SEPARATION:g} of each other on the sky (the same files or "
+            "copies of them?). The two arcs must be two different images of the source; no "
+            "test of duality is possible here")
 
 
 def format_pairs_table(result):

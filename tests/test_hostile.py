@@ -445,3 +445,38 @@ def test_one_bad_candidate_does_not_kill_the_run(demo_dir, tmp_path):
     assert "L2" in str(bad["doubt"]) or "off the arc-to-arc map" in str(bad["doubt"])
     assert result["tested"][:-1].sum() >= 7
     assert "could not be tested" in (out / "report.txt").read_text()
+
+
+def test_the_same_image_for_both_arcs_is_refused(demo_dir, tmp_path, capsys):
+    """L2 given L1's files: a configuration problem (exit 2), before any work."""
+    cfg = absolute_config(demo_dir)
+    cfg["arcs"]["L2"] = {band: dict(spec) for band, spec in cfg["arcs"]["L1"].items()}
+    out = tmp_path / "out"
+    assert main(["run", str(write(tmp_path / "c.toml", cfg)), "--outdir", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "[arcs.L2.F150W] image: the same image as [arcs.L1.F150W]" in err
+    assert "[arcs.L2.F200W] image" in err
+    no_leftovers(tmp_path, out)
+
+
+def test_copies_of_one_image_for_both_arcs_are_refused(demo_dir, tmp_path, capsys):
+    """L2 given copies of L1's files: every pair is one point of the sky; exit 1 with
+    a message saying so, never "no sub-halo is detected"."""
+    import shutil
+
+    cfg = absolute_config(demo_dir)
+    l2 = {}
+    for band, spec in cfg["arcs"]["L1"].items():
+        l2[band] = {}
+        for key in ("image", "error"):
+            if key in spec:
+                copy = tmp_path / f"copy_{band}_{key}.fits"
+                shutil.copy(spec[key], copy)
+                l2[band][key] = str(copy)
+    cfg["arcs"]["L2"] = l2
+    out = tmp_path / "out"
+    assert main(["run", str(write(tmp_path / "c.toml", cfg)), "--outdir", str(out),
+                 "--quiet"]) == 1
+    err = capsys.readouterr().err
+    assert "arcs L1 and L2 are the same image" in err and "no sub-halo" not in err
+    no_leftovers(tmp_path, out)

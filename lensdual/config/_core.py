@@ -714,7 +714,32 @@ class _Validator:
                 continue
             arcs[arc] = self.arc(arc, table[arc])
         self.same_units()
+        self.distinct_arcs(arcs)
         return arcs
+
+    def distinct_arcs(self, arcs):
+        """The two arcs may not be the same image (file, HDU and cutout) in a band."""
+        if len(arcs) < 2 or any(a is None for a in arcs.values()):
+            return
+        l1, l2 = arcs["L1"], arcs["L2"]
+        cuts = (l1.cutout_center, l1.cutout_size, l2.cutout_center, l2.cutout_size)
+        if (cuts[0] is None) != (cuts[2] is None) or (cuts[0] is not None
+                                                      and not _valid(*cuts)):
+            return
+        if cuts[0] is not None and not (
+                cuts[0].separation(cuts[2]) < 1e-3 * u.arcsec
+                and np.array_equal(np.atleast_1d(cuts[1].to_value(u.arcsec)),
+                                   np.atleast_1d(cuts[3].to_value(u.arcsec)))):
+            return
+        for band, spec in l1.images.items():
+            other = l2.images.get(band)
+            if other is None:
+                continue
+            if spec.image == other.image and spec.hdu == other.hdu:
+                self.add(f"[arcs.L2.{band}] image: the same image as [arcs.L1.{band}] "
+                         f"({spec.image}{'' if spec.hdu is None else f', HDU {spec.hdu}'}, "
+                         "same cutout): the two arcs must be two different images of the "
+                         "source")
 
     def arc(self, arc, table):
         center = size = None
