@@ -234,6 +234,8 @@ def analyse(images, *, psf=None, estimator=DEFAULT_METHOD, sigma_pos="auto",
             for k in np.flatnonzero(~np.asarray(measured["measured"], dtype=bool)):
                 if not doubt[k]:
                     doubt[k] = f"not measured ({measured['photometry_note'][k]})"
+        if isinstance(sigma_pos, str):
+            _doubt_missing_position_errors(measured, doubt)
         measured["doubt"] = np.array([str(d) for d in doubt], dtype=str)
         step = (f"mu_size ({estimator})" if estimator == "adaptive"
                 else f"mu_size ({estimator}, {n_bootstrap} bootstraps)")
@@ -256,6 +258,18 @@ def analyse(images, *, psf=None, estimator=DEFAULT_METHOD, sigma_pos="auto",
 # ---------------------------------------------------------------------------
 # pairing doubts, flags and the verdict
 # ---------------------------------------------------------------------------
+
+
+def _doubt_missing_position_errors(measured, doubt):
+    """A pair whose PSF fits gave no position error (``sigma_pos = "auto"``) is
+    doubtful: its errors are unknown, so it is left out of the estimate and
+    reported untested with the reason."""
+    for arc, name in zip(ARCS, POS_ERR_COLUMNS, strict=True):
+        err = measured[name].to_value(u.arcsec)
+        for k in np.flatnonzero(~(np.isfinite(err) & (err > 0))):
+            if not doubt[k]:
+                doubt[k] = (f"no position error from the PSF fit on arc L{arc} (is there a "
+                            "point source?)")
 
 
 #: Pairs whose two images are closer than this on the sky are the same image.

@@ -480,3 +480,30 @@ def test_copies_of_one_image_for_both_arcs_are_refused(demo_dir, tmp_path, capsy
     err = capsys.readouterr().err
     assert "arcs L1 and L2 are the same image" in err and "no sub-halo" not in err
     no_leftovers(tmp_path, out)
+
+
+def test_a_pair_without_position_errors_is_untested_and_the_rest_analysed(
+        demo_dir, tmp_path, capsys, monkeypatch):
+    """A candidate whose PSF fit gives no position error (empty sky) does not stop the
+    run with "sigma_pos must be finite": it is untested, with the reason."""
+    import astropy.units as u
+
+    import lensdual.photometry as photometry
+
+    real = photometry.measure_pairs
+
+    def blank_pair(*args, **kwargs):
+        table = real(*args, **kwargs)
+        table["pos_err2"][4] = np.nan * u.arcsec
+        return table
+
+    monkeypatch.setattr(photometry, "measure_pairs", blank_pair)
+    out = tmp_path / "out"
+    assert main(["run", str(write(tmp_path / "c.toml", absolute_config(demo_dir))),
+                 "--outdir", str(out), "--quiet"]) == 0
+    pairs = QTable.read(out / "pairs.ecsv", format="ascii.ecsv")
+    assert not pairs["tested"][4]
+    assert "no position error from the PSF fit on arc L2" in pairs["doubt"][4]
+    others = np.arange(len(pairs)) != 4
+    assert np.isfinite(np.asarray(pairs["mu_size"])[others]).all()
+    assert "no position error" in (out / "report.txt").read_text()
