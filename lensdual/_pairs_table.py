@@ -251,19 +251,51 @@ def _missing_as_nan(names, cols, values, band):
                       stacklevel=4)
 
 
+def _magnitudes_as_fluxes(names, cols):
+    """Flux columns in AB magnitudes become flux densities (nJy), and errors in
+    magnitudes flux errors (``sigma_F = F ln(10) / 2.5 sigma_m``); magnitudes
+    without a photometric system are refused, naming the column."""
+    units = [getattr(c, "unit", None) for c in cols]
+    if not any(isinstance(un, u.MagUnit) or un == u.mag for un in units):
+        return cols
+    out = list(cols)
+    for i in (0, 1):
+        if units[i] == u.mag:
+            raise ValueError(f"{names[i]} is in magnitudes without a photometric system "
+                             "(mag): give AB magnitudes (astropy.units.ABmag) or fluxes")
+        if isinstance(units[i], u.MagUnit):
+            try:
+                out[i] = u.Quantity(cols[i].to(u.nJy))
+            except u.UnitConversionError:
+                raise ValueError(f"{names[i]} is in {units[i]}, which lensdual cannot convert "
+                                 "to a flux density: give AB magnitudes or fluxes") from None
+    for i in (2, 3):
+        if isinstance(units[i], u.MagUnit):
+            raise ValueError(f"{names[i]} is in {units[i]}: a magnitude error is a difference "
+                             "of magnitudes (astropy.units.mag), or give a flux error")
+        if units[i] == u.mag:
+            if not isinstance(units[i - 2], u.MagUnit):
+                raise ValueError(f"{names[i]} is in magnitudes but {names[i - 2]} is not: give "
+                                 "both in magnitudes or both as fluxes")
+            out[i] = out[i - 2] * (np.log(10.0) / 2.5) * cols[i].value
+    return out
+
+
 def band_fluxes(pairs, band):
     """Return flux1, flux2, err1, err2 of one band as float arrays in one unit.
 
     The four columns of :func:`band_flux_cols` must exist, share one unit (or
     all have none), the fluxes be positive and their errors finite and
     positive where the flux is finite (a NaN flux means "not measured").
+    Fluxes in AB magnitudes are converted to flux densities, and errors in
+    magnitudes to flux errors.
     Raises ValueError naming the offending column.
     """
     names = band_flux_cols(band)
     missing = [n for n in names if n not in pairs.colnames]
     if missing:
         raise ValueError(f"pairs table lacks the column(s) {missing} of band {band!r}")
-    cols = [pairs[n] for n in names]
+    cols = _magnitudes_as_fluxes(names, [pairs[n] for n in names])
     units = [c.unit if isinstance(c, u.Quantity) else None for c in cols]
     ref = units[0]
     values = []

@@ -17,6 +17,7 @@ from lensdual._pairs_table import (
     SKY_COLUMNS,
     arc_xy,
     band_flux_cols,
+    band_fluxes,
     check_pairs_table,
     flags_col,
     flux_col,
@@ -314,3 +315,45 @@ def test_a_masked_position_is_refused_by_column_and_row():
     with pytest.raises(ValueError, match=r"'x2' has masked \(missing\) values at row\(s\) "
                                          r"\[2, 7\]"):
         check_duality(tab, sigma_pos=0.005 * u.arcsec)
+
+
+def test_ab_magnitudes_are_read_as_fluxes():
+    """Fluxes in AB magnitudes with errors in mag give the flux ratios and errors of
+    the same fluxes in nJy (AB zero point: 31.4 mag is 1 nJy)."""
+    from lensdual.duality import flux_ratios
+
+    rng = np.random.default_rng(3)
+    m1, m2 = rng.uniform(24, 27, 6), rng.uniform(24, 27, 6)
+    dm = np.full(6, 0.02)
+    mags = QTable({flux_col(1, "F1"): m1 * u.ABmag, flux_col(2, "F1"): m2 * u.ABmag,
+                   flux_err_col(1, "F1"): dm * u.mag, flux_err_col(2, "F1"): dm * u.mag})
+    f1, f2 = 10 ** (-0.4 * (m1 - 31.4)), 10 ** (-0.4 * (m2 - 31.4))
+    k = np.log(10) / 2.5 * dm
+    fluxes = QTable({flux_col(1, "F1"): f1 * u.nJy, flux_col(2, "F1"): f2 * u.nJy,
+                     flux_err_col(1, "F1"): k * f1 * u.nJy, flux_err_col(2, "F1"): k * f2 * u.nJy})
+    got = band_fluxes(mags, "F1")
+    np.testing.assert_allclose(got[0] / got[1], 10 ** (-0.4 * (m1 - m2)), rtol=1e-12)
+    for a, b in zip(got, band_fluxes(fluxes, "F1"), strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-6)
+    a, b = flux_ratios(mags), flux_ratios(fluxes)
+    np.testing.assert_allclose(np.asarray(a["mu_flux"]), np.asarray(b["mu_flux"]), rtol=1e-6)
+    np.testing.assert_allclose(np.asarray(a["mu_flux_err"]), np.asarray(b["mu_flux_err"]),
+                               rtol=1e-6)
+
+
+@pytest.mark.parametrize("change, match", [
+    (lambda t: t.__setitem__(flux_col(1, "F1"), [25.0, 26.0] * u.mag),
+     "flux1_F1 is in magnitudes without a photometric system"),
+    (lambda t: t.__setitem__(flux_err_col(1, "F1"), [0.1, 0.1] * u.ABmag),
+     "flux_err1_F1 is in mag\\(AB\\): a magnitude error is a difference"),
+    (lambda t: t.__setitem__(flux_err_col(2, "F1"), [0.1, 0.1] * u.mag),
+     "flux_err2_F1 is in magnitudes but flux2_F1 is not"),
+])
+def test_magnitudes_that_cannot_be_fluxes_are_refused(change, match):
+    tab = QTable({flux_col(1, "F1"): [25.0, 26.0] * u.ABmag,
+                  flux_col(2, "F1"): [400.0, 200.0] * u.nJy,
+                  flux_err_col(1, "F1"): [0.02, 0.02] * u.mag,
+                  flux_err_col(2, "F1"): [4.0, 2.0] * u.nJy})
+    change(tab)
+    with pytest.raises(ValueError, match=match):
+        band_fluxes(tab, "F1")

@@ -475,3 +475,21 @@ def test_plot_detection_snr_map():
         plot_detection_snr_map({"r_eff": [1.0]})
     with pytest.raises(ValueError, match="one row per"):
         plot_detection_snr_map(t[:-1])
+
+
+def test_subhalo_kwargs_may_be_angle_quantities():
+    """theta_E (and the TNFW's Rs, alpha_Rs, r_trunc) as angles give the numbers' results;
+    a non-angle is refused by name."""
+    from lensdual.sensitivity import flux_excess
+
+    d = [0.02 / np.sqrt(0.5), 0.0] * u.arcsec
+    a0 = 0.5 * np.eye(2)
+    plain = flux_excess(a0, {"theta_E": 0.02}, d)
+    np.testing.assert_allclose(plain, 3 / np.sqrt(5), rtol=2e-3)
+    np.testing.assert_array_equal(flux_excess(a0, {"theta_E": 20 * u.mas}, d), plain)
+    tnfw = {"Rs": 0.05, "alpha_Rs": 0.004, "r_trunc": 0.5}
+    as_angles = {k: (v * u.arcsec).to(u.mas) for k, v in tnfw.items()}
+    np.testing.assert_allclose(flux_excess(a0, as_angles, d), flux_excess(a0, tnfw, d),
+                               rtol=1e-12)
+    with pytest.raises(ValueError, match="subhalo theta_E must be an angle"):
+        flux_excess(a0, {"theta_E": 0.02 * u.kg}, d)

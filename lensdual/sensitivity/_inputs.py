@@ -89,6 +89,21 @@ def _as_r_eff(r_eff, name="r_eff"):
     return r
 
 
+def _kwarg_arcsec(kw, key):
+    """A lenstronomy kwarg in arcsec: a number, or an angle Quantity converted."""
+    value = kw[key]
+    if isinstance(value, u.Quantity):
+        if value.unit.physical_type != "angle" or not value.isscalar:
+            raise ValueError(f"subhalo {key} must be an angle (e.g. 0.02 * u.arcsec) or a "
+                             f"number in arcsec, got {value}")
+        return float(value.to_value(u.arcsec))
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"subhalo {key} must be a number (arcsec) or an angle Quantity, got "
+                         f"{value!r}") from None
+
+
 def _as_subhalo(subhalo):
     """-> (profile code, p0, p1, p2) from a LensComponent or lenstronomy kwargs."""
     from ..simulation.halos import LensComponent
@@ -106,7 +121,7 @@ def _as_subhalo(subhalo):
         )
     if profile == "TNFW":
         try:
-            rs, ars, rt = (float(kw[k]) for k in ("Rs", "alpha_Rs", "r_trunc"))
+            rs, ars, rt = (_kwarg_arcsec(kw, k) for k in ("Rs", "alpha_Rs", "r_trunc"))
         except KeyError as err:
             raise ValueError(f"subhalo TNFW kwargs lack {err.args[0]!r}") from None
         for k, v in (("Rs", rs), ("alpha_Rs", ars), ("r_trunc", rt)):
@@ -114,7 +129,7 @@ def _as_subhalo(subhalo):
                 raise ValueError(f"subhalo {k} must be finite and > 0, got {v}")
         return _k.PROFILE_TNFW, rs, _k.tnfw_rho0(rs, ars), rt
     if profile == "POINT_MASS":
-        te = float(kw["theta_E"])
+        te = _kwarg_arcsec(kw, "theta_E")
         if not (math.isfinite(te) and te > 0):
             raise ValueError(f"subhalo theta_E must be finite and > 0, got {te}")
         return _k.PROFILE_POINT, te, 0.0, 0.0
