@@ -21,8 +21,9 @@ class NoDetectionsWarning(LensdualWarning):
 
 
 class MissingValuesWarning(LensdualWarning):
-    """Masked entries of an input table are treated as missing values.
+    """Input values that cannot be data are treated as missing.
 
-    A masked flux is "not measured" (NaN); the message names the columns and
-    rows.
+    A masked flux of a pairs table is "not measured" (NaN), and a pixel whose
+    error is zero, negative or not finite is masked; the message names the
+    columns and rows, or the file and the number of pixels.
     """

@@ -507,3 +507,29 @@ def test_a_pair_without_position_errors_is_untested_and_the_rest_analysed(
     others = np.arange(len(pairs)) != 4
     assert np.isfinite(np.asarray(pairs["mu_size"])[others]).all()
     assert "no position error" in (out / "report.txt").read_text()
+
+
+def test_zero_error_pixels_are_masked_with_a_warning_naming_the_file(demo_dir, tmp_path,
+                                                                      capsys):
+    """A 15 x 15 block of zero errors around the brightest L1 source: the block is
+    masked, and the run says so, naming the error map and the pixel count."""
+    cfg = absolute_config(demo_dir)
+    spec = cfg["arcs"]["L1"]["F150W"]
+    cat = QTable.read(demo_dir / "catalog_L1.ecsv", format="ascii.ecsv")
+    k = int(np.argmax(np.asarray(cat["flux_F150W"])))
+    x, y = int(round(float(cat["x_pix"][k]))), int(round(float(cat["y_pix"][k])))
+    index = 1 if "error_hdu" in spec else 0
+
+    def zero_block(hdul):
+        hdul[index].data[y - 7:y + 8, x - 7:x + 8] = 0.0
+
+    spec["error"] = str(copy_fits(spec.get("error", spec["image"]), tmp_path / "err.fits",
+                                  zero_block))
+    out = tmp_path / "out"
+    assert main(["run", str(write(tmp_path / "c.toml", cfg)), "--outdir", str(out),
+                 "--quiet"]) == 0
+    err = capsys.readouterr().err
+    said = ("arc L1, L1_F150W_sci.fits (error map err.fits): 225 pixel(s) with data have an "
+            "error that is zero")
+    assert said in err
+    assert said in (out / "report.txt").read_text()

@@ -14,6 +14,7 @@ from astropy.nddata import CCDData, Cutout2D, StdDevUncertainty
 from astropy.nddata.utils import NoOverlapError
 from astropy.wcs import WCS, FITSFixedWarning
 
+from ..exceptions import MissingValuesWarning
 from ._values import _suggest
 
 _MIN_PSF_SIZE = 5
@@ -317,6 +318,15 @@ def _check_noise(data, err, mask, where):
             stacklevel=3)
 
 
+def _warn_bad_errors(bad, where):
+    """Warn when pixels with data have an error that is not finite and positive."""
+    n_bad = int(np.count_nonzero(bad))
+    if n_bad:
+        warnings.warn(f"{where}: {n_bad} pixel(s) with data have an error that is zero, "
+                      "negative or not finite; they are masked, and a source on them is "
+                      "not measured", MissingValuesWarning, stacklevel=3)
+
+
 def _read_image(spec, arc, psf):
     """One CCDData; ValueError / OSError on unusable files."""
     with fits.open(spec.image) as hdul:
@@ -355,7 +365,9 @@ def _read_image(spec, arc, psf):
     where = f"arc {arc.name}, {spec.image.name}"
     if spec.error is not None:
         err = _read_map(spec.error, spec.error_hdu, slices, unit=map_unit) * scale
-        mask |= ~(np.isfinite(err) & (err > 0))
+        bad_error = ~(np.isfinite(err) & (err > 0))
+        _warn_bad_errors(bad_error & ~mask, f"{where} (error map {spec.error.name})")
+        mask |= bad_error
         _check_noise(data, err, mask, f"{where} (error map {spec.error.name})")
         uncertainty = StdDevUncertainty(err)
     elif spec.weight is not None:
