@@ -211,7 +211,7 @@ def read_macro_images(path, names):
         raise TypeError(f"path must be a str or os.PathLike, got {type(path).__name__}")
     names = [names] if isinstance(names, str) else [str(n) for n in names]
     found = {}
-    with open(path, encoding="utf-8", errors="replace") as fh:
+    with open(path, encoding="utf-8-sig", errors="replace") as fh:
         for number, raw in enumerate(fh, start=1):
             text = raw.strip()
             if not text.startswith("#"):

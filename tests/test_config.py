@@ -486,6 +486,22 @@ def test_file_level_errors(data_dir):
         load_config(write(data_dir, "bands_string", cfg))
 
 
+def test_a_repeated_key_is_named(data_dir):
+    path = data_dir / "repeated.toml"
+    path.write_text('[analysis]\nseed = 1\nestimator = "quad"\nseed = 2\n')
+    with pytest.raises(ConfigError, match=r"\(at line 4, column 9\): the key 'seed' is given "
+                                          r"twice in its table"):
+        load_config(path)
+
+
+def test_a_byte_order_mark_is_not_part_of_the_file(data_dir):
+    plain = write(data_dir, "plain", minimal_config())
+    bom = data_dir / "bom.toml"
+    bom.write_bytes(b"\xef\xbb\xbf" + plain.read_bytes())
+    a, b = load_config(plain), load_config(bom)
+    assert a.bands == b.bands and a.arcs == b.arcs and a.estimator == b.estimator
+
+
 # ---------------------------------------------------------------------------
 # writing TOML
 # ---------------------------------------------------------------------------

@@ -757,3 +757,12 @@ def test_smacs0723_parametric_comparison_from_sky(smacs):
         table, fig = parametric_comparison(table_in, lenstool=lenstool, z_source=z)
         np.testing.assert_allclose(table["mu_model"], expect, rtol=1e-6)
         plt.close(fig)
+
+
+def test_a_byte_order_mark_is_not_part_of_the_file(tmp_path, small_model):
+    """A Lenstool file saved with a UTF-8 byte-order mark reads as the same model."""
+    path = tmp_path / "bom.par"
+    path.write_bytes(b"\xef\xbb\xbf" + PAR.encode())
+    model = read_lenstool(path)
+    assert list(model.potentials["name"]) == list(small_model.potentials["name"])
+    assert model.origin.ra.deg == small_model.origin.ra.deg

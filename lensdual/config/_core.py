@@ -7,6 +7,7 @@ the rules that join several keys.
 """
 
 import math
+import re
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -1262,6 +1263,19 @@ class _Validator:
         return config
 
 
+def _toml_hint(text, exc):
+    """What a TOML error means where the parser's words do not say it (a repeated key)."""
+    found = re.search(r"at line (\d+)", str(exc))
+    if "Cannot overwrite a value" not in str(exc) or not found:
+        return ""
+    lineno = int(found.group(1))
+    lines = text.splitlines()
+    if lineno > len(lines):
+        return ""
+    key = lines[lineno - 1].split("=", 1)[0].strip()
+    return f": the key {key!r} is given twice in its table" if key else ""
+
+
 def load_config(path, *, outdir=None):
     """Read and validate a ``lensdual run`` configuration file.
 
@@ -1297,10 +1311,11 @@ def load_config(path, *, outdir=None):
     if not cfg_path.is_file():
         raise ConfigError([f"not a file: {cfg_path}"], cfg_path)
     try:
-        with open(cfg_path, "rb") as fh:
-            data = tomllib.load(fh)
+        # utf-8-sig: a byte-order mark (as some Windows editors write) is not TOML
+        text = cfg_path.read_bytes().decode("utf-8-sig")
+        data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise ConfigError([f"invalid TOML: {exc}"], cfg_path) from None
+        raise ConfigError([f"invalid TOML: {exc}{_toml_hint(text, exc)}"], cfg_path) from None
     except UnicodeDecodeError as exc:
         raise ConfigError([f"the file is not UTF-8 text ({exc})"], cfg_path) from None
     except OSError as exc:

@@ -819,7 +819,7 @@ def read_lenstool(path, *, cosmology=None):
     """
     path = _as_path(path)
     cosmo_override = None if cosmology is None else as_cosmology(cosmology)
-    lines = path.read_text(encoding="utf-8", errors="replace").splitlines()
+    lines = path.read_text(encoding="utf-8-sig", errors="replace").splitlines()
     blocks, header = _blocks(path, lines)
     origin, ref_mode = _reference(path, blocks)
     file_cosmology = _cosmology(path, blocks)
@@ -1557,7 +1557,7 @@ def read_lenstool_images(path, *, reference):
     file_ref = None  # None: absolute degrees; else the SkyCoord of a relative frame
     rows = []
     seen = {}
-    lines = path.read_text(encoding="utf-8", errors="replace").splitlines()
+    lines = path.read_text(encoding="utf-8-sig", errors="replace").splitlines()
     for number, raw in enumerate(lines, start=1):
         text = raw.strip()
         where = f"{path}, line {number}"
