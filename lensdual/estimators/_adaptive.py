@@ -60,10 +60,10 @@ _INLINE = {**JIT_OPTIONS, "inline": "always"}
 class AdaptiveSettings(NamedTuple):
     """The tuning constants of the adaptive estimator, each with its default.
 
-    The measurements behind each default are in the documentation's record
-    of design decisions. ``nest_crit6`` and ``two_nest_crit8`` are the
-    chi-square quantiles of ``nest_alpha`` and ``two_nest_alpha`` (the tests
-    check them against scipy).
+    The measurements behind each default are in the calibration page of the
+    documentation (its table of choices). ``nest_crit6`` and
+    ``two_nest_crit8`` are the chi-square quantiles of ``nest_alpha`` and
+    ``two_nest_alpha`` (the tests check them against scipy).
     """
 
     #: Significance of the chi-square test that a local polynomial fits within the noise.
