@@ -852,6 +852,22 @@ def _analyse_knot_config(config):
                          snr_threshold=config.snr_threshold)
 
 
+def _knot_summary(tab, name):
+    """One model's line of a knot table: disagreements, then parity."""
+    bad = tab["knot"][np.asarray(tab[f"disagree_{name}"], bool)]
+    parity = np.asarray(tab["parity"])
+    determined = parity != 0
+    agree = int(np.sum(determined & (parity == np.asarray(tab[f"parity_{name}"]))))
+    text = (f"  {name}: {len(bad)} of {len(tab)} knots disagree beyond SNR "
+            f"{tab.meta['snr_threshold']:g} (SNR or parity)"
+            + (f" ({', '.join(str(b) for b in bad)})" if len(bad) else "")
+            + f"; parity agrees for {agree} of the {int(determined.sum())} knots where it "
+              "is determined")
+    if (~determined).any():
+        text += (f" (undetermined: {', '.join(str(k) for k in tab['knot'][~determined])})")
+    return text
+
+
 def knot_report(analysis):
     """A text report of a `KnotAnalysis`.
 
@@ -888,10 +904,5 @@ def knot_report(analysis):
                         f"{r[f'snr_{n}']:5.2f}{flag}")
             lines.append(row)
         for n in names:
-            bad = tab["knot"][np.asarray(tab[f"disagree_{n}"], bool)]
-            agree = int(np.sum(np.asarray(tab["parity"]) == np.asarray(tab[f"parity_{n}"])))
-            lines.append(f"  {n}: {len(bad)} of {len(tab)} knots disagree beyond SNR "
-                         f"{tab.meta['snr_threshold']:g}"
-                         + (f" ({', '.join(str(b) for b in bad)})" if len(bad) else "")
-                         + f"; parity agrees for {agree} of {len(tab)}")
+            lines.append(_knot_summary(tab, n))
     return "\n".join(lines)

@@ -92,9 +92,13 @@ def main():
         ok = np.isin(cmp["mu_size_status"], ["ok", "misfit"])
         pulls = np.log(cmp["mu_size"] / cmp["mu_CATS_v4"]) / np.hypot(
             cmp["ln_mu_size_err"], cmp["ln_mu_CATS_v4_err"])
-        print(f" tested {int(ok.sum())}, disagree (SNR > 3) {int(cmp['disagree_CATS_v4'].sum())}, "
-              f"median |pull| {np.median(np.abs(pulls[ok])):.2f}, "
-              f"parity agrees {int(np.sum(cmp['parity'] == cmp['parity_CATS_v4']))}/{len(cmp)}")
+        det = cmp["parity"] != 0
+        bad = ", ".join(str(k) for k in cmp["knot"][np.asarray(cmp["disagree_CATS_v4"], bool)])
+        print(f" tested {int(ok.sum())}, disagree (SNR or parity, > 3) "
+              f"{int(cmp['disagree_CATS_v4'].sum())} ({bad}), "
+              f"median |pull| {np.median(np.abs(pulls[ok])):.2f}, parity agrees "
+              f"{int(np.sum(det & (cmp['parity'] == cmp['parity_CATS_v4'])))} of "
+              f"{int(det.sum())} determined")
     fig.tight_layout()
     fig.savefig(OUT, dpi=90)
     print(f"\nwrote {OUT}")

@@ -143,11 +143,16 @@ def compare_size_with_models(pairs, models, *, sigma_pos, z_source=None, method=
     table : `~astropy.table.QTable`
         ``pair_id`` (and ``knot``, ``id1``, ``id2`` when present),
         ``mu_size``, ``mu_size_err``, ``ln_mu_size_err``, ``mu_size_status``,
-        ``parity``, then for each model ``<name>``: ``mu_<name>`` (the ratio
-        ``|mu1 / mu2|``), ``ln_mu_<name>_err``, ``parity_<name>`` (sign of
-        ``mu1 mu2``), ``snr_<name>`` and ``disagree_<name>`` (False where
-        the pair is untestable or the SNR is NaN). ``meta`` holds
-        ``models``, ``sigma_pos``, ``snr_threshold`` and ``method``.
+        ``parity_snr`` (the significance of the sign of ``det J``,
+        ``1 / ln_mu_size_err``; NaN where untestable), ``parity`` (that sign,
+        0 where it is undetermined: untestable, or ``parity_snr`` below
+        ``snr_threshold``), then for each model ``<name>``: ``mu_<name>``
+        (the ratio ``|mu1 / mu2|``), ``ln_mu_<name>_err``, ``parity_<name>``
+        (sign of ``mu1 mu2``), ``snr_<name>`` and ``disagree_<name>``: the
+        SNR beyond ``snr_threshold``, or a determined parity opposite to the
+        model's (False where the pair is untestable or the SNR is NaN and
+        the parity undetermined). ``meta`` holds ``models``, ``sigma_pos``,
+        ``snr_threshold`` and ``method``.
 
     Examples
     --------
@@ -186,8 +191,12 @@ def compare_size_with_models(pairs, models, *, sigma_pos, z_source=None, method=
     status = (np.asarray(size["mu_size_status"]) if "mu_size_status" in size.colnames
               else np.where(np.isfinite(out["mu_size"]), "ok", "failed"))
     out["mu_size_status"] = status
-    out["parity"] = np.asarray(size["parity"])
     testable = np.isin(status, TESTABLE_STATUS)
+    # the sign of det J is known to |det J| / sigma(det J) = 1 / sigma(ln|det J|)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out["parity_snr"] = np.where(testable, 1.0 / ln_size, np.nan)
+    determined = testable & (np.nan_to_num(out["parity_snr"]) >= snr_threshold)
+    out["parity"] = np.where(determined, np.asarray(size["parity"]), 0)
     for name, model in items:
         mu1, mu2, ratio, ln_model = _model_ratio(model, tab, z_source, sigma)
         out[f"mu_{name}"] = ratio
@@ -196,7 +205,8 @@ def compare_size_with_models(pairs, models, *, sigma_pos, z_source=None, method=
         with np.errstate(all="ignore"):
             snr = np.abs(np.log(out["mu_size"] / ratio)) / np.hypot(ln_size, ln_model)
         out[f"snr_{name}"] = snr
-        out[f"disagree_{name}"] = testable & np.isfinite(snr) & (snr > snr_threshold)
+        flip = determined & (out[f"parity_{name}"] != 0) & (out["parity"] != out[f"parity_{name}"])
+        out[f"disagree_{name}"] = (testable & np.isfinite(snr) & (snr > snr_threshold)) | flip
     out.meta.update(models=[n for n, _ in items], sigma_pos=sigma * u.arcsec,
                     snr_threshold=snr_threshold, method=method, z_source=z_source)
     for key in ("macro1", "macro2"):
