@@ -313,8 +313,10 @@ def write_figures(analysis, directory, *, title, images=None):
     if images is not None:
         from .visualization import plot_arc_images
 
-        fig = plot_arc_images(images, analysis.result)
+        # two panels: the mapped view is pairing_map.png
+        fig = plot_arc_images(images, analysis.result, mapped=False)
         fig.suptitle(f"{title}: the pairs on both arcs", fontsize="medium")
+        fig.tight_layout(rect=(0, 0, 1, 0.94))  # room for the title above the panels
         fig.savefig(directory / "constellation.png", dpi=110)
         plt.close(fig)
     fig, ax = plt.subplots(figsize=(5.5, 5.5))

@@ -478,6 +478,10 @@ def plot_arc_images(images, result, *, band=None, fig=None, margin=0.4, scale_ba
     for col in SKY_COLUMNS:
         if col not in result.colnames or not isinstance(result[col], SkyCoord):
             raise ValueError(f"result needs a SkyCoord column {col!r}")
+    from matplotlib import patheffects
+
+    # a dark outline keeps the pair markers readable on bright and dark pixels
+    outline = (patheffects.withStroke(linewidth=2.5, foreground="black"),)
     n_panels = 3 if mapped else 2
     if fig is None:
         fig = plt.figure(figsize=(5.0 * n_panels, 5.0))
@@ -520,9 +524,10 @@ def plot_arc_images(images, result, *, band=None, fig=None, margin=0.4, scale_ba
         for x, y, pid, c in zip(cx, cy, ids, colour, strict=True):
             if not (np.isfinite(x) and np.isfinite(y)):
                 continue  # a pair whose position on this arc was not measured
-            ax.add_patch(plt.Circle((x, y), radius, fill=False, color=c, lw=1.2))
+            ax.add_patch(plt.Circle((x, y), radius, fill=False, color=c, lw=1.2,
+                                    path_effects=outline))
             ax.annotate(str(pid), (x, y), xytext=(4, 4), textcoords="offset points",
-                        color=c, fontsize=8, fontweight="bold")
+                        color=c, fontsize=8, fontweight="bold", path_effects=outline)
         ny, nx = cut.data.shape
         length = scale_bar / scale
         x0, y0 = 0.06 * nx, 0.06 * ny
