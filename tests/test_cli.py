@@ -11,6 +11,7 @@ import pytest
 from _demo_config import absolute_config as _absolute_config
 from _demo_config import run_demo
 from _demo_config import write as _write
+from _lenstool_text import COSMOLOGY
 from astropy.table import QTable
 
 from lensdual.cli import main
@@ -313,14 +314,7 @@ potentiel O1
     m200          5e14
     z_lens        0.39
     end
-cosmology
-    model       1
-    H0          70.0
-    omegaM      0.3
-    omegaX      0.7
-    end
-fini
-"""
+""" + COSMOLOGY + "fini\n"
 
 
 def test_run_with_a_lenstool_model(demo_dir, tmp_path):

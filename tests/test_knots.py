@@ -5,6 +5,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _lenstool_text import COSMOLOGY
 from astropy import units as u
 from astropy.coordinates import SkyCoord
 from astropy.table import QTable
@@ -189,14 +190,7 @@ potential G1
     v_disp        120.0
     z_lens        0.4
     end
-cosmology
-    model       1
-    H0          70.0
-    omegaM      0.3
-    omegaX      0.7
-    end
-fini
-"""
+""" + COSMOLOGY + "fini\n"
 
 
 @pytest.fixture(scope="module")

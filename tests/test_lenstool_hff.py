@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _lenstool_text import COSMOLOGY
 from astropy import units as u
 from astropy.cosmology import FlatLambdaCDM
 
@@ -27,14 +28,7 @@ runmode
     reference     3 150.000000 -30.000000
     end
 """
-COSMO_BLOCK = """\
-cosmology
-    model       1
-    H0          70.0
-    omegaM      0.3
-    omegaX      0.7
-    end
-"""
+COSMO_BLOCK = COSMOLOGY
 
 
 def dpie(name, x, y, v_disp, z, *, e=0.0, angle=0.0, core=0.3, cut=20.0):

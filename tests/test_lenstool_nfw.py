@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from _lenstool_text import COSMOLOGY
 from astropy import constants as const
 from astropy import units as u
 from astropy.cosmology import FlatLambdaCDM
@@ -253,14 +254,6 @@ def test_centre_and_major_axis():
 RUNMODE = """\
 runmode
     reference     3 150.000000 -30.000000
-    end
-"""
-COSMOLOGY = """\
-cosmology
-    model       1
-    H0          70.0
-    omegaM      0.3
-    omegaX      0.7
     end
 """
 MEMBER = """\
