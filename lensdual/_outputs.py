@@ -102,27 +102,30 @@ def _unchanged(outdir, name, digest):
     return digest is None or _digest(path) == digest
 
 
-def earlier_outputs(outdir):
+def earlier_outputs(outdir, manifest=None, skip=()):
     """Files of ``outdir`` that an earlier lensdual run wrote and nobody changed since.
 
     The files written for the user (`USER_FILES`) are not among them, nor
-    the files of an older manifest without digests.
+    the files of an older manifest without digests, nor those in ``skip``
+    (not read). ``manifest`` is that of :func:`read_manifest` when at hand.
     """
     outdir = Path(outdir)
-    return [n for n, d in read_manifest(outdir).items()
-            if d is not None and not _is_user_file(n) and _unchanged(outdir, n, d)]
+    manifest = read_manifest(outdir) if manifest is None else manifest
+    return [n for n, d in manifest.items() if d is not None and n not in skip
+            and not _is_user_file(n) and _unchanged(outdir, n, d)]
 
 
-def conflicting_files(outdir, names):
+def conflicting_files(outdir, names, manifest=None):
     """The files among ``names`` in ``outdir`` that a command may not replace.
 
     A file may be replaced only when lensdual wrote it there and it is
-    unchanged since (the manifest says so).
+    unchanged since (the manifest says so). ``manifest`` is that of
+    :func:`read_manifest` when at hand.
     """
     outdir = Path(outdir)
     if not outdir.is_dir():
         return []
-    manifest = read_manifest(outdir)
+    manifest = read_manifest(outdir) if manifest is None else manifest
     conflicts = []
     for name in names:
         path = outdir / name
@@ -269,12 +272,12 @@ def atomic_directory(outdir, removed=None):
     try:
         yield tmp
         written = sorted(str(p.relative_to(tmp)) for p in tmp.rglob("*") if p.is_file())
-        conflicts = conflicting_files(outdir, written)
+        before = read_manifest(outdir)
+        conflicts = conflicting_files(outdir, written, before)
         if conflicts:
             raise OutputConflictError(_conflict_message(outdir, conflicts))
         outdir.mkdir(parents=True, exist_ok=True)
-        before = read_manifest(outdir)
-        stale = [n for n in earlier_outputs(outdir) if n not in written]
+        stale = earlier_outputs(outdir, before, skip=set(written))
         for path in sorted(tmp.rglob("*")):
             target = outdir / path.relative_to(tmp)
             if path.is_dir():
