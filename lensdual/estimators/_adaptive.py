@@ -1009,12 +1009,13 @@ def adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, k_dense, st, order, 
                 dr = dt + st.report_extra
                 sdf, consistent, dof_r = _fallback_fit(U, W, Yr, L, scale, beta, work,
                                                        chi2_crit, kk, pr, var_ln)
-                n_cand = _add_candidate(cand_f, cand_i, cand_ok, n_cand, np.log(abs(det)),
-                                        var_ln, kk, dr, consistent)
+                ln_det = np.log(abs(det))
+                n_cand = _add_candidate(cand_f, cand_i, cand_ok, n_cand, ln_det, var_ln, kk, dr,
+                                        consistent)
                 n_consistent += consistent
-                _keep_fallback(fb_f, fb_i, jfb, 0 if consistent else 1, sdf, np.log(abs(det)), kk,
-                               dr, dof_r, L, scale, work, beta, U, cov_o, grad_o, c, s, jr, g,
-                               hmax, pr, st)
+                _keep_fallback(fb_f, fb_i, jfb, 0 if consistent else 1, sdf, ln_det, kk, dr,
+                               dof_r, L, scale, work, beta, U, cov_o, grad_o, c, s, jr, g, hmax,
+                               pr, st)
     # the pair's own L2 noise moves the point where the fits take the Jacobian
     # (every offset is measured from it): s2^2 |grad ln|det J||^2
     v_centre = s2[a] * s2[a]
