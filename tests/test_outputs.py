@@ -236,7 +236,7 @@ def test_rerunning_the_demo_keeps_a_hand_edited_config_and_its_data(demo_dir, tm
     assert edited != (out / "run.toml").read_text()
     (out / "run.toml").write_text(edited)
     data = snapshot(out / "data")
-    # --write-config again would replace the edited file: refused before any work
+    # with --write-config the demo would replace the edited file: it stops before any work
     assert main(["demo", "--outdir", str(out), "--write-config", "--quiet", *FAST]) == 1
     assert "run.toml" in capsys.readouterr().err
     assert main(["demo", "--outdir", str(out), "--quiet", *FAST]) == 0
