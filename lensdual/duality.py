@@ -27,9 +27,9 @@ from .estimators import DEFAULT_METHOD, DEFAULT_N_BOOTSTRAP, TESTABLE_STATUS, si
 from .estimators.core import _poly_terms
 from .exceptions import LensdualWarning
 
-__all__ = ["POSITION_COLUMNS", "SNR_DEFINITIONS", "check_duality", "pair_bands", "flux_ratios",
-           "holm_adjust", "null_calibration", "gaussian_p_value", "duality_significance",
-           "DEFAULT_SNR_THRESHOLD"]
+__all__ = ["POSITION_COLUMNS", "SNR_DEFINITIONS", "TESTS", "check_duality", "pair_bands",
+           "flux_ratios", "holm_adjust", "null_calibration", "gaussian_p_value",
+           "duality_significance", "DEFAULT_SNR_THRESHOLD", "DEFAULT_TEST"]
 
 #: Position columns every pairs table needs (arcsec or any angle unit).
 POSITION_COLUMNS = _pairs_table.POSITION_COLUMNS
@@ -40,6 +40,17 @@ DEFAULT_SNR_THRESHOLD = 3.0
 
 #: Definitions of the duality signal-to-noise ratio, see :func:`check_duality`.
 SNR_DEFINITIONS = ("log", "paper")
+
+#: The tests of :func:`check_duality`: ``"geometric"`` (the flux ratio against
+#: ``mu_size``) and ``"joint"`` (against ``mu_size`` and the neighbours' flux
+#: ratios together, see :mod:`lensdual.flux_field`).
+TESTS = ("geometric", "joint")
+
+#: The default test of :func:`check_duality`.
+DEFAULT_TEST = "geometric"
+
+#: Most passes of the joint test's exclusion of flagged neighbours.
+_JOINT_MAX_PASSES = 6
 
 
 def _as_qtable(pairs):
@@ -358,6 +369,7 @@ def check_duality(
     weight_power=2,
     min_angle=5 * u.deg,
     chromatic_alpha=CHROMATIC_ALPHA,
+    test=DEFAULT_TEST,
 ):
     r"""Test geometrical duality, ``mu_flux = mu_size``, for every pair.
 
@@ -405,6 +417,13 @@ def check_duality(
         default 1e-3) is *doubtful*: most likely two different sources, a
         blend, or differential extinction, and never evidence of a sub-halo.
         0 turns the check off.
+    test : {"geometric", "joint"}
+        ``"geometric"`` (default): the flux ratio is tested against
+        ``mu_size``. ``"joint"``: against ``mu_size`` and the flux-field
+        prediction of the other pairs' flux ratios combined (inverse-variance
+        weighted), see :ref:`joint-test`; it needs at least two bands (the
+        chromatic check keeps mis-pairs out of the field), and snr_definition
+        "log". The columns it adds are listed below.
 
     Returns
     -------
@@ -446,6 +465,22 @@ def check_duality(
         pair as discrepant as the most discrepant one, Sidak-corrected).
         For an empirical calibration of the same numbers on a simulated
         null like the user's constellation, see :func:`null_calibration`.
+
+        With ``test="joint"``, ``snr``, ``snr_dof``, ``significance``,
+        ``tested``, ``p_value``, ``p_value_holm`` and ``anomalous`` are the
+        joint test's, and these columns are added: ``significance_geometric``
+        and ``anomalous_geometric`` (the geometric test's), ``ln_mu_field``,
+        ``ln_mu_field_err``, ``field_status``, ``field_n`` (see
+        :func:`~lensdual.flux_field.flux_field_prediction`),
+        ``field_consistency`` (the significance of the difference between
+        ``ln mu_size`` and ``ln_mu_field``), ``smooth_field_fails`` (that
+        significance above ``snr_threshold``: the geometry and the neighbours
+        disagree, the smooth-field assumption fails at the pair, and it is
+        not tested) and ``joint_basis`` (``"geometry+field"``, ``"field"``,
+        ``"geometry"``, or ``""`` where neither predicts the pair).
+        ``meta['duality']`` adds ``test``, ``field_model_sd`` and
+        ``field_excluded_pairs`` (the flagged pairs left out of the others'
+        flux field).
 
     Raises
     ------
@@ -500,7 +535,11 @@ def check_duality(
         )
     snr_threshold = as_real(snr_threshold, "snr_threshold", minimum=0.0)
     chromatic_alpha = as_real(chromatic_alpha, "chromatic_alpha", minimum=0.0, maximum=1.0)
+    if not isinstance(test, str) or test not in TESTS:
+        raise ValueError(f"test must be one of {list(TESTS)}, got {test!r}")
     bands = pair_bands(tab)
+    if test == "joint":
+        _check_joint_input(bands, snr_definition)
     theta1, theta2 = _positions(tab)
     flux = flux_ratios(tab)  # validates the flux columns before the bootstrap runs
     doubt = _doubts(tab, theta1, theta2, flux, chromatic_alpha)
@@ -563,9 +602,13 @@ def check_duality(
     tab["p_value"] = pval
     tab["p_value_holm"] = holm_adjust(pval)
     tab["anomalous"] = tested & (signif > snr_threshold)
+    joint_meta = {}
+    if test == "joint":
+        joint_meta = _joint_test(tab, theta2, flux, sigma_pos, keep, snr_threshold)
 
     tab.meta["bands"] = bands
     meta = {
+        "test": test,
         "method": method,
         "sigma_pos": size.meta["sigma_pos"],
         "n_bootstrap": size.meta.get("n_bootstrap", 0),
@@ -577,9 +620,125 @@ def check_duality(
         # rows of the kept pairs -> pair ids of the whole table
         rows = np.flatnonzero(keep)[np.asarray(size.meta["reverse_map_rows"], dtype=int)]
         meta["reverse_map_pairs"] = [int(i) for i in np.asarray(tab["pair_id"])[rows]]
-    meta.update(_family_summary(pval, snr_threshold))
+    meta["n_flagged"] = int(np.count_nonzero(tab["anomalous"]))
+    meta.update(joint_meta)
+    meta.update(_family_summary(np.asarray(tab["p_value"], dtype=float), snr_threshold))
     tab.meta["duality"] = meta
     return tab
+
+
+def _check_joint_input(bands, snr_definition):
+    if len(bands) < 2:
+        raise ValueError(
+            f"test='joint' needs at least two bands, got {list(bands)}: with one band the "
+            "chromatic check cannot keep mis-paired sources out of the neighbours' flux "
+            "field; use test='geometric'")
+    if snr_definition != "log":
+        raise ValueError("test='joint' uses snr_definition='log' (the paper's definition "
+                         "has no flux error to combine)")
+
+
+def _ws_dof(total_var, parts):
+    """Welch-Satterthwaite degrees of freedom of ``total_var``, a sum of known terms
+    and the estimated ``(variance, dof)`` terms of ``parts`` (infinite dof: known)."""
+    den = np.zeros_like(total_var)
+    for var, dof in parts:
+        est = np.isfinite(dof) & (dof > 0)
+        den = den + np.where(est, var**2 / np.where(est, dof, 1.0), 0.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(den > 0, total_var**2 / np.where(den > 0, den, 1.0), np.inf)
+
+
+def _significance_of(snr, dof, ok):
+    out = np.full(snr.shape, np.nan)
+    out[ok] = duality_significance(snr[ok], dof[ok])
+    return out
+
+
+def _joint_pass(ln_flux, ln_flux_err, geo, field, snr_threshold):
+    """One pass of the joint test.
+
+    Returns ``(snr, dof, significance, tested, consistency, fails, basis,
+    outlier)``. ``outlier`` marks the pairs left out of the others' flux field
+    in the next pass: the flagged pairs, and those whose flux ratio is off
+    their own flux-field prediction beyond ``snr_threshold`` whether the
+    smooth field fails there or not. A pair that disagrees with the geometry
+    alone, where the smooth field fails, is no outlier of the field.
+    """
+    g, g_var, g_dof, g_ok = geo
+    f, f_var, f_ok = field
+    both = g_ok & f_ok
+    with np.errstate(invalid="ignore", divide="ignore"):
+        diff_var = g_var + f_var
+        cons_snr = np.abs(g - f) / np.sqrt(diff_var)
+        cons_dof = _ws_dof(diff_var, [(g_var, g_dof)])
+        consistency = _significance_of(cons_snr, cons_dof, both & np.isfinite(cons_snr))
+        fails = both & (consistency > snr_threshold)
+        w_g = np.where(g_ok, 1.0 / g_var, 0.0)
+        w_f = np.where(f_ok, 1.0 / f_var, 0.0)
+        pred_var = 1.0 / (w_g + w_f)
+        pred = (np.where(g_ok, g, 0.0) * w_g + np.where(f_ok, f, 0.0) * w_f) * pred_var
+        total_var = ln_flux_err**2 + pred_var
+        # the geometric share of the predicted variance carries its dof
+        g_share = np.where(g_ok, pred_var**2 * w_g, 0.0)
+        dof = _ws_dof(total_var, [(g_share, g_dof)])
+        snr = np.abs(ln_flux - pred) / np.sqrt(total_var)
+        off_field = np.abs(ln_flux - f) / np.sqrt(ln_flux_err**2 + f_var)
+    tested = (g_ok | f_ok) & ~fails & np.isfinite(snr) & (dof > 0)
+    signif = _significance_of(snr, dof, tested)
+    basis = np.where(both, "geometry+field", np.where(f_ok, "field",
+                                                     np.where(g_ok, "geometry", "")))
+    outlier = (tested & (signif > snr_threshold)) | (f_ok & (off_field > snr_threshold))
+    return snr, dof, signif, tested, consistency, fails, basis, outlier
+
+
+def _joint_test(tab, theta2, flux, sigma_pos, keep, snr_threshold):
+    """Replace the test columns of ``tab`` by the joint test's (see check_duality)."""
+    from .estimators.core import _as_sigma
+    from .flux_field import flux_field_prediction
+
+    n = len(tab)
+    ln_flux = np.log(np.asarray(flux["mu_flux"], dtype=float))
+    ln_flux_err = np.asarray(flux["ln_mu_flux_err"], dtype=float)
+    sig2 = _as_sigma(sigma_pos, n)[1] * u.arcsec
+    geo_tested = np.asarray(tab["tested"], dtype=bool)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        geo = (np.log(np.asarray(tab["mu_size"], dtype=float)),
+               np.asarray(tab["ln_mu_size_err"], dtype=float) ** 2,
+               np.asarray(tab["ln_mu_size_err_dof"], dtype=float), geo_tested)
+    usable = keep & np.isfinite(ln_flux) & np.isfinite(ln_flux_err)
+    flagged = np.zeros(n, dtype=bool)
+    for _ in range(_JOINT_MAX_PASSES):
+        field_tab = flux_field_prediction(theta2, ln_flux, ln_flux_err, sigma_pos=sig2,
+                                          usable=usable & ~flagged)
+        f_ok = (np.asarray(field_tab["field_status"]) == "ok") & keep
+        field = (np.asarray(field_tab["ln_mu_field"], dtype=float),
+                 np.asarray(field_tab["ln_mu_field_err"], dtype=float) ** 2, f_ok)
+        result = _joint_pass(ln_flux, ln_flux_err, geo, field, snr_threshold)
+        new_flagged = result[7]
+        if np.array_equal(new_flagged, flagged):
+            break
+        flagged = new_flagged
+    snr, dof, signif, tested, consistency, fails, basis, _ = result
+    tab["significance_geometric"] = tab["significance"]
+    tab["anomalous_geometric"] = tab["anomalous"]
+    for name in ("ln_mu_field", "ln_mu_field_err", "field_status", "field_n"):
+        tab[name] = field_tab[name]
+    tab["field_consistency"] = consistency
+    tab["smooth_field_fails"] = fails
+    tab["joint_basis"] = basis
+    tab["snr"] = snr
+    tab["snr_dof"] = np.where(tested, dof, np.nan)
+    tab["significance"] = signif
+    tab["tested"] = tested
+    pval = np.full(n, np.nan)
+    pval[tested] = _t_p_value(snr[tested], dof[tested])
+    tab["p_value"] = pval
+    tab["p_value_holm"] = holm_adjust(pval)
+    tab["anomalous"] = tested & (signif > snr_threshold)
+    ids = np.asarray(tab["pair_id"])
+    return {"field_model_sd": field_tab.meta["field_model_sd"],
+            "field_excluded_pairs": [int(i) for i in ids[flagged]]}
 
 
 # ---------------------------------------------------------------------------

@@ -1,0 +1,292 @@
+"""The flux field (leave-one-out ln mu from the neighbours' flux ratios) and the joint test."""
+
+import warnings
+
+import astropy.units as u
+import numpy as np
+import pytest
+from astropy.table import QTable
+
+from lensdual.duality import _joint_pass, check_duality
+from lensdual.flux_field import N_CHECK, N_LOCAL, flux_field_prediction
+from lensdual.simulation import clean_constellation
+
+
+def _reference(xy, y, s, i, usable=None):
+    """Plain numpy: the weighted quadratic and cubic fits of pair i's neighbours in raw
+    coordinates (no position errors), and the variance the module documents before its
+    common model term."""
+    n = len(y)
+    usable = np.ones(n, bool) if usable is None else usable
+    others = np.flatnonzero(usable & (np.arange(n) != i))
+    order = others[np.argsort(np.hypot(*(xy[others] - xy[i]).T), kind="stable")]
+
+    def fit(idx, degree):
+        d = xy[idx] - xy[i]
+        cols = [d[:, 0] ** (k - j) * d[:, 1] ** j for k in range(degree + 1)
+                for j in range(k + 1)]
+        design = np.column_stack(cols) / s[idx, None]
+        pinv = np.linalg.pinv(design)
+        return pinv[0] @ (y[idx] / s[idx]), pinv[0] / s[idx]
+
+    quad, a = fit(order[:N_LOCAL], 2)
+    cubic, _ = fit(order[:N_CHECK], 3)
+    return quad, np.sum(a**2 * s[order[:N_LOCAL]] ** 2) + (quad - cubic) ** 2
+
+
+def _field(xy, y, s, **kw):
+    return flux_field_prediction(xy * u.arcsec, y, s, **kw)
+
+
+@pytest.fixture
+def scatter():
+    rng = np.random.default_rng(4)
+    xy = rng.uniform(-1, 1, (30, 2))
+    return xy, rng
+
+
+def test_quadratic_field_is_predicted_exactly(scatter):
+    xy, _ = scatter
+    ln_mu = 0.2 - 0.3 * xy[:, 0] + 0.5 * xy[:, 1] + 0.4 * xy[:, 0] ** 2 - 0.2 * xy[:, 0] * xy[:, 1]
+    field = _field(xy, ln_mu, np.full(30, 0.02))
+    assert np.allclose(field["ln_mu_field"], ln_mu, atol=1e-10)
+    assert (np.asarray(field["field_status"]) == "ok").all()
+    # exact data: no model error, and the errors are those of the fits alone
+    assert field.meta["field_model_sd"] == 0.0
+    assert (field["ln_mu_field_err"] > 0).all()
+
+
+def test_prediction_and_error_match_a_plain_numpy_fit(scatter):
+    xy, rng = scatter
+    ln_mu = np.sin(1.3 * xy[:, 0]) * 0.4 + 0.2 * xy[:, 1] ** 3
+    s = rng.uniform(0.01, 0.04, 30)
+    y = ln_mu + s * rng.standard_normal(30)
+    field = _field(xy, y, s)
+    model = field.meta["field_model_sd"] ** 2
+    for i in range(30):
+        value, var = _reference(xy, y, s, i)
+        assert field["ln_mu_field"][i] == pytest.approx(value, abs=1e-9)
+        assert field["ln_mu_field_err"][i] ** 2 == pytest.approx(var + model, rel=1e-7)
+
+
+def test_position_errors_widen_by_the_gradient(scatter):
+    xy, _ = scatter
+    ln_mu = 0.8 * xy[:, 0]  # gradient 0.8 per arcsec
+    s = np.full(30, 0.02)
+    plain = _field(xy, ln_mu, s)
+    wide = _field(xy, ln_mu, s, sigma_pos=0.05 * u.arcsec)
+    extra = wide["ln_mu_field_err"] ** 2 - plain["ln_mu_field_err"] ** 2
+    # the pair's own position error adds (0.8 * 0.05)^2; the neighbours' wider
+    # weights add a little more
+    assert (extra >= (0.8 * 0.05) ** 2 * (1 - 1e-9)).all()
+    assert np.median(extra) < 2 * (0.8 * 0.05) ** 2
+
+
+def test_a_pair_never_informs_its_own_prediction(scatter):
+    xy, rng = scatter
+    y = 0.3 * xy[:, 0] + 0.02 * rng.standard_normal(30)
+    s = np.full(30, 0.02)
+    bumped = y.copy()
+    bumped[7] += 1.0
+    # pair 7's own prediction does not read its flux ratio
+    assert _field(xy, bumped, s)["ln_mu_field"][7] == pytest.approx(
+        _field(xy, y, s)["ln_mu_field"][7], abs=1e-12)
+    # and where it is not usable, nobody else's does either
+    usable = np.arange(30) != 7
+    assert np.allclose(_field(xy, bumped, s, usable=usable)["ln_mu_field"],
+                       _field(xy, y, s, usable=usable)["ln_mu_field"], atol=1e-12)
+
+
+def test_unusable_pairs_stay_out_of_the_neighbourhoods(scatter):
+    xy, rng = scatter
+    y = 0.3 * xy[:, 0] + 0.02 * rng.standard_normal(30)
+    s = np.full(30, 0.02)
+    usable = np.ones(30, bool)
+    usable[[2, 5]] = False
+    field = _field(xy, y, s, usable=usable)
+    value, _ = _reference(xy, y, s, 11, usable=usable)
+    assert field["ln_mu_field"][11] == pytest.approx(value, abs=1e-9)
+
+
+def test_too_few_neighbours_declines():
+    rng = np.random.default_rng(0)
+    xy = rng.uniform(-1, 1, (12, 2))
+    field = _field(xy, 0.1 * xy[:, 0], np.full(12, 0.02))
+    assert set(field["field_status"]) == {"too few neighbours"}
+    assert np.isnan(field["ln_mu_field"]).all()
+    field = _field(np.vstack([xy, [[0.1, 0.2]]]), np.append(0.1 * xy[:, 0], 0.01),
+                   np.full(13, 0.02))
+    assert set(field["field_status"]) == {"ok"}
+
+
+def test_wide_residuals_get_a_common_model_error(scatter):
+    xy, rng = scatter
+    # neighbours scatter 3x more than their quoted errors
+    y = 0.06 * rng.standard_normal(30)
+    field = _field(xy, y, np.full(30, 0.02))
+    assert field.meta["field_model_sd"] > 0.02
+    resid = (y - field["ln_mu_field"]) / np.sqrt(0.02**2 + field["ln_mu_field_err"] ** 2)
+    assert np.median(np.abs(resid)) == pytest.approx(0.6744897501960817, abs=1e-9)
+
+
+@pytest.mark.parametrize("bad, match", [
+    (dict(theta2=np.zeros((5, 2))), "angular units"),
+    (dict(ln_mu_flux=np.zeros(4)), "shape"),
+    (dict(ln_mu_flux_err=-np.ones(5)), ">= 0"),
+    (dict(sigma_pos=-1 * u.mas), ">= 0"),
+    (dict(usable=np.ones(3, bool)), "usable"),
+])
+def test_bad_input_is_named(bad, match):
+    kw = dict(theta2=np.zeros((5, 2)) * u.arcsec, ln_mu_flux=np.zeros(5),
+              ln_mu_flux_err=np.full(5, 0.02))
+    kw.update(bad)
+    with pytest.raises((TypeError, ValueError), match=match):
+        flux_field_prediction(kw.pop("theta2"), kw.pop("ln_mu_flux"), kw.pop("ln_mu_flux_err"),
+                              **kw)
+
+
+# ---------------------------------------------------------------------------
+# The joint test in check_duality
+# ---------------------------------------------------------------------------
+
+def _noisy(family, n, seed, sigma, flux_err=0.02):
+    t = clean_constellation(family, n, seed=seed)
+    rng = np.random.default_rng(seed + 100)
+    for c in ("x1", "y1", "x2", "y2"):
+        t[c] = t[c] + sigma * rng.standard_normal(n) * u.arcsec
+    for band in t.meta["bands"]:
+        for k in "12":
+            t[f"flux{k}_{band}"] = t[f"flux{k}_{band}"] * (1 + flux_err * rng.standard_normal(n))
+            t[f"flux_err{k}_{band}"] = flux_err * t[f"flux{k}_{band}"]
+    return t
+
+
+def _raise(t, rows, factor=1.25):
+    t = t.copy()
+    for band in t.meta["bands"]:
+        for k in rows:
+            t[f"flux1_{band}"][k] *= factor
+    return t
+
+
+def _check(t, sigma, **kw):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return check_duality(t, sigma_pos=sigma * u.arcsec, **kw)
+
+
+def test_joint_pass_combines_by_inverse_variance():
+    # one pair: geometry 0.10 +- 0.2 (known), field 0.30 +- 0.1, flux 0.9 +- 0.05
+    geo = (np.array([0.1]), np.array([0.04]), np.array([np.inf]), np.array([True]))
+    field = (np.array([0.3]), np.array([0.01]), np.array([True]))
+    snr, dof, signif, tested, cons, fails, basis, _ = _joint_pass(
+        np.array([0.9]), np.array([0.05]), geo, field, 3.0)
+    pred = (0.1 / 0.04 + 0.3 / 0.01) / (1 / 0.04 + 1 / 0.01)
+    var = 1 / (1 / 0.04 + 1 / 0.01)
+    assert snr[0] == pytest.approx((0.9 - pred) / np.sqrt(0.05**2 + var))
+    assert dof[0] == np.inf and signif[0] == pytest.approx(snr[0])
+    assert cons[0] == pytest.approx(0.2 / np.sqrt(0.05))
+    assert tested[0] and not fails[0] and basis[0] == "geometry+field"
+
+
+def test_joint_test_flags_what_the_geometry_cannot():
+    """A 25 % anomaly at 20 mas: the geometric test rarely sees it, the joint test does."""
+    joint = geo = 0
+    for seed in range(10):
+        t = _raise(_noisy("cluster_fold", 20, seed, 0.02), [4])
+        r = _check(t, 0.02, test="joint")
+        joint += bool(r["anomalous"][4])
+        geo += bool(r["anomalous_geometric"][4])
+        assert r.meta["duality"]["test"] == "joint"
+        assert np.array_equal(r["anomalous_geometric"],
+                              _check(t, 0.02)["anomalous"])
+    assert joint >= 8 and geo <= 3
+
+
+def test_two_anomalous_neighbours_do_not_mask_each_other():
+    t = _noisy("smacs_analog", 30, 3, 0.005)
+    xy = np.column_stack([t["x2"].to_value(u.arcsec), t["y2"].to_value(u.arcsec)])
+    d = np.hypot(*(xy - xy[10]).T)
+    d[10] = np.inf
+    b = int(np.argmin(d))
+    r = _check(_raise(t, [10, b]), 0.005, test="joint")
+    assert r["anomalous"][10] and r["anomalous"][b]
+    assert {int(r["pair_id"][10]), int(r["pair_id"][b])} <= \
+        set(r.meta["duality"]["field_excluded_pairs"])
+
+
+def test_geometry_against_the_neighbours_is_no_sub_halo():
+    """Positions say mu = 1.23 everywhere, every flux ratio says 2: the smooth-field
+    assumption fails, and no pair is reported as a sub-halo."""
+    rng = np.random.default_rng(1)
+    theta2 = rng.uniform(-1, 1, (20, 2))
+    theta1 = theta2 @ np.array([[1.5, 0.3], [0.1, -0.8]]).T
+    flux2 = rng.uniform(50, 150, 20)
+    flux1 = 2.0 * flux2 * (1 + 0.01 * rng.standard_normal(20))
+    pairs = QTable({"x1": theta1[:, 0] * u.arcsec, "y1": theta1[:, 1] * u.arcsec,
+                    "x2": theta2[:, 0] * u.arcsec, "y2": theta2[:, 1] * u.arcsec})
+    for band in ("F150W", "F200W"):
+        pairs[f"flux1_{band}"] = flux1
+        pairs[f"flux2_{band}"] = flux2
+        pairs[f"flux_err1_{band}"] = 0.01 * flux1
+        pairs[f"flux_err2_{band}"] = 0.01 * flux2
+    r = _check(pairs, 0.001, test="joint")
+    assert r["anomalous_geometric"].all()  # the geometric test alone flags them all
+    assert r["smooth_field_fails"].all()
+    assert not r["anomalous"].any() and not r["tested"].any()
+
+
+def test_the_default_test_is_unchanged():
+    t = _noisy("cluster_fold", 20, 1, 0.005)
+    r = _check(t, 0.005)
+    assert r.meta["duality"]["test"] == "geometric"
+    assert "ln_mu_field" not in r.colnames and "significance_geometric" not in r.colnames
+
+
+def test_few_pairs_fall_back_to_the_geometry():
+    t = _noisy("cluster_fold", 10, 2, 0.005)
+    r = _check(t, 0.005, test="joint")
+    assert set(r["field_status"]) == {"too few neighbours"}
+    assert set(r["joint_basis"][r["tested"]]) == {"geometry"}
+    assert np.allclose(r["significance"][r["tested"]],
+                       r["significance_geometric"][r["tested"]])
+
+
+def test_doubtful_pairs_do_not_inform_the_field():
+    t = _noisy("cluster_fold", 20, 5, 0.005)
+    t["flux1_F150W"][6] *= 3.0  # one band only: chromatic, a doubtful pair
+    r = _check(t, 0.005, test="joint")
+    assert r["doubt"][6] and not r["tested"][6]
+    assert r["field_status"][6] == "ok"  # predicted, but it informs nobody:
+    others = np.arange(20) != 6
+    # the field of the others is that of the table without pair 6
+    without = _check(t[others], 0.005, test="joint")
+    assert np.allclose(r["ln_mu_field"][others], without["ln_mu_field"], equal_nan=True)
+
+
+@pytest.mark.parametrize("kw, match", [
+    (dict(test="bayes"), "test must be one of"),
+    (dict(test="joint", snr_definition="paper"), "snr_definition"),
+])
+def test_joint_options_are_checked(kw, match):
+    t = _noisy("cluster_fold", 20, 1, 0.005)
+    with pytest.raises(ValueError, match=match):
+        _check(t, 0.005, **kw)
+
+
+def test_joint_test_needs_two_bands():
+    t = _noisy("cluster_fold", 20, 1, 0.005)
+    for name in [c for c in t.colnames if c.endswith("_F200W")]:
+        del t[name]
+    t.meta["bands"] = ["F150W"]
+    with pytest.raises(ValueError, match="at least two bands"):
+        _check(t, 0.005, test="joint")
+
+
+def test_a_pair_without_flux_is_untested_not_passed():
+    t = _noisy("cluster_fold", 20, 1, 0.005)
+    for band in t.meta["bands"]:
+        t[f"flux1_{band}"][3] = np.nan
+    r = _check(t, 0.005, test="joint")
+    assert not r["tested"][3] and not r["anomalous"][3]
+    assert np.isnan(r["significance"][3])
