@@ -290,3 +290,15 @@ def test_a_pair_without_flux_is_untested_not_passed():
     r = _check(t, 0.005, test="joint")
     assert not r["tested"][3] and not r["anomalous"][3]
     assert np.isnan(r["significance"][3])
+
+
+@pytest.mark.parametrize("column, value, match", [
+    ("flux_err1_F150W", 0.0, "flux_err1_F150W"),
+    ("flux1_F200W", -1.0, "flux1_F200W"),
+    ("flux2_F150W", 0.0, "flux2_F150W"),
+])
+def test_joint_test_refuses_bad_fluxes_by_name(column, value, match):
+    t = _noisy("cluster_fold", 20, 1, 0.005)
+    t[column][2] = value * t[column].unit if hasattr(t[column], "unit") else value
+    with pytest.raises(ValueError, match=match):
+        _check(t, 0.005, test="joint")
