@@ -411,7 +411,8 @@ def parametric_outputs(analysis, directory, *, lenstool=None, fit=False, model=N
 
 
 def write_run_inputs(mocks, directory, *, estimator, n_bootstrap, snr_threshold, seed,
-                     centre, parametric=False, null_realisations=0, fit_settings=None):
+                     centre, parametric=False, null_realisations=0, fit_settings=None,
+                     test="geometric"):
     """FITS images, error maps and PSFs of the mocks, and a config that reads them.
 
     ``fit_settings`` (with ``sigma_pos`` and ``fix_centre``) are the demo's
@@ -424,7 +425,8 @@ def write_run_inputs(mocks, directory, *, estimator, n_bootstrap, snr_threshold,
     config = {
         "output": {"outdir": "run-output"},
         "analysis": {"estimator": estimator, "sigma_pos": "auto",
-                     "n_bootstrap": int(n_bootstrap), "snr_threshold": float(snr_threshold),
+                     "n_bootstrap": int(n_bootstrap), "test": test,
+                     "snr_threshold": float(snr_threshold),
                      "seed": int(seed), "null_realisations": int(null_realisations)},
         "bands": {}, "arcs": {"L1": {}, "L2": {}},
     }

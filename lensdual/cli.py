@@ -52,6 +52,7 @@ from .demo import (
     simulate_demo,
     truth_paragraph,
 )
+from .duality import DEFAULT_TEST, TESTS
 from .pipeline import (
     Analysis,
     PipelineError,
@@ -176,12 +177,13 @@ def _cmd_demo(args):
         with progress.step("render mock images"):
             demo = render_demo(system, truth, seed=args.seed)
         mocks, images, centre = demo.mocks, demo.images, demo.centre
-        # the null calibration is the adaptive estimator's
-        null_realisations = args.null_realisations if args.estimator == "adaptive" else 0
+        # the null calibration is the adaptive estimator's geometric test's
+        null_realisations = (args.null_realisations
+                             if args.estimator == "adaptive" and args.test == "geometric" else 0)
         analysis = analyse(images, psf=demo.psf, estimator=args.estimator, sigma_pos="auto",
                            n_bootstrap=args.n_bootstrap, snr_threshold=args.snr_threshold,
                            seed=args.seed, progress=progress,
-                           null_realisations=null_realisations)
+                           null_realisations=null_realisations, test=args.test)
         comparison = compare_with_truth(analysis.result, truth, centre)
         report = format_report(analysis, ["", truth_paragraph(comparison)])
         with atomic_directory(args.outdir, removed) as tmp:
@@ -190,7 +192,8 @@ def _cmd_demo(args):
                 write_table(comparison, tmp / "truth_comparison.ecsv")
                 if args.write_config:
                     config, header = write_run_inputs(
-                        mocks, tmp, estimator=args.estimator, n_bootstrap=args.n_bootstrap,
+                        mocks, tmp, estimator=args.estimator, test=args.test,
+                        n_bootstrap=args.n_bootstrap,
                         snr_threshold=args.snr_threshold, seed=args.seed, centre=centre,
                         parametric=args.parametric, null_realisations=null_realisations,
                         fit_settings=_DEMO_FIT)
@@ -250,7 +253,7 @@ def _cmd_run(args):
                            snr_threshold=config.snr_threshold, seed=config.seed,
                            catalogs=catalogs, manual_pairs=manual, progress=progress,
                            null_realisations=config.null_realisations,
-                           oversampling=oversampling)
+                           oversampling=oversampling, test=config.test)
         read_warnings = [f"{w.category.__name__}: {w.message}" for w in caught]
         analysis.warnings[:0] = list(dict.fromkeys(read_warnings))
         for text in read_warnings:
@@ -401,6 +404,10 @@ def build_parser():
                       help="simulated clean constellations for the null calibration of the "
                            "adaptive test (0: off; otherwise >= 100, and >= 370 for its "
                            "empirical p-values to confirm a flag at SNR 3)")
+    demo.add_argument("--test", choices=list(TESTS), default=DEFAULT_TEST,
+                      help="the duality test: geometric (the flux ratio against mu_size) or "
+                           "joint (against mu_size and the neighbours' flux ratios, needs "
+                           "13 or more sources to use them; no null calibration)")
     demo.add_argument("--snr-threshold", type=_positive_float, default=3.0,
                       help="a pair is anomalous above this duality SNR")
     demo.add_argument("--write-config", action="store_true",

@@ -421,8 +421,10 @@ def check_duality(
         ``"geometric"`` (default): the flux ratio is tested against
         ``mu_size``. ``"joint"``: against ``mu_size`` and the flux-field
         prediction of the other pairs' flux ratios combined (inverse-variance
-        weighted), see :ref:`joint-test`; it needs at least two bands (the
-        chromatic check keeps mis-pairs out of the field), and snr_definition
+        weighted), see :ref:`joint-test`; it needs method "adaptive" (the
+        field is predicted only where the adaptive fits of the pair and its
+        neighbours passed their chi-square tests), at least two bands (the
+        chromatic check keeps mis-pairs out of the field) and snr_definition
         "log". The columns it adds are listed below.
 
     Returns
@@ -539,7 +541,7 @@ def check_duality(
         raise ValueError(f"test must be one of {list(TESTS)}, got {test!r}")
     bands = pair_bands(tab)
     if test == "joint":
-        _check_joint_input(bands, snr_definition)
+        _check_joint_input(bands, snr_definition, method)
     theta1, theta2 = _positions(tab)
     flux = flux_ratios(tab)  # validates the flux columns before the bootstrap runs
     doubt = _doubts(tab, theta1, theta2, flux, chromatic_alpha)
@@ -627,7 +629,11 @@ def check_duality(
     return tab
 
 
-def _check_joint_input(bands, snr_definition):
+def _check_joint_input(bands, snr_definition, method):
+    if method != "adaptive":
+        raise ValueError(f"test='joint' needs method='adaptive', got {method!r}: the flux "
+                         "field is predicted only where the adaptive fits found the lens map "
+                         "resolved, and only its errors include the estimator's own")
     if len(bands) < 2:
         raise ValueError(
             f"test='joint' needs at least two bands, got {list(bands)}: with one band the "
@@ -707,10 +713,11 @@ def _joint_test(tab, theta2, flux, sigma_pos, keep, snr_threshold):
                np.asarray(tab["ln_mu_size_err"], dtype=float) ** 2,
                np.asarray(tab["ln_mu_size_err_dof"], dtype=float), geo_tested)
     usable = keep & np.isfinite(ln_flux) & np.isfinite(ln_flux_err)
+    resolved = np.asarray(tab["mu_size_status"]) == "ok"
     flagged = np.zeros(n, dtype=bool)
     for _ in range(_JOINT_MAX_PASSES):
         field_tab = flux_field_prediction(theta2, ln_flux, ln_flux_err, sigma_pos=sig2,
-                                          usable=usable & ~flagged)
+                                          usable=usable & ~flagged, resolved=resolved)
         f_ok = (np.asarray(field_tab["field_status"]) == "ok") & keep
         field = (np.asarray(field_tab["ln_mu_field"], dtype=float),
                  np.asarray(field_tab["ln_mu_field_err"], dtype=float) ** 2, f_ok)

@@ -11,6 +11,9 @@ flux ratio against it and the geometric ``mu_size`` together.
 
 The prediction at pair ``i`` (see :ref:`joint-test` for the specification):
 
+0. it is made only where the pair and those neighbours are *resolved* (for
+   :func:`~lensdual.duality.check_duality`: their geometric fit passed its
+   chi-square test);
 1. the :data:`N_LOCAL` nearest usable neighbours of ``i`` on arc L2 (``i``
    itself excluded) get a weighted quadratic fit of ``ln mu_flux`` in the
    whitened local frame centred on ``i``; the weights are the inverse
@@ -49,10 +52,11 @@ _MIN_CALIBRATION = 5
 _RCOND = 1e-9
 
 #: The values of ``field_status``: ``"ok"`` (predicted), ``"too few neighbours"``
-#: (fewer than the cubic check's 12 usable neighbours), ``"ill-conditioned"``
-#: (the neighbours lie on a curve a quadratic cannot be fitted on), and
-#: ``"excluded"`` (the pair itself is not usable, e.g. doubtful).
-FIELD_STATUS = ("ok", "too few neighbours", "ill-conditioned", "excluded")
+#: (fewer than the cubic check's 12 usable neighbours), ``"unresolved"`` (the
+#: pair or one of its quadratic's neighbours is not ``resolved``),
+#: ``"ill-conditioned"`` (the neighbours lie on a curve a quadratic cannot be
+#: fitted on), and ``"excluded"`` (the pair's position is not measured).
+FIELD_STATUS = ("ok", "too few neighbours", "unresolved", "ill-conditioned", "excluded")
 
 
 def _n_terms(degree):
@@ -120,7 +124,7 @@ def _local_fit(d, y, s, sig2, degree):
     return coef[0], a, s_eff, sig2[0] ** 2 * float(g0 @ g0)
 
 
-def _predict_one(pos, y, s, sig2, usable, i):
+def _predict_one(pos, y, s, sig2, usable, resolved, i):
     """(value, variance before step 4, status, neighbours used) of pair ``i``."""
     others = np.flatnonzero(usable)
     others = others[others != i]
@@ -128,6 +132,8 @@ def _predict_one(pos, y, s, sig2, usable, i):
         return np.nan, np.nan, "too few neighbours", others.size
     order = others[np.argsort(np.hypot(*(pos[others] - pos[i]).T), kind="stable")]
     n_local, n_check = min(N_LOCAL, order.size), min(N_CHECK, order.size)
+    if not (resolved[i] and resolved[order[:n_local]].all()):
+        return np.nan, np.nan, "unresolved", n_check
     near = order[:n_check]
     d = pos[near] - pos[i]
     sig = np.concatenate([[sig2[i]], sig2[near]])
@@ -157,7 +163,7 @@ def _common_variance(resid, var):
     return float(brentq(excess, 0.0, float(np.max(r**2)), xtol=1e-14, rtol=1e-10))
 
 
-def _flux_field(pos, y, s, sig2, usable):
+def _flux_field(pos, y, s, sig2, usable, resolved):
     """Leave-one-out flux-field predictions (arrays, arcsec); see the module docstring."""
     n = y.size
     value = np.full(n, np.nan)
@@ -165,7 +171,8 @@ def _flux_field(pos, y, s, sig2, usable):
     status = np.full(n, "excluded", dtype=object)
     n_used = np.zeros(n, dtype=int)
     for i in range(n):
-        value[i], var[i], status[i], n_used[i] = _predict_one(pos, y, s, sig2, usable, i)
+        value[i], var[i], status[i], n_used[i] = _predict_one(pos, y, s, sig2, usable,
+                                                              resolved, i)
     ok = status == "ok"
     calib = ok & usable
     model_var = _common_variance(y[calib] - value[calib], s[calib] ** 2 + var[calib])
@@ -173,7 +180,8 @@ def _flux_field(pos, y, s, sig2, usable):
     return value, var, status.astype(str), n_used, model_var
 
 
-def flux_field_prediction(theta2, ln_mu_flux, ln_mu_flux_err, *, sigma_pos=None, usable=None):
+def flux_field_prediction(theta2, ln_mu_flux, ln_mu_flux_err, *, sigma_pos=None, usable=None,
+                          resolved=None):
     r"""Predict each pair's ``ln mu`` from the other pairs' flux ratios (leave-one-out).
 
     Parameters
@@ -192,6 +200,16 @@ def flux_field_prediction(theta2, ln_mu_flux, ln_mu_flux_err, *, sigma_pos=None,
         ``ln mu_flux`` and a positive, finite error). Doubtful, chromatic or
         flagged pairs should be left out. A pair that is not usable still gets
         its own prediction.
+    resolved : array-like of bool, optional
+        Pairs where the constellation resolves the lens map (default: all).
+        A pair is predicted only where it and every neighbour of its quadratic
+        fit are resolved; elsewhere ``field_status`` is ``"unresolved"``.
+        :func:`~lensdual.duality.check_duality` passes the pairs whose adaptive
+        geometric fit passed its chi-square test (``mu_size_status`` ``"ok"``):
+        ``ln mu`` is ``ln |det J|``, the log of the map's Jacobian
+        determinant, so where the map's local polynomial fails its test
+        against the position errors, the constellation does not sample its
+        derivative field finely enough to predict it either.
 
     Returns
     -------
@@ -259,10 +277,16 @@ def flux_field_prediction(theta2, ln_mu_flux, ln_mu_flux_err, *, sigma_pos=None,
         if usable.shape != (n,):
             raise ValueError(f"usable must have shape ({n},), got {usable.shape}")
         usable = usable & finite
+    if resolved is None:
+        resolved = np.ones(n, dtype=bool)
+    else:
+        resolved = np.asarray(resolved, dtype=bool)
+        if resolved.shape != (n,):
+            raise ValueError(f"resolved must have shape ({n},), got {resolved.shape}")
     s_safe = np.where(finite, s, 1.0)
     y_safe = np.where(finite, y, 0.0)
     value, var, status, n_used, model_var = _flux_field(
-        np.where(np.isfinite(pos), pos, 0.0), y_safe, s_safe, sig2, usable)
+        np.where(np.isfinite(pos), pos, 0.0), y_safe, s_safe, sig2, usable, resolved)
     lost = ~np.isfinite(pos).all(axis=1)
     status = np.where(lost, "excluded", status)
     value = np.where(lost, np.nan, value)

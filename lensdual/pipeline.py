@@ -29,7 +29,7 @@ from astropy import units as u
 
 from ._pairs_table import ARCS, POS_ERR_COLUMNS, arc_xy, flux_col, flux_err_col
 from ._validation import as_angle_scalar, as_real
-from .duality import _NULL_MAP_CHI2_DOF_MAX, DEFAULT_SNR_THRESHOLD
+from .duality import _NULL_MAP_CHI2_DOF_MAX, DEFAULT_SNR_THRESHOLD, DEFAULT_TEST, TESTS
 from .estimators import DEFAULT_METHOD, DEFAULT_N_BOOTSTRAP, estimate_sigma_pos
 
 # The seed of analyse (and of lensdual run's [analysis] seed): runs repeat.
@@ -138,7 +138,7 @@ def analyse(images, *, psf=None, estimator=DEFAULT_METHOD, sigma_pos="auto",
             n_bootstrap=DEFAULT_N_BOOTSTRAP, snr_threshold=DEFAULT_SNR_THRESHOLD,
             seed=_DEFAULT_SEED,
             catalogs=None, manual_pairs=None, progress=None, null_realisations=0,
-            oversampling=None):
+            oversampling=None, test=DEFAULT_TEST):
     """Run the pipeline from images of two arcs to the duality table.
 
     Parameters
@@ -173,6 +173,11 @@ def analyse(images, *, psf=None, estimator=DEFAULT_METHOD, sigma_pos="auto",
     oversampling : dict of str to int, optional
         Per band, the oversampling of its PSF image (see
         :func:`~lensdual.photometry.psf_photometry`).
+    test : {"geometric", "joint"}
+        The duality test of :func:`~lensdual.duality.check_duality` (default
+        ``"geometric"``); ``"joint"`` needs ``estimator="adaptive"`` and
+        ``null_realisations=0`` (the null calibration covers the geometric
+        test only).
 
     Returns
     -------
@@ -194,6 +199,11 @@ def analyse(images, *, psf=None, estimator=DEFAULT_METHOD, sigma_pos="auto",
     progress = progress or _NoProgress()
     if estimator not in METHODS:
         raise ValueError(f"estimator must be one of {list(METHODS)}, got {estimator!r}")
+    if test not in TESTS:
+        raise ValueError(f"test must be one of {list(TESTS)}, got {test!r}")
+    if test == "joint" and null_realisations:
+        raise ValueError("null_realisations must be 0 with test='joint': the null calibration "
+                         "covers the geometric test only")
     n_min = max(METHODS[estimator], _MIN_AUTO_PAIRS if manual_pairs is None else 3)
     bands = list(images["L1"])
     with warnings.catch_warnings(record=True) as caught:
@@ -247,7 +257,7 @@ def analyse(images, *, psf=None, estimator=DEFAULT_METHOD, sigma_pos="auto",
                 sigma = sigma_pos
             result = check_duality(measured, estimator, sigma_pos=sigma,
                                    n_bootstrap=n_bootstrap, snr_threshold=snr_threshold,
-                                   seed=seed)
+                                   seed=seed, test=test)
         if null_realisations and estimator == "adaptive":
             with progress.step(f"null calibration ({null_realisations} realisations)"):
                 _add_null_calibration(result, measured, sigma, null_realisations,
@@ -452,6 +462,8 @@ def _flag(row):
 def _untested_reason(row):
     if "doubt" in row.colnames and str(row["doubt"]):
         return "doubtful pairing"
+    if "smooth_field_fails" in row.colnames and row["smooth_field_fails"]:
+        return "geometry and neighbours' fluxes disagree: the smooth field fails here"
     status = str(row["mu_size_status"]) if "mu_size_status" in row.colnames else ""
     if not np.isfinite(float(row["mu_size"])):
         return "no mu_size"

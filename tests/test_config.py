@@ -198,7 +198,7 @@ def test_defaults_and_outdir(data_dir, tmp_path, monkeypatch):
     cfg = load_config(path)
     assert cfg.outdir == data_dir.resolve() / "lensdual-output"
     assert (cfg.estimator, cfg.sigma_pos, cfg.n_bootstrap) == ("adaptive", "auto", 1000)
-    assert (cfg.snr_threshold, cfg.seed) == (3.0, 0)
+    assert (cfg.snr_threshold, cfg.seed, cfg.test) == (3.0, 0, "geometric")
     assert cfg.catalogs is None and cfg.parametric is None
     assert (cfg.pairing_method, cfg.pairs_file) == ("auto", None)
     assert cfg.bands["F150W"] == BandSpec("F150W")
@@ -314,6 +314,16 @@ def _set(*keys_and_value):
             del target[keys[-1]]
         else:
             target[keys[-1]] = value
+
+    return mutate
+
+
+def _both(*mutations):
+    """Several mutations in a row."""
+
+    def mutate(cfg):
+        for m in mutations:
+            m(cfg)
 
     return mutate
 
@@ -438,6 +448,15 @@ BAD = [
      "[parametric] lenstool: file not found: {d}/nope.par"),
     ("outdir-file", _set("output", "outdir", "outdir_is_a_file"),
      "[output] outdir: {d}/outdir_is_a_file exists and is not a directory"),
+    ("test-unknown", _set("analysis", "test", "bayes"),
+     "[analysis] test: 'bayes' is not one of 'geometric', 'joint'"),
+    ("joint-needs-adaptive", _both(_set("analysis", "test", "joint"),
+                                   _set("analysis", "estimator", "quad")),
+     '[analysis] test: "joint" needs estimator = "adaptive", got estimator = "quad"'),
+    ("joint-no-null", _both(_set("analysis", "test", "joint"),
+                            _set("analysis", "estimator", "adaptive"),
+                            _set("analysis", "null_realisations", 200)),
+     '[analysis] null_realisations: the null calibration covers test = "geometric" only'),
 ]
 
 
@@ -792,3 +811,9 @@ def test_annotated_example_agrees_with_the_schema():
     assert {f.name for f in FIELDS} - seen == {"[arcs.<arc>.<band>] weight",
                                                "[arcs.<arc>.<band>] weight_hdu"}
     assert 'weight = "..." / weight_hdu' in lensdual.config.__doc__
+
+
+def test_the_joint_test_is_read(data_dir):
+    cfg = minimal_config()
+    cfg.setdefault("analysis", {})["test"] = "joint"
+    assert load_config(write(data_dir, "joint_test", cfg)).test == "joint"

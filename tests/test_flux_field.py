@@ -257,7 +257,6 @@ def test_doubtful_pairs_do_not_inform_the_field():
     t["flux1_F150W"][6] *= 3.0  # one band only: chromatic, a doubtful pair
     r = _check(t, 0.005, test="joint")
     assert r["doubt"][6] and not r["tested"][6]
-    assert r["field_status"][6] == "ok"  # predicted, but it informs nobody:
     others = np.arange(20) != 6
     # the field of the others is that of the table without pair 6
     without = _check(t[others], 0.005, test="joint")
@@ -302,3 +301,36 @@ def test_joint_test_refuses_bad_fluxes_by_name(column, value, match):
     t[column][2] = value * t[column].unit if hasattr(t[column], "unit") else value
     with pytest.raises(ValueError, match=match):
         _check(t, 0.005, test="joint")
+
+
+def test_the_field_is_predicted_only_where_the_map_is_resolved(scatter):
+    xy, rng = scatter
+    y = 0.3 * xy[:, 0] + 0.02 * rng.standard_normal(30)
+    resolved = np.ones(30, bool)
+    resolved[0] = False
+    field = _field(xy, y, np.full(30, 0.02), resolved=resolved)
+    status = np.asarray(field["field_status"])
+    # pair 0 itself, and every pair that has it among its quadratic's neighbours
+    near = [i for i in range(30) if 0 in np.argsort(np.hypot(*(xy - xy[i]).T))[1:N_LOCAL + 1]]
+    assert status[0] == "unresolved"
+    assert set(np.flatnonzero(status == "unresolved")) == {0, *near}
+    assert np.isnan(field["ln_mu_field"][status == "unresolved"]).all()
+
+
+def test_the_joint_test_reads_the_adaptive_fits_status():
+    t = _noisy("cluster_fold", 20, 1, 0.005)
+    with pytest.raises(ValueError, match="method='adaptive'"):
+        _check(t, 0.005, method="quad", test="joint")
+    r = _check(t, 0.005, test="joint")
+    unresolved = np.asarray(r["field_status"]) == "unresolved"
+    assert np.array_equal(unresolved & (np.asarray(r["mu_size_status"]) != "ok"),
+                          np.asarray(r["mu_size_status"]) != "ok")
+
+
+def test_the_pipeline_refuses_the_joint_test_with_a_null_calibration():
+    from lensdual.pipeline import analyse
+
+    with pytest.raises(ValueError, match="null_realisations must be 0 with test='joint'"):
+        analyse({"L1": {}, "L2": {}}, test="joint", null_realisations=100)
+    with pytest.raises(ValueError, match="test must be one of"):
+        analyse({"L1": {}, "L2": {}}, test="both")

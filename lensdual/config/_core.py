@@ -350,6 +350,8 @@ class RunConfig:
         the errors of the PSF fits.
     n_bootstrap : int
         Number of bootstrap resamplings.
+    test : str
+        The duality test, one of `lensdual.duality.TESTS`.
     snr_threshold : float
         Significance threshold of a duality violation.
     seed : int
@@ -373,6 +375,7 @@ class RunConfig:
     estimator: str = _d("analysis", "estimator")
     sigma_pos: u.Quantity | str = _d("analysis", "sigma_pos")
     n_bootstrap: int = _d("analysis", "n_bootstrap")
+    test: str = _d("analysis", "test")
     snr_threshold: float = _d("analysis", "snr_threshold")
     seed: int = _d("analysis", "seed")
     null_realisations: int = _d("analysis", "null_realisations")
@@ -622,8 +625,11 @@ class _Validator:
         elif sigma != "auto":
             sigma = self.get_angle(table, "sigma_pos", sec, prefix='expected "auto" or an angle; ')
         out["sigma_pos"] = sigma
-        for key in ("n_bootstrap", "snr_threshold", "seed"):
+        for key in ("n_bootstrap", "test", "snr_threshold", "seed"):
             out[key] = self.get(table, key, sec)
+        if out["test"] == "joint" and out["estimator"] not in ("adaptive", _BAD):
+            self.add(f'[{sec}] test: "joint" needs estimator = "adaptive", got estimator = '
+                     f'"{out["estimator"]}"')
         null = self.get(table, "null_realisations", sec)
         if null is not _BAD and 0 < null < MIN_NULL_REALISATIONS:
             self.add(f"[{sec}] null_realisations: must be 0 (off) or >= "
@@ -632,6 +638,10 @@ class _Validator:
         elif null is not _BAD and null and out["estimator"] not in ("adaptive", _BAD):
             self.add(f"[{sec}] null_realisations: the null calibration needs "
                      f'estimator = "adaptive", got estimator = "{out["estimator"]}"')
+            null = _BAD
+        elif null is not _BAD and null and out["test"] == "joint":
+            self.add(f'[{sec}] null_realisations: the null calibration covers test = '
+                     f'"geometric" only, got test = "joint" (set null_realisations = 0)')
             null = _BAD
         out["null_realisations"] = null
         return out

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 from astropy import units as u
 
-from ..duality import DEFAULT_SNR_THRESHOLD
+from ..duality import DEFAULT_SNR_THRESHOLD, DEFAULT_TEST, TESTS
 from ..estimators import DEFAULT_METHOD, DEFAULT_N_BOOTSTRAP, METHODS
 from ..parametric.fitting import DEFAULT_MODEL
 from ..pipeline import _DEFAULT_SEED
@@ -207,6 +207,11 @@ FIELDS = (
        note='"auto" (errors of the PSF fits) or an angle > 0'),
     _F("analysis", "n_bootstrap", "integer", DEFAULT_N_BOOTSTRAP, "number of bootstrap resamplings",
        minimum=10),
+    _F("analysis", "test", "string", DEFAULT_TEST,
+       'the duality test: "geometric" (the flux ratio against mu_size) or "joint" (against '
+       "mu_size and the neighbours' flux ratios; needs estimator \"adaptive\", two bands "
+       "and null_realisations = 0)",
+       choices=tuple(TESTS)),
     _F("analysis", "snr_threshold", "real", DEFAULT_SNR_THRESHOLD,
        "significance threshold of a duality violation", above=0),
     _F("analysis", "seed", "integer", _DEFAULT_SEED, "seed of the random numbers", minimum=0),

@@ -131,7 +131,7 @@ __all__ = [
 #: The lens families of :func:`clean_constellation`.
 FAMILIES = ("cluster_fold", "cluster_cusp", "galaxy_fold", "smacs_analog", "smacs_lenstool",
             "macs1149_lenstool", "a2744_lenstool", "a370_lenstool", "as1063_lenstool",
-            "as1063_s13_lenstool")
+            "as1063_s13_lenstool", "galaxy_sie_compact")
 
 #: The environment variables that name the folders of the real Lenstool models
 #: the ``*_lenstool`` families are built on: ``LENSDUAL_SMACS0723_DIR`` the folder
@@ -217,6 +217,31 @@ FAMILY_PARAMETERS = {
                     (-0.212, 0.253), (-0.225, 0.189), (-0.24, 0.139), (-0.256, 0.093),
                     (-0.274, 0.048)) * u.arcsec,
         "reference": ((0.66, -1.56), (-1.10, -0.77)) * u.arcsec,
+        "finder": {"center": (0.0, 0.0) * u.arcsec, "half_width": 2.5 * u.arcsec,
+                   "grid_spacing": 0.05 * u.arcsec},
+        "link_length": 0.5 * u.arcsec,
+    },
+    "galaxy_sie_compact": {
+        "description": ("compact isothermal elliptical galaxy + weak external shear, fold pair "
+                        "on the Einstein ring, sources over most of the tangential caustic"),
+        "z_lens": 0.35,
+        "z_source": 1.6,
+        "galaxy": {"profile": "EPL_NUMBA", "theta_E": 1.3 * u.arcsec, "slope": 2.0,
+                   "axis_ratio": 0.8, "position_angle": 110.0 * u.deg},
+        "shear": {"gamma": 0.06, "angle": 20.0 * u.deg},
+        # the tangential caustic shrunk by 0.015 arcsec (a ray from the centroid
+        # every 10 deg, stopped 0.015" from the caustic), cut 0.31" from the
+        # fold of the L1/L2 pair (caustic point (-0.082, -0.153), inward normal
+        # (0.475, 0.880), critical point (1.17, -0.54)): the caustic is 0.52"
+        # wide along that normal
+        "polygon": ((0.175, 0.000), (0.196, 0.034), (0.207, 0.047), (-0.111, 0.218),
+                    (-0.112, 0.194), (-0.121, 0.144), (-0.130, 0.109), (-0.139, 0.080),
+                    (-0.149, 0.054), (-0.161, 0.028), (-0.175, 0.000), (-0.197, -0.035),
+                    (-0.241, -0.088), (-0.172, -0.100), (-0.134, -0.113), (-0.105, -0.125),
+                    (-0.079, -0.137), (-0.055, -0.151), (-0.029, -0.167), (0.000, -0.188),
+                    (0.039, -0.221), (0.108, -0.295), (0.112, -0.194), (0.121, -0.144),
+                    (0.130, -0.109), (0.139, -0.081), (0.149, -0.054), (0.160, -0.029)) * u.arcsec,
+        "reference": ((1.35, 0.42), (0.44, -1.11)) * u.arcsec,
         "finder": {"center": (0.0, 0.0) * u.arcsec, "half_width": 2.5 * u.arcsec,
                    "grid_spacing": 0.05 * u.arcsec},
         "link_length": 0.5 * u.arcsec,
@@ -415,6 +440,7 @@ _LENS_BUILDERS = {
     "cluster_fold": _cluster_components,
     "cluster_cusp": _cluster_components,
     "galaxy_fold": _galaxy_components,
+    "galaxy_sie_compact": _galaxy_components,
     "smacs_analog": _smacs_analog_system,
 }
 
