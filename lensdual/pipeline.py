@@ -510,6 +510,12 @@ def verdict(result, sigma_pos):
             f"Size magnifications from the {method} estimator with "
             f"{sig_text} and {errors}; a pair is "
             f"anomalous when |ln(mu_flux/mu_size)| exceeds {threshold:g} times its error. ")
+    if meta.get("test") == "joint":
+        n_field = int(np.count_nonzero(np.asarray(result["field_status"]) == "ok"))
+        text += (f"Joint test: the flux ratio is tested against mu_size combined with the "
+                 f"flux field of the neighbours' flux ratios where they predict it ({n_field} "
+                 f"of {len(result)} pairs; the others are tested on their geometry alone), "
+                 "and a pair where the two disagree is not tested. ")
     if "tested" in result.colnames:
         n_tested = int(np.count_nonzero(result["tested"]))
         untested = result[~np.asarray(result["tested"], dtype=bool)]

@@ -334,3 +334,12 @@ def test_the_pipeline_refuses_the_joint_test_with_a_null_calibration():
         analyse({"L1": {}, "L2": {}}, test="joint", null_realisations=100)
     with pytest.raises(ValueError, match="test must be one of"):
         analyse({"L1": {}, "L2": {}}, test="both")
+
+
+def test_the_report_says_which_test_ran():
+    from lensdual.pipeline import verdict
+
+    t = _noisy("cluster_fold", 20, 1, 0.005)
+    joint = verdict(_check(t, 0.005, test="joint"), 0.005 * u.arcsec)
+    assert "Joint test: the flux ratio is tested against mu_size combined" in joint
+    assert "Joint test" not in verdict(_check(t, 0.005), 0.005 * u.arcsec)
