@@ -160,7 +160,9 @@ def _common_variance(resid, var):
 
     if excess(0.0) <= 0.0:
         return 0.0
-    return float(brentq(excess, 0.0, float(np.max(r**2)), xtol=1e-14, rtol=1e-10))
+    # at t = (max r / 0.674)^2 every ratio is at most 0.674 times r / max r
+    upper = 4.0 * (float(np.max(r)) / _GAUSS_MEDIAN_ABS) ** 2
+    return float(brentq(excess, 0.0, upper, xtol=1e-14, rtol=1e-10))
 
 
 def _flux_field(pos, y, s, sig2, usable, resolved):

@@ -343,3 +343,14 @@ def test_the_report_says_which_test_ran():
     joint = verdict(_check(t, 0.005, test="joint"), 0.005 * u.arcsec)
     assert "Joint test: the flux ratio is tested against mu_size combined" in joint
     assert "Joint test" not in verdict(_check(t, 0.005), 0.005 * u.arcsec)
+
+
+def test_common_variance_of_a_few_equal_residuals():
+    """Few predictions whose residuals are all alike: the common variance is still found
+    (a bracket that missed it made brentq fail)."""
+    from lensdual.flux_field import _common_variance
+
+    r = np.array([0.1, 0.1, 0.1, 0.1, 0.1])
+    v = np.full(5, 1e-4)
+    t = _common_variance(r, v)
+    assert np.median(r / np.sqrt(v + t)) == pytest.approx(0.6744897501960817, abs=1e-9)

@@ -131,7 +131,7 @@ __all__ = [
 #: The lens families of :func:`clean_constellation`.
 FAMILIES = ("cluster_fold", "cluster_cusp", "galaxy_fold", "smacs_analog", "smacs_lenstool",
             "macs1149_lenstool", "a2744_lenstool", "a370_lenstool", "as1063_lenstool",
-            "as1063_s13_lenstool", "galaxy_sie_compact")
+            "as1063_s13_lenstool", "galaxy_sie_compact", "a2744_s3_lenstool")
 
 #: The environment variables that name the folders of the real Lenstool models
 #: the ``*_lenstool`` families are built on: ``LENSDUAL_SMACS0723_DIR`` the folder
@@ -359,6 +359,24 @@ FAMILY_PARAMETERS = {
         "half_length": 0.12 * u.arcsec,
         "reference": ((4.98, -30.48), (10.74, -27.66)) * u.arcsec,
         "finder": {"center": (7.3, -29.3) * u.arcsec, "half_width": 8.0 * u.arcsec,
+                   "grid_spacing": 0.1 * u.arcsec},
+        "link_length": 1.0 * u.arcsec,
+    },
+    # a second fold of the Abell 2744 model, found by a helper the same way
+    # (caustic point nearest the traced source of system 3, critical curves on
+    # a 0.02 arcsec grid), as a held-out family: no statistic was run on it
+    "a2744_s3_lenstool": {
+        "description": ("real CATS Lenstool model of Abell 2744 (2017; held out), fold pair of "
+                        "system 3 (images 3.1 and 3.2, z = 3.9803)"),
+        "z_source": 3.9803,
+        "lenstool": _hff_model("a2744_s3_lenstool", "CATS Lenstool model of Abell 2744",
+                               "abell2744/best.par"),
+        "fold_point": (25.083, 36.197) * u.arcsec,
+        "normal": (-0.999, 0.032),
+        "distance": (0.05, 0.2) * u.arcsec,
+        "half_length": 0.12 * u.arcsec,
+        "reference": ((-10.70, 22.80), (-6.27, 22.69)) * u.arcsec,
+        "finder": {"center": (-8.6, 22.8) * u.arcsec, "half_width": 6.0 * u.arcsec,
                    "grid_spacing": 0.1 * u.arcsec},
         "link_length": 1.0 * u.arcsec,
     },
