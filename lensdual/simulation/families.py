@@ -93,9 +93,10 @@ separations on an arc):
 ``a2744_s3_lenstool``
     The real CATS Lenstool model of Abell 2744 at the redshift of its
     system 3 (z = 3.9803); sources next to the fold that makes images 3.1
-    (L1) and 3.2 (L2), 3.7 arcsec apart, 25 arcsec from the fold of
-    ``a2744_lenstool``: ``|mu| ~ 6.5-16``, ``mu_true`` 0.92-1.55,
-    baselines BASELINES arcsec. Held out like the previous one.
+    (L1) and 3.2 (L2), 3.7 arcsec apart, on the other side of the cluster
+    from those of ``a2744_lenstool`` (a larger region, 0.2 x 0.4 arcsec: the images are
+    less magnified): ``|mu| ~ 5.5-16``, ``mu_true`` 0.88-1.71, baselines
+    0.6-1.7 arcsec. Held out like the previous one.
 
 How the regions were found
 --------------------------
