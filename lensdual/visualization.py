@@ -12,6 +12,7 @@ __all__ = [
     "plot_error_histograms",
     "plot_pairing_map",
     "plot_duality",
+    "plot_flux_field",
     "ds9_regions",
     "plot_arc_images",
 ]
@@ -321,6 +322,98 @@ def plot_duality(result, *, bands=None, ax=None, annotate=True, title=None):
     if title:
         ax.set_title(title)
     return ax
+
+
+def plot_flux_field(result, *, fig=None, title=None):
+    r"""The neighbours' flux field across the constellation (the joint test).
+
+    Left: the pairs at their arc-L2 positions, coloured by the measured
+    ``ln mu_flux``; a ring around each pair shows, in the same colours, its
+    flux-field prediction ``ln_mu_field`` from the other pairs (a pair whose
+    ring and centre differ is off its neighbours' field). Right: each pair's
+    flux ratio against its prediction, ``ln mu_flux - ln_mu_field`` with the
+    total error bar (flux error and prediction error), against the pair id,
+    with the geometric ``ln mu_size`` for comparison. Pairs flagged
+    ``anomalous`` are outlined (left) and drawn (right) in red.
+
+    Parameters
+    ----------
+    result : `~astropy.table.Table`
+        Output of :func:`~lensdual.duality.check_duality` with
+        ``test="joint"``.
+    fig : `matplotlib.figure.Figure`, optional
+    title : str, optional
+
+    Returns
+    -------
+    fig : `matplotlib.figure.Figure`
+
+    Raises
+    ------
+    ValueError
+        ``result`` lacks the joint test's columns.
+    """
+    from astropy import units as u
+
+    need = ("ln_mu_field", "ln_mu_field_err", "mu_flux", "mu_flux_err", "mu_size", "pair_id",
+            "x2", "y2", "anomalous")
+    missing = [c for c in need if c not in result.colnames]
+    if missing:
+        raise ValueError(f"result lacks the columns {missing}: pass the output of "
+                         "lensdual.duality.check_duality(..., test='joint')")
+    plt = _plt()
+    if fig is None:
+        fig = plt.figure(figsize=(10, 4.4))
+    ax_map, ax_res = fig.subplots(1, 2, gridspec_kw={"width_ratios": [1.1, 1]})
+    x = u.Quantity(result["x2"]).to_value(u.arcsec)
+    y = u.Quantity(result["y2"]).to_value(u.arcsec)
+    flux = np.asarray(result["mu_flux"], dtype=float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ln_flux = np.log(flux)
+        ln_flux_err = np.asarray(result["mu_flux_err"], dtype=float) / flux
+        ln_size = np.log(np.asarray(result["mu_size"], dtype=float))
+    field = np.asarray(result["ln_mu_field"], dtype=float)
+    field_err = np.asarray(result["ln_mu_field_err"], dtype=float)
+    flagged = np.asarray(result["anomalous"], dtype=bool)
+    ids = np.asarray(result["pair_id"])
+    finite = np.concatenate([ln_flux[np.isfinite(ln_flux)], field[np.isfinite(field)]])
+    vmin, vmax = (finite.min(), finite.max()) if finite.size else (0.0, 1.0)
+    predicted = np.isfinite(field)
+    ax_map.scatter(x[predicted], y[predicted], c=field[predicted], s=320, cmap="viridis",
+                   vmin=vmin, vmax=vmax, edgecolors="none")
+    ax_map.scatter(x, y, s=130, facecolors="white", edgecolors="none")
+    points = ax_map.scatter(x, y, c=ln_flux, s=60, cmap="viridis", vmin=vmin, vmax=vmax,
+                            edgecolors=np.where(flagged, "tab:red", "0.3"),
+                            linewidths=np.where(flagged, 2.0, 0.5))
+    for xi, yi, i, bad in zip(x, y, ids, flagged, strict=True):
+        ax_map.annotate(str(i), (xi, yi), xytext=(6, 6), textcoords="offset points",
+                        fontsize=7, color="tab:red" if bad else "0.25")
+    fig.colorbar(points, ax=ax_map, label=r"$\ln \mu$ (centre: flux ratio; ring: neighbours)")
+    ax_map.set_aspect("equal", adjustable="datalim")
+    ax_map.set_xlabel("x2 (arcsec, to the west)")
+    ax_map.set_ylabel("y2 (arcsec)")
+    ax_map.set_title("arc L2: flux ratios and their flux-field predictions", fontsize="medium")
+    order = np.arange(len(result))
+    resid = ln_flux - field
+    err = np.hypot(ln_flux_err, field_err)
+    for sel, colour, label in ((~flagged, "C0", "flux ratio - field"),
+                               (flagged, "tab:red", "anomalous")):
+        sel = sel & predicted
+        if sel.any():
+            ax_res.errorbar(order[sel], resid[sel], yerr=err[sel], fmt="o", color=colour,
+                            ms=4, capsize=2, label=label)
+    ax_res.plot(order, ln_size - field, "x", color="0.5", ms=5,
+                label=r"$\ln\mu_{\rm size}$ - field")
+    ax_res.axhline(0.0, color="k", lw=1)
+    ax_res.set_xticks(order, [str(i) for i in ids], fontsize=6, rotation=90)
+    ax_res.set_xlabel("pair")
+    ax_res.set_ylabel(r"$\ln \mu - \ln \mu_{\rm field}$")
+    ax_res.legend(fontsize="small")
+    ax_res.set_title("against the neighbours' prediction", fontsize="medium")
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    return fig
 
 
 def ds9_regions(pairs, catalogs=None, *, radius=0.15):

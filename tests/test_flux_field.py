@@ -354,3 +354,27 @@ def test_common_variance_of_a_few_equal_residuals():
     v = np.full(5, 1e-4)
     t = _common_variance(r, v)
     assert np.median(r / np.sqrt(v + t)) == pytest.approx(0.6744897501960817, abs=1e-9)
+
+
+def test_plot_flux_field_draws_the_field_and_the_residuals():
+    import matplotlib
+
+    matplotlib.use("agg")
+    import matplotlib.pyplot as plt
+
+    from lensdual.visualization import plot_flux_field
+
+    t = _raise(_noisy("cluster_fold", 20, 1, 0.005), [4])
+    r = _check(t, 0.005, test="joint")
+    fig = plot_flux_field(r, title="x")
+    ax_map, ax_res = fig.axes[:2]
+    # every pair drawn on the map: ring (predicted ones), gap, centre
+    sizes = [len(c.get_offsets()) for c in ax_map.collections]
+    assert sizes[1:] == [20, 20] and sizes[0] == int((r["field_status"] == "ok").sum())
+    # the flagged pair is the one drawn in red on the residual panel
+    red = [line for line in ax_res.lines
+           if line.get_color() == "tab:red" and line.get_marker() == "o"]
+    assert len(red) == 1 and np.allclose(red[0].get_xdata(), [4])
+    plt.close(fig)
+    with pytest.raises(ValueError, match="test='joint'"):
+        plot_flux_field(_check(t, 0.005))
