@@ -1,0 +1,52 @@
+"""Speed of the joint duality test against the geometric one, in the same process.
+
+Run on demand::
+
+    python benchmarks/bench_joint.py
+
+For clean constellations of 20 and 40 sources (SMACS0723 analogue, 5 mas
+position noise), the median wall time of ``check_duality`` with
+``test="geometric"`` and ``test="joint"`` over repeated calls, interleaved,
+after a warm-up call of each (Numba compilation), and their ratio. The joint
+test's target is at most 2x.
+"""
+
+import time
+import warnings
+
+import numpy as np
+from astropy import units as u
+
+from lensdual.duality import check_duality
+from lensdual.simulation import clean_constellation
+
+SIGMA = 0.005
+
+
+def _noisy(n, seed):
+    t = clean_constellation("smacs_analog", n, seed=seed)
+    rng = np.random.default_rng(seed)
+    for col in ("x1", "y1", "x2", "y2"):
+        t[col] = t[col] + SIGMA * rng.standard_normal(n) * u.arcsec
+    return t
+
+
+def main(repeats=15):
+    warnings.simplefilter("ignore")
+    print("n_sources geometric_ms joint_ms ratio")
+    for n in (20, 40):
+        t = _noisy(n, 1)
+        times = {"geometric": [], "joint": []}
+        for test in times:
+            check_duality(t, sigma_pos=SIGMA * u.arcsec, test=test)
+        for _ in range(repeats):
+            for test in times:
+                t0 = time.perf_counter()
+                check_duality(t, sigma_pos=SIGMA * u.arcsec, test=test)
+                times[test].append(time.perf_counter() - t0)
+        geo, joint = (1e3 * float(np.median(times[k])) for k in ("geometric", "joint"))
+        print(f"{n} {geo:.1f} {joint:.1f} {joint / geo:.2f}")
+
+
+if __name__ == "__main__":
+    main()
