@@ -36,6 +36,8 @@ from astropy import units as u
 from astropy.table import QTable
 from scipy.optimize import brentq
 
+from . import _flux_field_kernels as _kernels
+
 __all__ = ["flux_field_prediction", "FIELD_STATUS", "N_LOCAL", "N_CHECK"]
 
 #: Neighbours of the quadratic fit (6 coefficients, so 4 residual degrees of freedom).
@@ -48,8 +50,9 @@ _MIN_CHECK = 12
 _GAUSS_MEDIAN_ABS = 0.6744897501960817
 #: Fewest predictions for the common model variance of step 4.
 _MIN_CALIBRATION = 5
-#: Smallest ratio of the smallest to the largest diagonal of a fit's R factor.
-_RCOND = 1e-9
+#: Largest ratio of the largest to the smallest pivot of a fit's (column-equilibrated)
+#: R factor.
+_COND_MAX = 1e9
 
 #: The values of ``field_status``: ``"ok"`` (predicted), ``"too few neighbours"``
 #: (fewer than the cubic check's 12 usable neighbours), ``"unresolved"`` (the
@@ -57,95 +60,6 @@ _RCOND = 1e-9
 #: ``"ill-conditioned"`` (the neighbours lie on a curve a quadratic cannot be
 #: fitted on), and ``"excluded"`` (the pair's position is not measured).
 FIELD_STATUS = ("ok", "too few neighbours", "unresolved", "ill-conditioned", "excluded")
-
-
-def _n_terms(degree):
-    return (degree + 1) * (degree + 2) // 2
-
-
-def _design(d, degree):
-    x, y = d[:, 0], d[:, 1]
-    return np.column_stack([x ** (k - j) * y ** j
-                            for k in range(degree + 1) for j in range(k + 1)])
-
-
-def _gradients(d, degree, coef):
-    """Gradient of the fitted polynomial at the points ``d`` (same frame)."""
-    x, y = d[:, 0], d[:, 1]
-    gx = np.zeros(x.size)
-    gy = np.zeros(x.size)
-    c = 0
-    for k in range(degree + 1):
-        for j in range(k + 1):
-            if k - j > 0:
-                gx += coef[c] * (k - j) * x ** (k - j - 1) * y ** j
-            if j > 0:
-                gy += coef[c] * j * x ** (k - j) * y ** (j - 1)
-            c += 1
-    return np.column_stack([gx, gy])
-
-
-def _weighted_fit(dw, y, s, degree):
-    """Weighted least squares; ``(coef, a)`` with ``a @ y`` the value at the origin."""
-    design = _design(dw, degree)
-    w = 1.0 / s
-    q, r = np.linalg.qr(design * w[:, None])
-    diag = np.abs(np.diag(r))
-    if not diag.min() > _RCOND * diag.max():
-        return None
-    solve = np.linalg.solve(r, q.T) * w[None, :]
-    return solve @ y, solve[0]
-
-
-def _local_fit(d, y, s, sig2, degree):
-    """The fit of one neighbourhood, in its whitened frame.
-
-    Returns ``(value, a, s_eff, var_position)``: the value at the origin, its
-    weights over the neighbours, the neighbours' errors widened by their
-    position error times the fitted gradient, and the variance that the
-    origin's own position error adds.
-    """
-    cov = d.T @ d / d.shape[0]
-    try:
-        whiten = np.linalg.cholesky(np.linalg.inv(cov))
-    except np.linalg.LinAlgError:
-        return None
-    dw = d @ whiten
-    fit = _weighted_fit(dw, y, s, degree)
-    if fit is None:
-        return None
-    grad = _gradients(dw, degree, fit[0]) @ whiten.T
-    s_eff = np.sqrt(s**2 + sig2[1:] ** 2 * (grad**2).sum(axis=1))
-    fit = _weighted_fit(dw, y, s_eff, degree)
-    if fit is None:
-        return None
-    coef, a = fit
-    g0 = whiten @ coef[1:3]
-    return coef[0], a, s_eff, sig2[0] ** 2 * float(g0 @ g0)
-
-
-def _predict_one(pos, y, s, sig2, usable, resolved, i):
-    """(value, variance before step 4, status, neighbours used) of pair ``i``."""
-    others = np.flatnonzero(usable)
-    others = others[others != i]
-    if others.size < _MIN_CHECK:
-        return np.nan, np.nan, "too few neighbours", others.size
-    order = others[np.argsort(np.hypot(*(pos[others] - pos[i]).T), kind="stable")]
-    n_local, n_check = min(N_LOCAL, order.size), min(N_CHECK, order.size)
-    if not (resolved[i] and resolved[order[:n_local]].all()):
-        return np.nan, np.nan, "unresolved", n_check
-    near = order[:n_check]
-    d = pos[near] - pos[i]
-    sig = np.concatenate([[sig2[i]], sig2[near]])
-    quad = _local_fit(d[:n_local], y[near[:n_local]], s[near[:n_local]],
-                      sig[:n_local + 1], 2)
-    cubic = _local_fit(d, y[near], s[near], sig, 3)
-    if quad is None or cubic is None:
-        return np.nan, np.nan, "ill-conditioned", n_check
-    value, a, s_eff, var_pos = quad
-    value3 = cubic[0]
-    var = float(np.sum(a**2 * s_eff**2)) + var_pos + (value - value3) ** 2
-    return value, var, "ok", n_check
 
 
 def _common_variance(resid, var):
@@ -168,18 +82,21 @@ def _common_variance(resid, var):
 def _flux_field(pos, y, s, sig2, usable, resolved):
     """Leave-one-out flux-field predictions (arrays, arcsec); see the module docstring."""
     n = y.size
-    value = np.full(n, np.nan)
-    var = np.full(n, np.nan)
-    status = np.full(n, "excluded", dtype=object)
-    n_used = np.zeros(n, dtype=int)
-    for i in range(n):
-        value[i], var[i], status[i], n_used[i] = _predict_one(pos, y, s, sig2, usable,
-                                                              resolved, i)
-    ok = status == "ok"
+    value = np.empty(n)
+    var = np.empty(n)
+    code = np.empty(n, dtype=np.int64)
+    n_used = np.empty(n, dtype=np.int64)
+    _kernels.predict_all(np.ascontiguousarray(pos, dtype=float), np.ascontiguousarray(y),
+                         np.ascontiguousarray(s), np.ascontiguousarray(sig2),
+                         np.ascontiguousarray(usable, dtype=np.bool_),
+                         np.ascontiguousarray(resolved, dtype=np.bool_), N_LOCAL, N_CHECK,
+                         _MIN_CHECK, _COND_MAX, value, var, code, n_used)
+    status = np.asarray(FIELD_STATUS)[code]
+    ok = code == _kernels.OK
     calib = ok & usable
     model_var = _common_variance(y[calib] - value[calib], s[calib] ** 2 + var[calib])
     var = np.where(ok, var + model_var, np.nan)
-    return value, var, status.astype(str), n_used, model_var
+    return value, var, status, n_used, model_var
 
 
 def flux_field_prediction(theta2, ln_mu_flux, ln_mu_flux_err, *, sigma_pos=None, usable=None,

@@ -1,0 +1,199 @@
+"""Numba kernels of the flux field (:mod:`lensdual.flux_field`): unit-free, no checks.
+
+:func:`predict_all` makes the leave-one-out prediction of every pair (steps 0
+to 3 of the module docstring of :mod:`lensdual.flux_field`); the common model
+variance (step 4) is added by the caller.
+"""
+
+import numpy as np
+from numba import njit
+
+from ._numba import JIT_OPTIONS
+from .estimators._linalg import _equilibrate, _orthonormalise, _well_conditioned
+
+__all__ = []
+
+#: ``status`` codes of :func:`predict_all`, in the order of ``FIELD_STATUS``.
+OK, TOO_FEW, UNRESOLVED, ILL_CONDITIONED = 0, 1, 2, 3
+
+
+@njit(**JIT_OPTIONS)
+def _n_terms(degree):
+    return (degree + 1) * (degree + 2) // 2
+
+
+@njit(inline="always", **JIT_OPTIONS)
+def _monomials(x, y, degree, out):
+    """``x**(k-j) y**j`` for k = 0..degree, j = 0..k, into ``out``."""
+    c = 0
+    for k in range(degree + 1):
+        for j in range(k + 1):
+            out[c] = x ** (k - j) * y**j
+            c += 1
+
+
+@njit(inline="always", **JIT_OPTIONS)
+def _gradient(x, y, degree, coef):
+    """The gradient of the polynomial ``coef`` at ``(x, y)``."""
+    gx = 0.0
+    gy = 0.0
+    c = 0
+    for k in range(degree + 1):
+        for j in range(k + 1):
+            if k - j > 0:
+                gx += coef[c] * (k - j) * x ** (k - j - 1) * y**j
+            if j > 0:
+                gy += coef[c] * j * x ** (k - j) * y ** (j - 1)
+            c += 1
+    return gx, gy
+
+
+@njit(**JIT_OPTIONS)
+def _weighted_fit(dw, y, s, m, degree, cond_max, coef, a):
+    """Weighted least squares of ``y[:m]`` (errors ``s``) on the monomials of ``dw``.
+
+    Fills ``coef`` and ``a`` (``a @ y[:m]`` is the value at the origin,
+    ``coef[0]``); returns False where the design is numerically rank deficient.
+    """
+    p = _n_terms(degree)
+    design = np.empty((m, p))
+    row = np.empty(p)
+    for i in range(m):
+        _monomials(dw[i, 0], dw[i, 1], degree, row)
+        for c in range(p):
+            design[i, c] = row[c] / s[i]
+    scale = np.empty(p)
+    r = np.zeros((p, p))
+    if not _equilibrate(design, p, scale):
+        return False
+    if not _orthonormalise(design, p, r):
+        return False
+    if not _well_conditioned(r, p, cond_max):
+        return False
+    # rows = S^-1 R^-1 Q^T, then coef = rows @ (y / s) and a = rows[0] / s
+    rinv = np.zeros((p, p))
+    for j in range(p - 1, -1, -1):
+        rinv[j, j] = 1.0 / r[j, j]
+        for k in range(j + 1, p):
+            v = 0.0
+            for i in range(j + 1, k + 1):
+                v += r[j, i] * rinv[i, k]
+            rinv[j, k] = -v / r[j, j]
+    for c in range(p):
+        coef[c] = 0.0
+    for i in range(m):
+        yi = y[i] / s[i]
+        for c in range(p):
+            v = 0.0
+            for k in range(c, p):
+                v += rinv[c, k] * design[i, k]
+            v /= scale[c]
+            coef[c] += v * yi
+            if c == 0:
+                a[i] = v / s[i]
+    return True
+
+
+@njit(**JIT_OPTIONS)
+def _local_fit(d, y, s, sig_target, sig, m, degree, cond_max, coef, a, s_eff):
+    """One neighbourhood's fit in its whitened frame, refitted with the neighbours'
+    errors widened by their position errors times the fitted gradient.
+
+    Returns ``(ok, value, var_stat, var_position)``: the value at the origin, the
+    variance the neighbours' errors give it, and the variance the origin's own
+    position error adds. ``s_eff`` receives the widened errors.
+    """
+    sxx = 0.0
+    sxy = 0.0
+    syy = 0.0
+    for i in range(m):
+        sxx += d[i, 0] * d[i, 0]
+        sxy += d[i, 0] * d[i, 1]
+        syy += d[i, 1] * d[i, 1]
+    sxx /= m
+    sxy /= m
+    syy /= m
+    det = sxx * syy - sxy * sxy
+    if not det > 0.0:
+        return False, np.nan, np.nan, np.nan
+    # lower Cholesky factor of the inverse covariance [[syy, -sxy], [-sxy, sxx]] / det
+    l00 = np.sqrt(syy / det)
+    l10 = -sxy / det / l00
+    l11 = np.sqrt(sxx / det - l10 * l10)
+    dw = np.empty((m, 2))
+    for i in range(m):
+        dw[i, 0] = d[i, 0] * l00 + d[i, 1] * l10
+        dw[i, 1] = d[i, 1] * l11
+    if not _weighted_fit(dw, y, s, m, degree, cond_max, coef, a):
+        return False, np.nan, np.nan, np.nan
+    for i in range(m):
+        gx, gy = _gradient(dw[i, 0], dw[i, 1], degree, coef)
+        # gradient in the original frame: L @ g (row form g @ L^T)
+        hx = l00 * gx
+        hy = l10 * gx + l11 * gy
+        s_eff[i] = np.sqrt(s[i] ** 2 + sig[i] ** 2 * (hx * hx + hy * hy))
+    if not _weighted_fit(dw, y, s_eff, m, degree, cond_max, coef, a):
+        return False, np.nan, np.nan, np.nan
+    var_stat = 0.0
+    for i in range(m):
+        var_stat += a[i] ** 2 * s_eff[i] ** 2
+    hx = l00 * coef[1]
+    hy = l10 * coef[1] + l11 * coef[2]
+    return True, coef[0], var_stat, sig_target**2 * (hx * hx + hy * hy)
+
+
+@njit(**JIT_OPTIONS)
+def predict_all(pos, y, s, sig2, usable, resolved, n_local, n_check, min_check, cond_max,
+                value, var, status, n_used):
+    """The leave-one-out prediction of every pair (steps 0 to 3): fills ``value``,
+    ``var`` (without the common model variance), ``status`` and ``n_used``."""
+    n = y.size
+    dist = np.empty(n)
+    coef = np.empty(_n_terms(3))
+    a = np.empty(n_check)
+    s_eff = np.empty(n_check)
+    d = np.empty((n_check, 2))
+    yy = np.empty(n_check)
+    ss = np.empty(n_check)
+    sg = np.empty(n_check)
+    for i in range(n):
+        value[i] = np.nan
+        var[i] = np.nan
+        others = np.empty(n, dtype=np.int64)
+        count = 0
+        for j in range(n):
+            if usable[j] and j != i:
+                dist[count] = np.hypot(pos[j, 0] - pos[i, 0], pos[j, 1] - pos[i, 1])
+                others[count] = j
+                count += 1
+        n_used[i] = min(n_check, count)
+        if count < min_check:
+            status[i] = TOO_FEW
+            continue
+        order = others[:count][np.argsort(dist[:count], kind="mergesort")]
+        m_local = min(n_local, count)
+        m_check = min(n_check, count)
+        unresolved = not resolved[i]
+        for k in range(m_local):
+            if not resolved[order[k]]:
+                unresolved = True
+        if unresolved:
+            status[i] = UNRESOLVED
+            continue
+        for k in range(m_check):
+            j = order[k]
+            d[k, 0] = pos[j, 0] - pos[i, 0]
+            d[k, 1] = pos[j, 1] - pos[i, 1]
+            yy[k] = y[j]
+            ss[k] = s[j]
+            sg[k] = sig2[j]
+        ok2, v2, var_stat, var_pos = _local_fit(d, yy, ss, sig2[i], sg, m_local, 2, cond_max,
+                                                coef, a, s_eff)
+        ok3, v3, _, _ = _local_fit(d, yy, ss, sig2[i], sg, m_check, 3, cond_max, coef, a,
+                                   s_eff)
+        if not (ok2 and ok3):
+            status[i] = ILL_CONDITIONED
+            continue
+        status[i] = OK
+        value[i] = v2
+        var[i] = var_stat + var_pos + (v2 - v3) ** 2
