@@ -698,39 +698,53 @@ def _joint_pass(ln_flux, ln_flux_err, geo, field, snr_threshold):
     return snr, dof, signif, tested, consistency, fails, basis, outlier
 
 
+def _joint_passes(pos2, ln_flux, ln_flux_err, sig2, geo, keep, resolved, snr_threshold):
+    """The joint test on arrays, pass by pass until the left-out pairs settle.
+
+    ``pos2`` (N, 2) and ``sig2`` (N,) in arcsec; ``geo`` as in :func:`_joint_pass`;
+    ``keep`` the pairs that may inform the field; ``resolved`` where the
+    adaptive fits passed. Returns ``(result, field, flagged)``: the last pass's
+    :func:`_joint_pass` tuple, :func:`lensdual.flux_field._field_arrays`'s tuple
+    and the pairs left out of the others' field.
+    """
+    from .flux_field import _field_arrays
+
+    usable = keep & np.isfinite(ln_flux) & np.isfinite(ln_flux_err)
+    flagged = np.zeros(ln_flux.size, dtype=bool)
+    for _ in range(_JOINT_MAX_PASSES):
+        field = _field_arrays(pos2, ln_flux, ln_flux_err, sig2, usable & ~flagged, resolved)
+        f_ok = (field[2] == "ok") & keep
+        result = _joint_pass(ln_flux, ln_flux_err, geo, (field[0], field[1], f_ok),
+                             snr_threshold)
+        if np.array_equal(result[7], flagged):
+            break
+        flagged = result[7]
+    return result, field, flagged
+
+
 def _joint_test(tab, theta2, flux, sigma_pos, keep, snr_threshold):
     """Replace the test columns of ``tab`` by the joint test's (see check_duality)."""
     from .estimators.core import _as_sigma
-    from .flux_field import flux_field_prediction
 
     n = len(tab)
     ln_flux = np.log(np.asarray(flux["mu_flux"], dtype=float))
     ln_flux_err = np.asarray(flux["ln_mu_flux_err"], dtype=float)
-    sig2 = _as_sigma(sigma_pos, n)[1] * u.arcsec
     geo_tested = np.asarray(tab["tested"], dtype=bool)
     with np.errstate(invalid="ignore", divide="ignore"):
         geo = (np.log(np.asarray(tab["mu_size"], dtype=float)),
                np.asarray(tab["ln_mu_size_err"], dtype=float) ** 2,
                np.asarray(tab["ln_mu_size_err_dof"], dtype=float), geo_tested)
-    usable = keep & np.isfinite(ln_flux) & np.isfinite(ln_flux_err)
-    resolved = np.asarray(tab["mu_size_status"]) == "ok"
-    flagged = np.zeros(n, dtype=bool)
-    for _ in range(_JOINT_MAX_PASSES):
-        field_tab = flux_field_prediction(theta2, ln_flux, ln_flux_err, sigma_pos=sig2,
-                                          usable=usable & ~flagged, resolved=resolved)
-        f_ok = (np.asarray(field_tab["field_status"]) == "ok") & keep
-        field = (np.asarray(field_tab["ln_mu_field"], dtype=float),
-                 np.asarray(field_tab["ln_mu_field_err"], dtype=float) ** 2, f_ok)
-        result = _joint_pass(ln_flux, ln_flux_err, geo, field, snr_threshold)
-        new_flagged = result[7]
-        if np.array_equal(new_flagged, flagged):
-            break
-        flagged = new_flagged
+    result, field, flagged = _joint_passes(
+        np.asarray(theta2.to_value(u.arcsec), dtype=float), ln_flux, ln_flux_err,
+        _as_sigma(sigma_pos, n)[1], geo, keep, np.asarray(tab["mu_size_status"]) == "ok",
+        snr_threshold)
     snr, dof, signif, tested, consistency, fails, basis, _ = result
     tab["significance_geometric"] = tab["significance"]
     tab["anomalous_geometric"] = tab["anomalous"]
-    for name in ("ln_mu_field", "ln_mu_field_err", "field_status", "field_n"):
-        tab[name] = field_tab[name]
+    tab["ln_mu_field"] = field[0]
+    tab["ln_mu_field_err"] = np.sqrt(field[1])
+    tab["field_status"] = field[2]
+    tab["field_n"] = field[3]
     tab["field_consistency"] = consistency
     tab["smooth_field_fails"] = fails
     tab["joint_basis"] = basis
@@ -744,7 +758,7 @@ def _joint_test(tab, theta2, flux, sigma_pos, keep, snr_threshold):
     tab["p_value_holm"] = holm_adjust(pval)
     tab["anomalous"] = tested & (signif > snr_threshold)
     ids = np.asarray(tab["pair_id"])
-    return {"field_model_sd": field_tab.meta["field_model_sd"],
+    return {"field_model_sd": float(np.sqrt(field[4])),
             "field_excluded_pairs": [int(i) for i in ids[flagged]]}
 
 

@@ -99,6 +99,24 @@ def _flux_field(pos, y, s, sig2, usable, resolved):
     return value, var, status, n_used, model_var
 
 
+def _field_arrays(pos, y, s, sig2, usable=None, resolved=None):
+    """The flux field of checked arrays (arcsec): ``(value, var, status, n_used,
+    model_var)``. Pairs with a NaN position, value or error, or a non-positive
+    error, inform nobody; a NaN position gets status "excluded"."""
+    n = y.size
+    finite = np.isfinite(y) & np.isfinite(s) & (s > 0) & np.isfinite(pos).all(axis=1)
+    usable = finite if usable is None else usable & finite
+    resolved = np.ones(n, dtype=bool) if resolved is None else resolved
+    lost = ~np.isfinite(pos).all(axis=1)
+    value, var, status, n_used, model_var = _flux_field(
+        np.where(np.isfinite(pos), pos, 0.0), np.where(finite, y, 0.0),
+        np.where(finite, s, 1.0), sig2, usable, resolved)
+    status = np.where(lost, "excluded", status)
+    value = np.where(lost, np.nan, value)
+    var = np.where(lost, np.nan, var)
+    return value, var, status, n_used, model_var
+
+
 def flux_field_prediction(theta2, ln_mu_flux, ln_mu_flux_err, *, sigma_pos=None, usable=None,
                           resolved=None):
     r"""Predict each pair's ``ln mu`` from the other pairs' flux ratios (leave-one-out).
@@ -188,30 +206,18 @@ def flux_field_prediction(theta2, ln_mu_flux, ln_mu_flux_err, *, sigma_pos=None,
                                (n,)).copy()
         if not np.isfinite(sig2).all() or (sig2 < 0).any():
             raise ValueError("sigma_pos must be finite and >= 0")
-    finite = np.isfinite(y) & np.isfinite(s) & (s > 0) & np.isfinite(pos).all(axis=1)
-    if usable is None:
-        usable = finite
-    else:
+    if usable is not None:
         usable = np.asarray(usable, dtype=bool)
         if usable.shape != (n,):
             raise ValueError(f"usable must have shape ({n},), got {usable.shape}")
-        usable = usable & finite
-    if resolved is None:
-        resolved = np.ones(n, dtype=bool)
-    else:
+    if resolved is not None:
         resolved = np.asarray(resolved, dtype=bool)
         if resolved.shape != (n,):
             raise ValueError(f"resolved must have shape ({n},), got {resolved.shape}")
-    s_safe = np.where(finite, s, 1.0)
-    y_safe = np.where(finite, y, 0.0)
-    value, var, status, n_used, model_var = _flux_field(
-        np.where(np.isfinite(pos), pos, 0.0), y_safe, s_safe, sig2, usable, resolved)
-    lost = ~np.isfinite(pos).all(axis=1)
-    status = np.where(lost, "excluded", status)
-    value = np.where(lost, np.nan, value)
+    value, var, status, n_used, model_var = _field_arrays(pos, y, s, sig2, usable, resolved)
     out = QTable()
     out["ln_mu_field"] = value
-    out["ln_mu_field_err"] = np.sqrt(np.where(lost, np.nan, var))
+    out["ln_mu_field_err"] = np.sqrt(var)
     out["field_status"] = status
     out["field_n"] = n_used
     out.meta["field_model_sd"] = float(np.sqrt(model_var))
