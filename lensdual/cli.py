@@ -177,9 +177,8 @@ def _cmd_demo(args):
         with progress.step("render mock images"):
             demo = render_demo(system, truth, seed=args.seed)
         mocks, images, centre = demo.mocks, demo.images, demo.centre
-        # the null calibration is the adaptive estimator's geometric test's
-        null_realisations = (args.null_realisations
-                             if args.estimator == "adaptive" and args.test == "geometric" else 0)
+        # the null calibration is the adaptive estimator's
+        null_realisations = args.null_realisations if args.estimator == "adaptive" else 0
         analysis = analyse(images, psf=demo.psf, estimator=args.estimator, sigma_pos="auto",
                            n_bootstrap=args.n_bootstrap, snr_threshold=args.snr_threshold,
                            seed=args.seed, progress=progress,
@@ -407,7 +406,7 @@ def build_parser():
     demo.add_argument("--test", choices=list(TESTS), default=DEFAULT_TEST,
                       help="the duality test: geometric (the flux ratio against mu_size) or "
                            "joint (against mu_size and the neighbours' flux ratios, needs "
-                           "13 or more sources to use them; no null calibration)")
+                           "13 or more sources to use them)")
     demo.add_argument("--snr-threshold", type=_positive_float, default=3.0,
                       help="a pair is anomalous above this duality SNR")
     demo.add_argument("--write-config", action="store_true",

@@ -814,7 +814,7 @@ def _smooth_map(t1, t2, sigma, alpha=0.05):
 
 def _null_block(task):
     """SNRs of one block of null realisations (module level: picklable)."""
-    (block, entropy, size, t1, t2, sigma, mu_true, ln_flux_err, wp) = task
+    (block, entropy, size, t1, t2, sigma, mu_true, ln_flux_err, wp, joint) = task
     from .estimators.core import _adaptive_batch
 
     rng = np.random.default_rng(np.random.SeedSequence(entropy, spawn_key=(block,)))
@@ -822,6 +822,9 @@ def _null_block(task):
     noise1 = rng.standard_normal((size, n, 2)) * sigma[0][None, :, None]
     noise2 = rng.standard_normal((size, n, 2)) * sigma[1][None, :, None]
     ln_flux = np.log(mu_true)[None, :] + ln_flux_err[None, :] * rng.standard_normal((size, n))
+    if joint is not None:
+        return _null_block_joint(t1, t2, noise1, noise2, sigma, wp, ln_flux, ln_flux_err,
+                                 *joint)
     mu_size, ln_sd, ok, size_dof = _adaptive_batch(t1, t2, noise1, noise2, sigma, wp)
     with np.errstate(divide="ignore", invalid="ignore"):
         total = np.hypot(ln_flux_err[None, :], ln_sd)
@@ -830,6 +833,25 @@ def _null_block(task):
         ok = ok & np.isfinite(snr) & (dof > 0)
         signif = duality_significance(np.where(ok, snr, 0.0), np.where(ok, dof, np.inf))
     return np.where(ok, signif, np.nan)
+
+
+def _null_block_joint(t1, t2, noise1, noise2, sigma, wp, ln_flux, ln_flux_err, keep,
+                      snr_threshold):
+    """Joint-test significances of one block of null realisations."""
+    from .estimators.core import _adaptive_batch
+
+    mu_size, ln_sd, ok, size_dof, fit_ok = _adaptive_batch(t1, t2, noise1, noise2, sigma, wp,
+                                                           with_ok=True)
+    out = np.full(ln_flux.shape, np.nan)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ln_size = np.log(mu_size)
+        g_ok = ok & np.isfinite(ln_size) & np.isfinite(ln_sd) & ~(size_dof <= 0)
+    for b in range(ln_flux.shape[0]):
+        geo = (ln_size[b], ln_sd[b] ** 2, size_dof[b], g_ok[b])
+        result, _, _ = _joint_passes(t2 + noise2[b], ln_flux[b], ln_flux_err, sigma[1], geo,
+                                     keep, fit_ok[b], snr_threshold)
+        out[b] = np.where(result[3], result[2], np.nan)
+    return out
 
 
 def _seed_entropy(seed):
@@ -844,7 +866,7 @@ def _seed_entropy(seed):
 
 def null_calibration(pairs, *, sigma_pos, n_realisations=1000,
                      snr_threshold=DEFAULT_SNR_THRESHOLD, seed=None, client=None, chunk_size=4,
-                     weight_power=2):
+                     weight_power=2, test=DEFAULT_TEST):
     """Empirical false-alarm rate and p-values of the duality test on a null like the data.
 
     A smooth, model-independent map from arc L2 to arc L1 is fitted to the
@@ -883,6 +905,13 @@ def null_calibration(pairs, *, sigma_pos, n_realisations=1000,
     weight_power : float
         Weight power of the Quad pilot, see
         :func:`~lensdual.estimators.relative_jacobian`.
+    test : {"geometric", "joint"}
+        The test to calibrate, as in :func:`check_duality`. With ``"joint"``
+        each realisation also predicts every pair's ``ln mu`` from the other
+        pairs' noisy flux ratios, at the noisy L2 positions, with the passes
+        of :func:`check_duality`; the pairs that are doubtful in ``pairs``
+        inform no prediction. The null's field is the smooth map's
+        ``ln |det J|``: as smooth as the map (see Notes).
 
     Returns
     -------
@@ -955,7 +984,7 @@ def null_calibration(pairs, *, sigma_pos, n_realisations=1000,
     entropy = _seed_entropy(seed)
     check_client(client)
     observed = check_duality(pairs, "adaptive", sigma_pos=sigma_pos,
-                             snr_threshold=snr_threshold, weight_power=weight_power)
+                             snr_threshold=snr_threshold, weight_power=weight_power, test=test)
     theta1, theta2 = _positions(observed)
     t1 = np.ascontiguousarray(theta1.to_value(u.arcsec))
     t2 = np.ascontiguousarray(theta2.to_value(u.arcsec))
@@ -978,8 +1007,10 @@ def null_calibration(pairs, *, sigma_pos, n_realisations=1000,
     mapped = np.ascontiguousarray(mapped)
     n_blocks = -(-n_real // _NULL_BLOCK)
     sizes = [min(_NULL_BLOCK, n_real - b * _NULL_BLOCK) for b in range(n_blocks)]
-    args = [(b, entropy, sizes[b], mapped, t2, sigma, mu_true, ln_flux_err, float(weight_power))
-            for b in range(n_blocks)]
+    joint = ((np.asarray(observed["doubt"]) == "", float(snr_threshold)) if test == "joint"
+             else None)
+    args = [(b, entropy, sizes[b], mapped, t2, sigma, mu_true, ln_flux_err, float(weight_power),
+             joint) for b in range(n_blocks)]
     if client is None:  # one block per task, in threads over the cores we may use
         with ThreadPoolExecutor(min(_available_threads(), n_blocks)) as pool:
             parts = run_tasks(_null_tasks, [[a] for a in args], pool)
@@ -1023,6 +1054,7 @@ def null_calibration(pairs, *, sigma_pos, n_realisations=1000,
         "map_chi2_dof": float(chi2_dof),
         "seed_entropy": entropy,
         "method": "adaptive",
+        "test": test,
     })
     return out
 

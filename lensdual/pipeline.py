@@ -174,10 +174,9 @@ def analyse(images, *, psf=None, estimator=DEFAULT_METHOD, sigma_pos="auto",
         Per band, the oversampling of its PSF image (see
         :func:`~lensdual.photometry.psf_photometry`).
     test : {"geometric", "joint"}
-        The duality test of :func:`~lensdual.duality.check_duality` (default
-        ``"geometric"``); ``"joint"`` needs ``estimator="adaptive"`` and
-        ``null_realisations=0`` (the null calibration covers the geometric
-        test only).
+        The duality test of :func:`~lensdual.duality.check_duality` and of
+        the null calibration (default ``"geometric"``); ``"joint"`` needs
+        ``estimator="adaptive"``.
 
     Returns
     -------
@@ -201,9 +200,6 @@ def analyse(images, *, psf=None, estimator=DEFAULT_METHOD, sigma_pos="auto",
         raise ValueError(f"estimator must be one of {list(METHODS)}, got {estimator!r}")
     if test not in TESTS:
         raise ValueError(f"test must be one of {list(TESTS)}, got {test!r}")
-    if test == "joint" and null_realisations:
-        raise ValueError("null_realisations must be 0 with test='joint': the null calibration "
-                         "covers the geometric test only")
     n_min = max(METHODS[estimator], _MIN_AUTO_PAIRS if manual_pairs is None else 3)
     bands = list(images["L1"])
     with warnings.catch_warnings(record=True) as caught:
@@ -261,7 +257,7 @@ def analyse(images, *, psf=None, estimator=DEFAULT_METHOD, sigma_pos="auto",
         if null_realisations and estimator == "adaptive":
             with progress.step(f"null calibration ({null_realisations} realisations)"):
                 _add_null_calibration(result, measured, sigma, null_realisations,
-                                      snr_threshold, seed)
+                                      snr_threshold, seed, test)
     messages = list(dict.fromkeys(f"{w.category.__name__}: {w.message}" for w in caught))
     return Analysis(cats, pairs, result, sigma, messages)
 
@@ -613,12 +609,13 @@ def _null_confirmation(bad, meta):
     return text
 
 
-def _add_null_calibration(result, measured, sigma, n_realisations, snr_threshold, seed):
+def _add_null_calibration(result, measured, sigma, n_realisations, snr_threshold, seed,
+                          test=DEFAULT_TEST):
     """Run the null calibration and record it in ``result`` (in place)."""
     from .duality import null_calibration
 
     null = null_calibration(measured, sigma_pos=sigma, n_realisations=n_realisations,
-                            snr_threshold=snr_threshold, seed=seed)
+                            snr_threshold=snr_threshold, seed=seed, test=test)
     result["p_value_empirical"] = null["p_value_empirical"]
     keys = ("n_realisations", "false_alarm_rate", "nominal_false_alarm_rate",
             "expected_false_flags", "p_any_false_flag", "family_wise_p_empirical",

@@ -327,13 +327,34 @@ def test_the_joint_test_reads_the_adaptive_fits_status():
                           np.asarray(r["mu_size_status"]) != "ok")
 
 
-def test_the_pipeline_refuses_the_joint_test_with_a_null_calibration():
+def test_the_pipeline_checks_the_test():
     from lensdual.pipeline import analyse
 
-    with pytest.raises(ValueError, match="null_realisations must be 0 with test='joint'"):
-        analyse({"L1": {}, "L2": {}}, test="joint", null_realisations=100)
     with pytest.raises(ValueError, match="test must be one of"):
         analyse({"L1": {}, "L2": {}}, test="both")
+
+
+def test_null_calibration_of_the_joint_test():
+    from lensdual.duality import null_calibration
+
+    t = _raise(_noisy("smacs_analog", 20, 3, 0.01), [7])
+    null = null_calibration(t, sigma_pos=0.01 * u.arcsec, n_realisations=100, seed=2,
+                            test="joint")
+    observed = _check(t, 0.01, test="joint")
+    assert null.meta["test"] == "joint"
+    assert np.allclose(null["significance"], observed["significance"], equal_nan=True)
+    assert null["null_snr"].shape == (20, 100)
+    # the raised pair is far beyond every null realisation: p = 1 / (1 + 100)
+    assert null["p_value_empirical"][7] == pytest.approx(1 / 101)
+    # a clean null: the false-alarm rate is near the nominal 0.27 %, not the raised pair's
+    assert null.meta["false_alarm_rate"] < 0.01
+    # the same seed gives the same null; the geometric null is another
+    again = null_calibration(t, sigma_pos=0.01 * u.arcsec, n_realisations=100, seed=2,
+                             test="joint")
+    assert np.array_equal(again["null_snr"], null["null_snr"], equal_nan=True)
+    geometric = null_calibration(t, sigma_pos=0.01 * u.arcsec, n_realisations=100, seed=2)
+    assert geometric.meta["test"] == "geometric"
+    assert not np.array_equal(geometric["null_snr"], null["null_snr"], equal_nan=True)
 
 
 def test_the_report_says_which_test_ran():

@@ -639,10 +639,6 @@ class _Validator:
             self.add(f"[{sec}] null_realisations: the null calibration needs "
                      f'estimator = "adaptive", got estimator = "{out["estimator"]}"')
             null = _BAD
-        elif null is not _BAD and null and out["test"] == "joint":
-            self.add(f'[{sec}] null_realisations: the null calibration covers test = '
-                     f'"geometric" only, got test = "joint" (set null_realisations = 0)')
-            null = _BAD
         out["null_realisations"] = null
         return out
 

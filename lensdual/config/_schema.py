@@ -209,8 +209,7 @@ FIELDS = (
        minimum=10),
     _F("analysis", "test", "string", DEFAULT_TEST,
        'the duality test: "geometric" (the flux ratio against mu_size) or "joint" (against '
-       "mu_size and the neighbours' flux ratios; needs estimator \"adaptive\", two bands "
-       "and null_realisations = 0)",
+       "mu_size and the neighbours' flux ratios; needs estimator \"adaptive\" and two bands)",
        choices=tuple(TESTS)),
     _F("analysis", "snr_threshold", "real", DEFAULT_SNR_THRESHOLD,
        "significance threshold of a duality violation", above=0),

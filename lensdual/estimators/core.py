@@ -361,12 +361,13 @@ def _adaptive_forward(t1, t2, sigma, wp, max_neighbours=DEFAULT_MAX_NEIGHBOURS, 
 
 
 def _adaptive_batch(t1, t2, noise1, noise2, sigma, wp=2.0,
-                    max_neighbours=DEFAULT_MAX_NEIGHBOURS):
+                    max_neighbours=DEFAULT_MAX_NEIGHBOURS, with_ok=False):
     """The adaptive estimator on noisy copies ``t + noise`` (shape (B, N, 2)).
 
     Returns ``|det J|``, the error of its logarithm, whether the status is
     "ok" or "misfit" (the pair is tested) and the error's degrees of freedom,
-    each of shape (B, N). No validation: for
+    each of shape (B, N); with ``with_ok``, also whether the status is "ok"
+    (the fit passed its chi-square test). No validation: for
     :func:`lensdual.duality.null_calibration`. The neighbour rows are those
     of ``t2`` (the copies re-rank the points within them); as in
     :func:`_adaptive`, pairs with no testable L2-to-L1 fit take the
@@ -375,6 +376,7 @@ def _adaptive_batch(t1, t2, noise1, noise2, sigma, wp=2.0,
     det, ln_sd, status, dof = _adaptive_batch_forward(t1, t2, noise1, noise2, sigma, wp,
                                                       max_neighbours)
     testable = _testable_codes(status)
+    fit_ok = status == _adaptive_kernels.ADAPTIVE_OK
     # the reverse map where the forward one is not testable (as _adaptive), on
     # the copies that need it only
     rows = (np.flatnonzero(~testable.all(axis=1)) if _adaptive_kernels.SETTINGS.reverse
@@ -389,6 +391,9 @@ def _adaptive_batch(t1, t2, noise1, noise2, sigma, wp=2.0,
         ln_sd[rows[r], c] = sr[r, c]
         dof[rows[r], c] = dfr[r, c]
         testable[rows[r], c] = True
+        fit_ok[rows[r], c] = str_[r, c] == _adaptive_kernels.ADAPTIVE_OK
+    if with_ok:
+        return np.abs(det), ln_sd, testable, dof, fit_ok
     return np.abs(det), ln_sd, testable, dof
 
 
