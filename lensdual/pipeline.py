@@ -134,6 +134,30 @@ def _catalogue(images, psf, catalog=None, oversampling=None):
     return out
 
 
+def _check_catalogue_footprint(catalog, images, arc):
+    """A given catalogue must put sources on its arc's images; say why where none is."""
+    band, image = next(iter(images.items()))
+    sky = catalog["sky"]
+    ny, nx = image.shape
+
+    def on_image(coords):
+        x, y = image.wcs.world_to_pixel(coords)
+        return (np.isfinite(x) & np.isfinite(y) & (x >= -0.5) & (x <= nx - 0.5)
+                & (y >= -0.5) & (y <= ny - 0.5))
+
+    if len(sky) == 0 or on_image(sky).any():
+        return
+    centre = image.wcs.pixel_to_world((nx - 1) / 2, (ny - 1) / 2)
+    nearest = float(centre.separation(sky).deg.min())
+    text = (f"none of the {len(sky)} positions of the arc {arc} catalogue falls on its {band} "
+            f"image (the nearest is {nearest:.3g} deg from the image centre)")
+    hours = sky.__class__(sky.ra * 15.0, sky.dec, frame=sky.frame)
+    if (sky.ra.deg <= 24.0).all() and on_image(hours).any():
+        text += (": its RA values look like hours, read as degrees; give the 'ra' column "
+                 "the unit hourangle, or convert it to degrees")
+    raise PipelineError(text)
+
+
 def analyse(images, *, psf=None, estimator=DEFAULT_METHOD, sigma_pos="auto",
             n_bootstrap=DEFAULT_N_BOOTSTRAP, snr_threshold=DEFAULT_SNR_THRESHOLD,
             seed=_DEFAULT_SEED,
@@ -208,6 +232,8 @@ def analyse(images, *, psf=None, estimator=DEFAULT_METHOD, sigma_pos="auto",
         for arc in ("L1", "L2"):
             with progress.step(f"detect + photometry {arc}"):
                 given = None if catalogs is None else catalogs[arc]
+                if given is not None:
+                    _check_catalogue_footprint(given, images[arc], arc)
                 cats[arc] = _catalogue(images[arc], psf, given, oversampling)
             n_found = 0 if cats[arc] is None else len(cats[arc])
             if n_found < n_min:

@@ -533,3 +533,29 @@ def test_zero_error_pixels_are_masked_with_a_warning_naming_the_file(demo_dir, t
             "error that is zero")
     assert said in err
     assert said in (out / "report.txt").read_text()
+
+
+def test_a_catalogue_in_hours_read_as_degrees_is_named():
+    """RA in hours without a unit puts every source off the image: say so, and why."""
+    import astropy.units as u
+    from astropy.coordinates import SkyCoord
+    from astropy.nddata import CCDData
+    from astropy.wcs import WCS
+
+    from lensdual.pipeline import PipelineError, _check_catalogue_footprint
+
+    w = WCS(naxis=2)
+    w.wcs.ctype = ["RA---TAN", "DEC--TAN"]
+    w.wcs.crval, w.wcs.crpix = [110.8, -73.45], [50, 50]
+    w.wcs.cdelt = [-0.03 / 3600, 0.03 / 3600]
+    image = {"F150W": CCDData(np.zeros((100, 100)), unit="adu", wcs=w)}
+    on = w.pixel_to_world([20, 60], [30, 70])
+    _check_catalogue_footprint({"sky": on}, image, "L1")  # on the image: no complaint
+    hours = SkyCoord(on.ra.hour * u.deg, on.dec)  # hours read as degrees
+    with pytest.raises(PipelineError, match="arc L1 catalogue falls on its F150W image.*"
+                                            "look like hours"):
+        _check_catalogue_footprint({"sky": hours}, image, "L1")
+    far = SkyCoord(on.ra + 1 * u.deg, on.dec)
+    with pytest.raises(PipelineError, match="falls on its F150W image") as info:
+        _check_catalogue_footprint({"sky": far}, image, "L2")
+    assert "hours" not in str(info.value)
