@@ -24,7 +24,7 @@ from ._parallel import available_threads as _available_threads
 from ._parallel import check_client, run_tasks
 from ._validation import as_int, as_real
 from .estimators import DEFAULT_METHOD, DEFAULT_N_BOOTSTRAP, TESTABLE_STATUS, size_magnification
-from .estimators.core import _poly_terms
+from .estimators.core import FEW_PAIRS_HINT, _poly_terms
 from .exceptions import LensdualWarning
 
 __all__ = ["POSITION_COLUMNS", "SNR_DEFINITIONS", "TESTS", "check_duality", "pair_bands",
@@ -320,6 +320,17 @@ def _doubts(tab, theta1, theta2, flux, chromatic_alpha):
     return doubt.astype(str)
 
 
+def _chromatic_hint(doubt):
+    """Where most pairs are chromatic, what that usually means."""
+    chromatic = np.char.startswith(np.asarray(doubt, dtype=str), "colours differ")
+    if 2 * int(chromatic.sum()) <= doubt.size:
+        return ""
+    return (f". {int(chromatic.sum())} of the {doubt.size} pairs have band ratios that differ "
+            "between the images: check that each band names the same filter on both arcs "
+            "(bands swapped on one arc make every coloured source chromatic); another "
+            "estimator would not help")
+
+
 def _doubt_list(tab, doubt):
     ids = np.asarray(tab["pair_id"]) if "pair_id" in tab.colnames else np.arange(1, len(tab) + 1)
     return "; ".join(f"pair {i}: {d}" for i, d in zip(ids, doubt, strict=True) if d)
@@ -560,8 +571,10 @@ def check_duality(
     except ValueError as err:
         if keep.all():
             raise
-        raise ValueError(f"{err} ({int((~keep).sum())} doubtful pair(s) left out of "
-                         f"{len(keep)}: {_doubt_list(tab, doubt)})") from err
+        hint = _chromatic_hint(doubt)
+        text = str(err).replace(FEW_PAIRS_HINT, "") if hint else str(err)
+        raise ValueError(f"{text} ({int((~keep).sum())} doubtful pair(s) left out of "
+                         f"{len(keep)}: {_doubt_list(tab, doubt)}){hint}") from err
     size = _expand(size, keep)
 
     if "pair_id" not in tab.colnames:

@@ -559,3 +559,29 @@ def test_a_catalogue_in_hours_read_as_degrees_is_named():
     with pytest.raises(PipelineError, match="falls on its F150W image") as info:
         _check_catalogue_footprint({"sky": far}, image, "L2")
     assert "hours" not in str(info.value)
+
+
+def test_bands_swapped_on_one_arc_are_named():
+    """Swapped bands on arc L1 make every coloured pair chromatic: the error says so
+    instead of suggesting another estimator."""
+    import astropy.units as u
+
+    from lensdual.duality import check_duality
+
+    rng = np.random.default_rng(3)
+    theta2 = rng.uniform(-1, 1, (12, 2))
+    theta1 = theta2 @ np.array([[1.5, 0.3], [0.1, -0.8]]).T
+    colour = rng.uniform(0.4, 2.5, 12)  # F200W / F150W of each source
+    f2 = {"F150W": np.full(12, 100.0), "F200W": 100.0 * colour}
+    f1 = {"F150W": 1.23 * f2["F200W"], "F200W": 1.23 * f2["F150W"]}  # swapped on L1
+    pairs = QTable({"x1": theta1[:, 0] * u.arcsec, "y1": theta1[:, 1] * u.arcsec,
+                    "x2": theta2[:, 0] * u.arcsec, "y2": theta2[:, 1] * u.arcsec})
+    for band in ("F150W", "F200W"):
+        pairs[f"flux1_{band}"] = f1[band]
+        pairs[f"flux2_{band}"] = f2[band]
+        pairs[f"flux_err1_{band}"] = 0.01 * f1[band]
+        pairs[f"flux_err2_{band}"] = 0.01 * f2[band]
+    with pytest.raises(ValueError, match="bands swapped on one arc") as info:
+        check_duality(pairs, sigma_pos=0.002 * u.arcsec)
+    assert "another estimator would not help" in str(info.value)
+    assert "use 'quad2'" not in str(info.value)

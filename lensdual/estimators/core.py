@@ -58,6 +58,9 @@ ADAPTIVE_STATUS = {
 #: Statuses whose pairs :func:`~lensdual.duality.check_duality` tests.
 TESTABLE_STATUS = ("ok", "misfit")
 
+#: What the adaptive estimator's too-few-pairs error advises.
+FEW_PAIRS_HINT = " (with fewer pairs use 'quad2', whose errors hold the position noise only)"
+
 _COND_MAX = _kernels.COND_MAX
 
 #: Default cap on the points each pair's estimate uses: the pair and its
@@ -123,10 +126,9 @@ def _prepare(theta1, theta2, method, weight_power, min_angle):
         )
     n_min = METHODS[method]
     if t1.shape[0] < n_min:
-        hint = " (with fewer pairs use 'quad2', whose errors hold the position noise only)"
         raise ValueError(
             f"method {method!r} needs at least {n_min} pairs, got {t1.shape[0]}"
-            + (hint if method == "adaptive" else "")
+            + (FEW_PAIRS_HINT if method == "adaptive" else "")
         )
     check_unique_rows(t1, "theta1")
     check_unique_rows(t2, "theta2")
