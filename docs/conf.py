@@ -91,7 +91,14 @@ else:
         "use_edit_page_button": False,
         # no icon links: they would fetch remote resources
         "icon_links": [],
+        # the navbar shows the short name (the version string of html_title ran
+        # into the search box at 1280 px)
+        "logo": {"text": "lensdual"},
     }
+    # every page is a top-level entry of the toctree, so the primary sidebar's
+    # "Section Navigation" would be empty: leave it out (the page's own contents
+    # stay in the secondary sidebar)
+    html_sidebars = {"**": []}
 
 html_title = f"{project} {release}"
 html_static_path = []
