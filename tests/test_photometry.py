@@ -1201,3 +1201,61 @@ def test_flags_keep_the_meaning_of_photutils_bits():
         assert PhotometryFlag(bit).name == renamed.get(name, name.upper())
     own = [f for f in PhotometryFlag if int(f) not in photutils_bits]
     assert own and all(int(f) > max(photutils_bits) for f in own)
+
+
+def _band_images(shift_px, seed=0, m=8):
+    """Two arcs of ``m`` Gaussian point sources in two bands; on arc L2 the F200W
+    sources sit ``shift_px`` pixels off in x (a band registration error)."""
+    from scipy.special import erf
+
+    rng = np.random.default_rng(seed)
+    xs, ys = rng.uniform(15, 105, m), rng.uniform(15, 105, m)
+    flux = rng.uniform(400, 900, m)
+
+    def image(x0, flux, dec):
+        k = np.sqrt(2) * 2.5 / 2.3548
+        data = np.full((120, 120), 10.0)
+        for x, y, f in zip(x0, ys, flux, strict=True):
+            px = np.diff(erf((np.arange(121) - 0.5 - x) / k)) / 2
+            py = np.diff(erf((np.arange(121) - 0.5 - y) / k)) / 2
+            data += f * np.outer(py, px)
+        data += rng.normal(0, 0.5, data.shape)
+        w = WCS(naxis=2)
+        w.wcs.ctype = ["RA---TAN", "DEC--TAN"]
+        w.wcs.crval, w.wcs.crpix = [110.8, dec], [60, 60]
+        w.wcs.cdelt = [-0.03 / 3600, 0.03 / 3600]
+        return CCDData(data, unit="adu", wcs=w)
+
+    l1 = {"F150W": image(xs, flux, -73.45), "F200W": image(xs, flux, -73.45)}
+    l2 = {"F150W": image(xs, 0.8 * flux, -73.46),
+          "F200W": image(xs + shift_px, 0.8 * flux, -73.46)}
+    pairs = QTable({"sky1": l1["F150W"].wcs.pixel_to_world(xs, ys),
+                    "sky2": l2["F150W"].wcs.pixel_to_world(xs, ys)})
+    return l1, l2, pairs
+
+
+def test_a_band_offset_is_measured_removed_and_named():
+    """One band 1.5 px off on one arc: the offset is measured (45 mas, x to the west),
+    removed before the bands' positions are combined, and warned about."""
+    import warnings
+
+    from lensdual.exceptions import LensdualWarning
+
+    l1, l2, pairs = _band_images(1.5)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        out = measure_pairs(l1, l2, pairs, psf=2.5, background="constant")
+    texts = [str(w.message) for w in caught if issubclass(w.category, LensdualWarning)]
+    assert any("on arc L2, band F200W is offset from F150W" in t for t in texts)
+    offsets = out.meta["photometry"]["band_offsets"]
+    assert offsets["L1"] == {}
+    dx, dy = offsets["L2"]["F200W"]
+    assert dx == pytest.approx(45.0, abs=1.0) and abs(dy) < 1.0
+    # the combined L2 positions are those of the registered bands: the same as with
+    # no offset at all, within their errors
+    l1c, l2c, pairs_c = _band_images(0.0)
+    clean = measure_pairs(l1c, l2c, pairs_c, psf=2.5, background="constant")
+    assert clean.meta["photometry"]["band_offsets"] == {"L1": {}, "L2": {}}
+    diff = np.hypot((out["x2"] - clean["x2"]).to_value("arcsec"),
+                    (out["y2"] - clean["y2"]).to_value("arcsec"))
+    assert np.all(diff < 5 * out["pos_err2"].to_value("arcsec"))

@@ -204,12 +204,36 @@ class _Troubles:
 
 
 class _ArcResult(NamedTuple):
-    """One arc's measurement: mean positions and errors (arcsec), and per band the fluxes."""
+    """One arc's measurement: mean positions and errors (arcsec), per band the fluxes,
+    and the offsets of the bands registered onto the first (arcsec)."""
 
     x: np.ndarray
     y: np.ndarray
     err: np.ndarray
     fluxes: dict  # band -> (flux, flux_err, flags)
+    offsets: dict  # band -> (dx, dy, significance, n_sources), bands that were shifted
+
+
+#: A band's median position offset from the first band of its arc is removed
+#: (and reported) beyond this many standard errors: a point source has one
+#: position in every band, so such an offset is a registration error of the images.
+BAND_OFFSET_SIGNIFICANCE = 5.0
+#: Fewest sources measured in both bands for a band offset to be estimated.
+_MIN_OFFSET_SOURCES = 3
+
+
+def _band_offset(x0, y0, s0, xb, yb, sb):
+    """The median offset of band b from band 0 and its significance; None with too few
+    sources measured in both."""
+    both = np.isfinite(x0) & np.isfinite(y0) & np.isfinite(xb) & np.isfinite(yb)
+    both &= np.isfinite(s0) & np.isfinite(sb)
+    if both.sum() < _MIN_OFFSET_SOURCES:
+        return None
+    dx = np.median(xb[both] - x0[both])
+    dy = np.median(yb[both] - y0[both])
+    # the standard error of a median: sqrt(pi / 2) times that of the mean
+    se = np.sqrt(np.pi / 2) * np.sqrt(np.median(s0[both] ** 2 + sb[both] ** 2) / both.sum())
+    return dx, dy, float(np.hypot(dx, dy) / se) if se > 0 else np.inf, int(both.sum())
 
 
 def _fit_band(phot, img, sky_init, arc, band, reference):
@@ -247,35 +271,67 @@ def _usable_fluxes(res, flags, bad):
 
 
 def _measure_arc(arc, images, sky_init, bands, phot_of, reference, troubles, src_ids):
-    """Measure all bands of one arc and combine the positions: an `_ArcResult`."""
+    """Measure all bands of one arc and combine the positions: an `_ArcResult`.
+
+    A band whose median offset from the first band exceeds
+    :data:`BAND_OFFSET_SIGNIFICANCE` standard errors is shifted onto it
+    before the bands' positions are combined (and the offset reported).
+    """
     n = len(troubles.ids)
     sum_w = np.zeros(n)
     sum_x = np.zeros(n)
     sum_y = np.zeros(n)
     fluxes = {}
+    per_band = []
     for band in bands:
         img = images[band]
         res, flags, bad, xb, yb, sig = _fit_band(phot_of[band], img, sky_init, arc, band,
                                                  reference)
         troubles.record_fits(arc, band, flags, bad, src_ids, _file_of(img))
         ok = np.isfinite(xb) & np.isfinite(yb) & np.isfinite(sig) & (sig > 0) & ~bad
+        per_band.append((np.where(ok, xb, np.nan), np.where(ok, yb, np.nan), sig, ok))
+        fluxes[band] = _usable_fluxes(res, flags, bad)
+    offsets = {}
+    x0, y0, s0, _ = per_band[0]
+    for k, band in enumerate(bands):
+        xb, yb, sig, ok = per_band[k]
+        if k:
+            found = _band_offset(x0, y0, s0, xb, yb, sig)
+            if found is not None and found[2] > BAND_OFFSET_SIGNIFICANCE:
+                offsets[band] = found
+                xb, yb = xb - found[0], yb - found[1]
         w = np.where(ok, 1.0 / np.where(ok, sig, 1.0) ** 2, 0.0)
         sum_w += w
         sum_x += np.where(ok, xb, 0.0) * w
         sum_y += np.where(ok, yb, 0.0) * w
-        fluxes[band] = _usable_fluxes(res, flags, bad)
     with np.errstate(invalid="ignore", divide="ignore"):
         xm = np.where(sum_w > 0, sum_x / sum_w, np.nan)
         ym = np.where(sum_w > 0, sum_y / sum_w, np.nan)
         err = np.where(sum_w > 0, 1.0 / np.sqrt(sum_w), np.nan)
     troubles.note(np.flatnonzero(sum_w == 0), f"no band measured its L{arc} position (NaN)")
-    return _ArcResult(xm, ym, err, fluxes)
+    return _ArcResult(xm, ym, err, fluxes, offsets)
+
+
+def _offset_warning(per_arc, bands):
+    """The text of the band-registration warning; None where no band was shifted."""
+    parts = []
+    for arc in ARCS:
+        for band, (dx, dy, z, n) in per_arc[arc].offsets.items():
+            parts.append(f"on arc L{arc}, band {band} is offset from {bands[0]} by (dx, dy) = "
+                         f"({1e3 * dx:.1f}, {1e3 * dy:.1f}) mas (median of {n} sources, "
+                         f"{z:.0f} standard errors)")
+    if not parts:
+        return None
+    return ("; ".join(parts) + ". A point source has one position in every band: the images' "
+            "WCS disagree (registration). The offsets were removed before the bands' "
+            "positions were combined (meta['photometry']['band_offsets']); register the "
+            "images to be sure.")
 
 
 def _write_positions(out, per_arc, reference):
     """Set the mean positions, their errors and sky positions of both arcs in ``out``."""
     for arc in ARCS:
-        xm, ym, err, _ = per_arc[arc]
+        xm, ym, err = per_arc[arc][:3]
         out[x_col(arc)] = xm * u.arcsec
         out[y_col(arc)] = ym * u.arcsec
         out[pos_err_col(arc)] = err * u.arcsec
@@ -413,7 +469,13 @@ def measure_pairs(
           band has both fluxes (the pair can be tested).
 
         ``meta['bands']`` lists the bands, ``meta['reference']`` is the
-        frame origin (SkyCoord), ``meta['photometry']`` the settings.
+        frame origin (SkyCoord), ``meta['photometry']`` the settings and
+        ``band_offsets``: per arc, the offset (dx, dy) in mas of every band
+        that was registered onto the arc's first band before the positions
+        were combined (a band whose median offset over the sources measured
+        in both exceeds :data:`BAND_OFFSET_SIGNIFICANCE` standard errors; a
+        point source has one position in every band, so such an offset is a
+        registration error of the images, and it is warned about).
         Fluxes of fits with an unusable flag (non-positive flux, no
         convergence, no covariance, no or too few pixels, non-finite
         results, a position off the image, a flux error that is not finite
@@ -516,6 +578,9 @@ def measure_pairs(
 
     _write_positions(out, per_arc, reference)
     _write_fluxes(out, per_arc, bands)
+    offset_text = _offset_warning(per_arc, list(bands))
+    if offset_text:
+        warnings.warn(offset_text, LensdualWarning, stacklevel=2)
     measured = _measured(per_arc, bands, troubles)
     out["photometry_flags"] = troubles.pair_flags
     out["photometry_note"] = ["; ".join(v) for v in troubles.notes]
@@ -530,6 +595,9 @@ def measure_pairs(
         "psf": {b: repr(p) for b, p in psf_of.items()},
         "oversampling": {b: os_of[b] for b in bands},
         "frame": "gnomonic about reference, x west, y north, arcsec",
+        "band_offsets": {f"L{arc}": {band: [float(1e3 * dx), float(1e3 * dy)]
+                                     for band, (dx, dy, _, _) in per_arc[arc].offsets.items()}
+                         for arc in ARCS},
     }
     text = _trouble_warning(troubles, measured, out["photometry_note"])
     if text is not None:
