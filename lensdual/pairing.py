@@ -77,10 +77,10 @@ _K_DESCRIPTOR = 3
 _HYPOTHESIS_BUDGET = 12000
 #: Hypotheses are drawn (with the seed) down to this many when there are more.
 _MAX_HYPOTHESES = 30000
-#: Bounds on plausible maps: |det A| and the stretch (ratio of the singular
-#: values).
-_DET_RANGE = (1.0 / 20.0, 20.0)
-_MAX_STRETCH = 20.0
+#: The default bound on plausible maps (``max_magnification`` of
+#: :func:`pair_constellations`): |det A| within [1/b, b] and a stretch (ratio of
+#: the singular values) below b.
+DEFAULT_MAX_MAGNIFICATION = 20.0
 #: Refined hypotheses are compared by their MSAC score at _SELECT_RMS times
 #: the smallest robust rms among those with nearly the most inliers, but at
 #: least _SELECT_FRACTION of the tolerance.
@@ -546,7 +546,7 @@ def _brightest(mag, n):
     return np.argsort(np.where(np.isfinite(mag), mag, np.inf), kind="stable")[:n]
 
 
-def _hypotheses(p, q, parity, rng, mags=None):
+def _hypotheses(p, q, parity, rng, mags=None, bound=DEFAULT_MAX_MAGNIFICATION):
     """Affine maps (A (H, 2, 2), b (H, 2)) from matched triangles, x1 = A x2 + b.
 
     The triangles are those of all points (:func:`_triangle_matches`) and,
@@ -583,7 +583,7 @@ def _hypotheses(p, q, parity, rng, mags=None):
     disc = np.sqrt(np.maximum(fro2**2 - 4 * det**2, 0.0))
     smax = np.sqrt(0.5 * (fro2 + disc))
     smin = adet / np.maximum(smax, 1e-300)
-    ok = (adet > _DET_RANGE[0]) & (adet < _DET_RANGE[1]) & (smax < _MAX_STRETCH * smin)
+    ok = (adet > 1.0 / bound) & (adet < bound) & (smax < bound * smin)
     if parity is not None:
         ok &= np.sign(det) == parity
     return a[ok], b[ok]
@@ -735,11 +735,11 @@ def _refine(i, j, p, q, centre, order, inliers):
     return i, j, d2, _robust_rms(d2, 2 * len(coef))[0]
 
 
-def _search(p, q, parity, tau2, colours, order, rng):
+def _search(p, q, parity, tau2, colours, order, rng, bound=DEFAULT_MAX_MAGNIFICATION):
     """Best inlier correspondences (i, j) of the automatic search, and the hypothesis count."""
     colour_ok = colours.ok
     mags = None if colours.mag1 is None else (colours.mag1, colours.mag2)
-    a, b = _hypotheses(p, q, parity, rng, mags)
+    a, b = _hypotheses(p, q, parity, rng, mags, bound)
     n_hyp = len(a)
     if n_hyp == 0:
         return None, 0
@@ -1022,7 +1022,8 @@ def _chance_gate2(coef, p, q, centre, rms_rob, n_pairs, colour_ok, gate2):
     return np.where(tail >= chance, gate2, np.minimum(gate2, narrow))
 
 
-def _decoy_inliers(p, q, parity, tol, colours, order, rng, n_inliers):
+def _decoy_inliers(p, q, parity, tol, colours, order, rng, n_inliers,
+                   bound=DEFAULT_MAX_MAGNIFICATION):
     """Most inliers the search finds on decoys of catalogue 2, or None when not needed.
 
     Run only in a crowded pairing (:func:`_crowded`), where a chance map
@@ -1038,28 +1039,36 @@ def _decoy_inliers(p, q, parity, tol, colours, order, rng, n_inliers):
         angle = rng.uniform(0.0, 2.0 * np.pi, len(q))
         step = nn * (1.0 + rng.random(len(q)))
         decoy = q + step[:, None] * np.column_stack([np.cos(angle), np.sin(angle)])
-        res, _ = _search(p, decoy, parity, tol**2, colours, order, rng)
+        res, _ = _search(p, decoy, parity, tol**2, colours, order, rng, bound)
         best = max(best, 0 if res is None else len(res[0]))
     return best
 
 
-def _automatic_pairing(p, q, centre, *, parity, order, tol, cap, max_residual, colours, rng):
+def _bound_hint(bound):
+    return (f". Only maps with |det A| between 1/{bound:g} and {bound:g}, stretched less than "
+            f"{bound:g} times, are searched: if the arcs' magnifications differ more, give "
+            "max_magnification ([pairing] max_magnification of a run configuration)")
+
+
+def _automatic_pairing(p, q, centre, *, parity, order, tol, cap, max_residual, colours, rng,
+                       bound=DEFAULT_MAX_MAGNIFICATION):
     """Search for the map, then assign the pairs one to one along it (twice)."""
     colour_chi2, colour_ok = colours.chi2, colours.ok
     n2 = len(q)
     maxres_user = None if max_residual is None else as_angle_scalar(
         max_residual, "max_residual", allow_zero=False)
-    best, n_hyp = _search(p, q, parity, tol**2, colours, order, rng)
+    best, n_hyp = _search(p, q, parity, tol**2, colours, order, rng, bound)
     if best is None or len(best[0]) < _MIN_AUTO_PAIRS:
         found = 0 if best is None else len(best[0])
         raise ValueError(
             "no map relates at least 4 points of catalog1 and catalog2 within the "
             f"tolerance {tol:.3g} arcsec (best: {found} points); check the catalogues, "
             "increase tolerance or pair manually with ids="
+            + _bound_hint(bound)
         )
     i, j = best[0], best[1]
     n_inliers = len(i)
-    n_decoy = _decoy_inliers(p, q, parity, tol, colours, order, rng, n_inliers)
+    n_decoy = _decoy_inliers(p, q, parity, tol, colours, order, rng, n_inliers, bound)
     if n_decoy is not None and n_inliers < _DECOY_MARGIN * n_decoy:
         raise ValueError(
             f"the best map brings {n_inliers} of the {len(q)} points of catalog2 onto "
@@ -1069,6 +1078,7 @@ def _automatic_pairing(p, q, centre, *, parity, order, tol, cap, max_residual, c
             + ("give flux_columns (colours, and the brightest points for the search), "
                if colour_ok is None else "")
             + "or pair manually with ids="
+            + _bound_hint(bound)
         )
     for _ in range(2):
         coef, keep, rms_rob, rms = _robust_fit(p, q, i, j, centre, order, _TRIM_FLOOR * tol)
@@ -1117,6 +1127,7 @@ def pair_constellations(
     parity=None,
     reference=None,
     seed=None,
+    max_magnification=DEFAULT_MAX_MAGNIFICATION,
 ):
     """Pair the point sources of arc L1 with their counter-images on arc L2.
 
@@ -1225,6 +1236,11 @@ def pair_constellations(
     reference : `~astropy.coordinates.SkyCoord`, optional
         Tangent point for SkyCoord positions; default: the mean direction of
         all points of both catalogues.
+    max_magnification : float
+        The automatic search considers the maps with ``|det A|`` between
+        ``1 / max_magnification`` and ``max_magnification`` whose stretch
+        (ratio of the singular values of ``A``) is below it (default 20).
+        Raise it for arcs whose magnifications differ more.
     seed : int, `numpy.random.Generator` or None
         Seed of the random subsets of triangles and hypotheses, drawn only
         for large catalogues (more than 6000 triangles or 30000
@@ -1309,6 +1325,7 @@ def pair_constellations(
     if parity is not None and (isinstance(parity, bool) or parity not in (1, -1)):
         raise ValueError(f"parity must be None, 1 or -1, got {parity!r}")
     csig = as_real(colour_sigma, "colour_sigma", minimum=0.0, inclusive=False)
+    bound = as_real(max_magnification, "max_magnification", minimum=1.0, inclusive=False)
     cols = _check_flux_columns(flux_columns)
     ids1, p, sky1, ids2, q, sky2, tangent = _catalogs(
         catalog1, catalog2, position_columns, id_column, reference)
@@ -1329,7 +1346,7 @@ def pair_constellations(
         method = "automatic"
         pairing = _automatic_pairing(p, q, centre, parity=parity, order=order, tol=tol,
                                      cap=cap, max_residual=max_residual, colours=colours,
-                                     rng=rng)
+                                     rng=rng, bound=bound)
     fit = pairing.fit
 
     # confidence: chi-square of every combination

@@ -162,7 +162,7 @@ def analyse(images, *, psf=None, estimator=DEFAULT_METHOD, sigma_pos="auto",
             n_bootstrap=DEFAULT_N_BOOTSTRAP, snr_threshold=DEFAULT_SNR_THRESHOLD,
             seed=_DEFAULT_SEED,
             catalogs=None, manual_pairs=None, progress=None, null_realisations=0,
-            oversampling=None, test=DEFAULT_TEST):
+            oversampling=None, test=DEFAULT_TEST, max_magnification=None):
     """Run the pipeline from images of two arcs to the duality table.
 
     Parameters
@@ -197,6 +197,9 @@ def analyse(images, *, psf=None, estimator=DEFAULT_METHOD, sigma_pos="auto",
     oversampling : dict of str to int, optional
         Per band, the oversampling of its PSF image (see
         :func:`~lensdual.photometry.psf_photometry`).
+    max_magnification : float, optional
+        The automatic pairing's bound on the map, see
+        :func:`~lensdual.pairing.pair_constellations` (default its default).
     test : {"geometric", "joint"}
         The duality test of :func:`~lensdual.duality.check_duality` and of
         the null calibration (default ``"geometric"``); ``"joint"`` needs
@@ -247,9 +250,11 @@ def analyse(images, *, psf=None, estimator=DEFAULT_METHOD, sigma_pos="auto",
             arc: _significant(cat, bands, arc) for arc, cat in cats.items()}
         with progress.step("pair"):
             try:
+                bound = {} if max_magnification is None else {
+                    "max_magnification": max_magnification}
                 pairs = pair_constellations(
                     to_pair["L1"], to_pair["L2"], ids=manual_pairs, position_columns="sky",
-                    flux_columns=[f"flux_{b}" for b in bands], seed=seed)
+                    flux_columns=[f"flux_{b}" for b in bands], seed=seed, **bound)
             except ValueError as err:
                 raise PipelineError(f"pairing failed: {err}") from err
             if len(pairs) < n_min:

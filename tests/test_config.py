@@ -448,6 +448,8 @@ BAD = [
      "[parametric] lenstool: file not found: {d}/nope.par"),
     ("outdir-file", _set("output", "outdir", "outdir_is_a_file"),
      "[output] outdir: {d}/outdir_is_a_file exists and is not a directory"),
+    ("max-magnification-one", _set("pairing", "max_magnification", 1.0),
+     "[pairing] max_magnification: must be > 1, got 1"),
     ("test-unknown", _set("analysis", "test", "bayes"),
      "[analysis] test: 'bayes' is not one of 'geometric', 'joint'"),
     ("joint-needs-adaptive", _both(_set("analysis", "test", "joint"),
@@ -812,5 +814,7 @@ def test_annotated_example_agrees_with_the_schema():
 def test_the_joint_test_is_read(data_dir):
     cfg = minimal_config()
     cfg.setdefault("analysis", {}).update(test="joint", null_realisations=200)
+    cfg.setdefault("pairing", {})["max_magnification"] = 50.0
     loaded = load_config(write(data_dir, "joint_test", cfg))
     assert (loaded.test, loaded.null_realisations) == ("joint", 200)
+    assert loaded.max_magnification == 50.0

@@ -652,3 +652,32 @@ def test_plot_pairing_map():
     bare = QTable(result[["pair_id", "x1", "y1", "x2", "y2"]])
     assert plot_pairing_map(bare, ax=ax2, offset=[0.3, 0.0] * u.arcsec) is ax2
     plt.close("all")
+
+
+def _magnified_catalogues(det, seed):
+    """15 points on arc L2 and their images on L1 under a map of |det A| = ``det``."""
+    rng = np.random.default_rng(seed)
+    q = rng.uniform(-0.5, 0.5, (15, 2))
+    s = np.sqrt(det)
+    p = q @ np.array([[s * 1.2, 0.3], [0.1, -s / 1.2]]).T + 0.002 * rng.standard_normal((15, 2))
+    c1 = QTable({"id": np.arange(15), "x": p[:, 0] * u.arcsec, "y": p[:, 1] * u.arcsec})
+    c2 = QTable({"id": np.arange(15), "x": q[:, 0] * u.arcsec, "y": q[:, 1] * u.arcsec})
+    return c1, c2
+
+
+@pytest.mark.parametrize("det", [30.0, 60.0])
+def test_strongly_magnifying_maps_are_found(det):
+    """|det A| of 30 and 60 (one arc much more magnified than the other): paired once
+    max_magnification allows it."""
+    c1, c2 = _magnified_catalogues(det, 1)
+    pairs = pair_constellations(c1, c2, seed=0, max_magnification=100)
+    assert len(pairs) == 15
+    assert np.array_equal(np.asarray(pairs["id1"]), np.asarray(pairs["id2"]))
+
+
+def test_a_map_beyond_max_magnification_is_named():
+    c1, c2 = _magnified_catalogues(30.0, 1)
+    with pytest.raises(ValueError, match="give max_magnification"):
+        pair_constellations(c1, c2, seed=0)  # the default bound, 20
+    with pytest.raises(ValueError, match="max_magnification"):
+        pair_constellations(c1, c2, max_magnification=1.0)

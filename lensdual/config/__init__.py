@@ -68,6 +68,8 @@ file. Angles are strings of a number and an angular unit (``"0.066 arcsec"``,
     method = "auto"                  # "auto" (default) or "manual"
     file = "pairs.ecsv"              # manual only (and then required): ECSV with
                                      # integer columns id1, id2 (catalogue ids)
+    max_magnification = 20.0         # optional (auto): the map's |det A| within
+                                     # [1/b, b] and stretch below b (default 20)
 
     [parametric]                     # optional
     lenstool = "best.par"            # optional Lenstool parameter file

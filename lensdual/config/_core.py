@@ -342,6 +342,9 @@ class RunConfig:
         ``"auto"`` or ``"manual"``.
     pairs_file : `~pathlib.Path` or None
         The ECSV table of (id1, id2) pairs (manual pairing only).
+    max_magnification : float
+        The automatic pairing's bound on the map (see
+        `lensdual.pairing.pair_constellations`).
     estimator : str
         The size-magnification estimator, a key of
         `lensdual.estimators.METHODS`.
@@ -372,6 +375,7 @@ class RunConfig:
     catalogs: dict | None = None
     pairing_method: str = _d("pairing", "method")
     pairs_file: Path | None = _d("pairing", "file")
+    max_magnification: float = _d("pairing", "max_magnification")
     estimator: str = _d("analysis", "estimator")
     sigma_pos: u.Quantity | str = _d("analysis", "sigma_pos")
     n_bootstrap: int = _d("analysis", "n_bootstrap")
@@ -1038,7 +1042,7 @@ class _Validator:
                      '(set method = "manual", or remove file)')
         if path is not None and path is not _BAD:
             self.pairs(path, catalog_ids)
-        return method, path
+        return method, path, self.get(table, "max_magnification", sec)
 
     def pairs(self, path, catalog_ids):
         loc = "[pairing] file"
@@ -1256,13 +1260,14 @@ class _Validator:
             bands = self.bands()
             arcs = self.arcs()
             catalogs, catalog_ids = self.catalogs()
-            method, pairs_file = self.pairing(catalog_ids)
+            method, pairs_file, max_magnification = self.pairing(catalog_ids)
             parametric = self.parametric()
             if self.problems:
                 raise ConfigError(self.problems, self.path)
             config = RunConfig(path=self.path, outdir=outdir, bands=bands, arcs=arcs,
                                catalogs=catalogs, pairing_method=method,
-                               pairs_file=pairs_file, parametric=parametric, **analysis)
+                               pairs_file=pairs_file, max_magnification=max_magnification,
+                               parametric=parametric, **analysis)
         self.inputs_outside(config)
         if self.problems:
             raise ConfigError(self.problems, self.path)

@@ -19,6 +19,7 @@ from astropy import units as u
 
 from ..duality import DEFAULT_SNR_THRESHOLD, DEFAULT_TEST, TESTS
 from ..estimators import DEFAULT_METHOD, DEFAULT_N_BOOTSTRAP, METHODS
+from ..pairing import DEFAULT_MAX_MAGNIFICATION
 from ..parametric.fitting import DEFAULT_MODEL
 from ..pipeline import _DEFAULT_SEED
 from ._writer import _toml_string, _toml_value
@@ -268,6 +269,9 @@ FIELDS = (
     _F("pairing", "file", "file", None,
        'the pairs (ECSV: integer columns id1, id2); method = "manual" only, and required',
        attr="pairs_file"),
+    _F("pairing", "max_magnification", "real", DEFAULT_MAX_MAGNIFICATION,
+       "the automatic search's bound on the map: |det A| within [1/b, b], stretch below b",
+       above=1),
 
     _F("parametric", "lenstool", "file", None, "a Lenstool parameter file to compare with"),
     _F("parametric", "fit", "boolean", False, "fit a lenstronomy model to the pairs"),
