@@ -40,23 +40,11 @@ from astropy import units as u
 from calibration import _ffr_limits
 
 from lensdual.duality import _joint_pass, check_duality
-from lensdual.simulation import FAMILIES, clean_constellation
+from lensdual.simulation import FAMILIES, clean_constellation, noisy_constellation
 
 use_shared_data()
 
 ANOMALY = np.log(1.25)
-
-
-def _noisy(table, sigma, flux_err, rng):
-    t = table.copy()
-    n = len(t)
-    for col in ("x1", "y1", "x2", "y2"):
-        t[col] = t[col] + sigma * rng.standard_normal(n) * u.arcsec
-    for band in t.meta["bands"]:
-        for k in "12":
-            t[f"flux{k}_{band}"] = t[f"flux{k}_{band}"] * (1 + flux_err * rng.standard_normal(n))
-            t[f"flux_err{k}_{band}"] = flux_err * t[f"flux{k}_{band}"]
-    return t
 
 
 def _raise_l1(t, rows, factor=1.25):
@@ -95,7 +83,8 @@ def run_cell(tables, sigma_mas, flux_err, n_noise, masking, seed=0):
     for c, table in enumerate(tables):
         mu_true = np.asarray(table["mu_true"], dtype=float)
         for _ in range(n_noise):
-            t = _noisy(table, sigma, flux_err, rng)
+            t = noisy_constellation(table, sigma_pos=sigma * u.arcsec, flux_rel_err=flux_err,
+                                    seed=rng)
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 r = check_duality(t, sigma_pos=sigma * u.arcsec, test="joint")

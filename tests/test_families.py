@@ -173,3 +173,27 @@ def test_hff_lenstool_without_data_raises(family, monkeypatch, tmp_path):
     monkeypatch.setattr(fam_module, "_calibrated", fam_module._calibrated.__wrapped__)
     with pytest.raises(FileNotFoundError, match="LENSDUAL_HFF_DIR"):
         calibration_system(family)
+
+
+def test_noisy_constellation_adds_the_stated_noise():
+    import astropy.units as u
+
+    from lensdual.simulation import clean_constellation, noisy_constellation
+
+    clean = clean_constellation("cluster_fold", 40, seed=2)
+    noisy = noisy_constellation(clean, sigma_pos=5 * u.mas, flux_rel_err=0.03, seed=4)
+    dpos = np.concatenate([(noisy[c] - clean[c]).to_value(u.mas)
+                           for c in ("x1", "y1", "x2", "y2")])
+    assert np.std(dpos) == pytest.approx(5.0, rel=0.2)
+    rel = np.concatenate([np.asarray(noisy[f"flux{k}_{b}"] / clean[f"flux{k}_{b}"]) - 1
+                          for b in clean.meta["bands"] for k in "12"])
+    assert np.std(rel) == pytest.approx(0.03, rel=0.2)
+    band = clean.meta["bands"][0]
+    assert np.allclose(noisy[f"flux_err1_{band}"], 0.03 * noisy[f"flux1_{band}"])
+    assert np.array_equal(noisy["mu_true"], clean["mu_true"])
+    again = noisy_constellation(clean, sigma_pos=5 * u.mas, flux_rel_err=0.03, seed=4)
+    assert np.array_equal(again["x1"], noisy["x1"])
+    with pytest.raises(ValueError, match="flux_rel_err"):
+        noisy_constellation(clean, sigma_pos=5 * u.mas, flux_rel_err=-0.1)
+    with pytest.raises(TypeError, match="sigma_pos"):
+        noisy_constellation(clean, sigma_pos=0.005, flux_rel_err=0.02)

@@ -9,7 +9,7 @@ from astropy.table import QTable
 
 from lensdual.duality import _joint_pass, check_duality
 from lensdual.flux_field import N_CHECK, N_LOCAL, flux_field_prediction
-from lensdual.simulation import clean_constellation
+from lensdual.simulation import clean_constellation, noisy_constellation
 
 
 def _reference(xy, y, s, i, usable=None):
@@ -150,15 +150,9 @@ def test_bad_input_is_named(bad, match):
 # ---------------------------------------------------------------------------
 
 def _noisy(family, n, seed, sigma, flux_err=0.02):
-    t = clean_constellation(family, n, seed=seed)
-    rng = np.random.default_rng(seed + 100)
-    for c in ("x1", "y1", "x2", "y2"):
-        t[c] = t[c] + sigma * rng.standard_normal(n) * u.arcsec
-    for band in t.meta["bands"]:
-        for k in "12":
-            t[f"flux{k}_{band}"] = t[f"flux{k}_{band}"] * (1 + flux_err * rng.standard_normal(n))
-            t[f"flux_err{k}_{band}"] = flux_err * t[f"flux{k}_{band}"]
-    return t
+    return noisy_constellation(clean_constellation(family, n, seed=seed),
+                               sigma_pos=sigma * u.arcsec, flux_rel_err=flux_err,
+                               seed=seed + 100)
 
 
 def _raise(t, rows, factor=1.25):

@@ -14,12 +14,11 @@ from pathlib import Path
 
 import astropy.units as u
 import matplotlib
-import numpy as np
 
 matplotlib.use("agg")
 
 from lensdual.duality import check_duality  # noqa: E402
-from lensdual.simulation import clean_constellation  # noqa: E402
+from lensdual.simulation import clean_constellation, noisy_constellation  # noqa: E402
 from lensdual.visualization import plot_flux_field  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -29,15 +28,9 @@ ANOMALOUS = 12  # row of pair 13
 
 
 def constellation(seed=3):
-    t = clean_constellation("smacs_analog", 30, seed=seed)
-    rng = np.random.default_rng(seed + 100)
-    for col in ("x1", "y1", "x2", "y2"):
-        t[col] = t[col] + SIGMA * rng.standard_normal(len(t)) * u.arcsec
+    t = noisy_constellation(clean_constellation("smacs_analog", 30, seed=seed),
+                            sigma_pos=SIGMA * u.arcsec, flux_rel_err=FLUX_ERR, seed=seed + 100)
     for band in t.meta["bands"]:
-        for k in "12":
-            t[f"flux{k}_{band}"] = t[f"flux{k}_{band}"] * (1 + FLUX_ERR
-                                                           * rng.standard_normal(len(t)))
-            t[f"flux_err{k}_{band}"] = FLUX_ERR * t[f"flux{k}_{band}"]
         t[f"flux1_{band}"][ANOMALOUS] *= 1.25
     return t
 

@@ -146,6 +146,7 @@ __all__ = [
     "DATA_ENVIRONMENT",
     "calibration_system",
     "clean_constellation",
+    "noisy_constellation",
 ]
 
 #: The lens families of :func:`clean_constellation`.
@@ -821,3 +822,54 @@ def _final_table(system, info, beta, x1, x2, link, rng, bands, flux_rel_err):
             or not np.allclose(got1, x1, atol=1e-6) or not np.allclose(got2, x2, atol=1e-6)):
         return None
     return pairs
+
+
+def noisy_constellation(pairs, *, sigma_pos, flux_rel_err, seed=None):
+    """A copy of a clean constellation with measurement noise, as a user's table has.
+
+    Every position on both arcs gets Gaussian noise of ``sigma_pos`` per
+    coordinate; every flux of every band and image is multiplied by
+    ``1 + flux_rel_err * N(0, 1)``, and its ``flux_err`` column is set to
+    ``flux_rel_err`` times the noisy flux. ``mu_true`` stays the truth.
+
+    Parameters
+    ----------
+    pairs : `~astropy.table.QTable`
+        A pairs table with positions and flux columns, e.g. from
+        :func:`clean_constellation`.
+    sigma_pos : `~astropy.units.Quantity`
+        Position noise per coordinate (an angle, >= 0).
+    flux_rel_err : float
+        Relative flux noise per image and band (>= 0).
+    seed : int, `numpy.random.Generator` or None
+        Seed of the noise.
+
+    Returns
+    -------
+    noisy : `~astropy.table.QTable`
+
+    Examples
+    --------
+    >>> import astropy.units as u
+    >>> from lensdual.simulation import clean_constellation, noisy_constellation
+    >>> clean = clean_constellation("cluster_fold", 10, seed=0)
+    >>> noisy = noisy_constellation(clean, sigma_pos=5 * u.mas, flux_rel_err=0.02, seed=1)
+    >>> bool(abs(noisy["x2"] - clean["x2"]).max() < 30 * u.mas)
+    True
+    """
+    from .._pairs_table import pair_bands
+
+    sigma = as_angle_scalar(sigma_pos, "sigma_pos", allow_zero=True)
+    if isinstance(flux_rel_err, bool) or not np.isfinite(flux_rel_err) or flux_rel_err < 0:
+        raise ValueError(f"flux_rel_err must be a finite number >= 0, got {flux_rel_err!r}")
+    rng = np.random.default_rng(seed)
+    out = pairs.copy()
+    n = len(out)
+    for col in ("x1", "y1", "x2", "y2"):
+        out[col] = out[col] + sigma * rng.standard_normal(n) * u.arcsec
+    for band in pair_bands(out):
+        for k in "12":
+            out[f"flux{k}_{band}"] = out[f"flux{k}_{band}"] * (
+                1 + flux_rel_err * rng.standard_normal(n))
+            out[f"flux_err{k}_{band}"] = flux_rel_err * out[f"flux{k}_{band}"]
+    return out
