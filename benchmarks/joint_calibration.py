@@ -66,7 +66,7 @@ def _power(r, snr_threshold=3.0):
     f_ok = np.asarray(r["field_status"]) == "ok"
     field = (np.asarray(r["ln_mu_field"], dtype=float),
              np.asarray(r["ln_mu_field_err"], dtype=float) ** 2, f_ok)
-    _, _, signif, tested, _, _, _, _ = _joint_pass(ln_flux, ln_flux_err, geo, field, snr_threshold)
+    _, _, signif, tested, *_ = _joint_pass(ln_flux, ln_flux_err, geo, field, snr_threshold)
     joint = tested & (signif > snr_threshold)
     geo_only = _joint_pass(ln_flux, ln_flux_err, geo,
                            (field[0], field[1], np.zeros_like(f_ok)), snr_threshold)

@@ -9,6 +9,7 @@ where they disagree.
 
 import warnings
 from concurrent.futures import ThreadPoolExecutor
+from typing import NamedTuple
 
 import numpy as np
 from astropy import units as u
@@ -486,7 +487,10 @@ def check_duality(
         ``ln_mu_field_err``, ``field_status``, ``field_n`` (see
         :func:`~lensdual.flux_field.flux_field_prediction`),
         ``field_consistency`` (the significance of the difference between
-        ``ln mu_size`` and ``ln_mu_field``), ``smooth_field_fails`` (that
+        ``ln mu_size`` and ``ln_mu_field``), ``ln_mu_predicted`` and
+        ``ln_mu_predicted_err`` (the inverse-variance combination of the two
+        that the flux ratio is tested against, and its error; NaN where
+        untested), ``smooth_field_fails`` (that
         significance above ``snr_threshold``: the geometry and the neighbours
         disagree, the smooth-field assumption fails at the pair, and it is
         not tested) and ``joint_basis`` (``"geometry+field"``, ``"field"``,
@@ -674,11 +678,25 @@ def _significance_of(snr, dof, ok):
     return out
 
 
+class _JointPass(NamedTuple):
+    """One pass of the joint test, per pair (see :func:`_joint_pass`)."""
+
+    snr: np.ndarray
+    dof: np.ndarray
+    significance: np.ndarray
+    tested: np.ndarray
+    consistency: np.ndarray
+    fails: np.ndarray
+    basis: np.ndarray
+    outlier: np.ndarray
+    prediction: np.ndarray  # ln mu predicted by the geometry and the field combined
+    prediction_var: np.ndarray
+
+
 def _joint_pass(ln_flux, ln_flux_err, geo, field, snr_threshold):
     """One pass of the joint test.
 
-    Returns ``(snr, dof, significance, tested, consistency, fails, basis,
-    outlier)``. ``outlier`` marks the pairs left out of the others' flux field
+    Returns a `_JointPass`. ``outlier`` marks the pairs left out of the others' flux field
     in the next pass: the flagged pairs, and those whose flux ratio is off
     their own flux-field prediction beyond ``snr_threshold`` whether the
     smooth field fails there or not. A pair that disagrees with the geometry
@@ -708,7 +726,8 @@ def _joint_pass(ln_flux, ln_flux_err, geo, field, snr_threshold):
     basis = np.where(both, "geometry+field", np.where(f_ok, "field",
                                                      np.where(g_ok, "geometry", "")))
     outlier = (tested & (signif > snr_threshold)) | (f_ok & (off_field > snr_threshold))
-    return snr, dof, signif, tested, consistency, fails, basis, outlier
+    return _JointPass(snr, dof, signif, tested, consistency, fails, basis, outlier, pred,
+                      pred_var)
 
 
 def _joint_passes(pos2, ln_flux, ln_flux_err, sig2, geo, keep, resolved, snr_threshold):
@@ -751,7 +770,7 @@ def _joint_test(tab, theta2, flux, sigma_pos, keep, snr_threshold):
         np.asarray(theta2.to_value(u.arcsec), dtype=float), ln_flux, ln_flux_err,
         _as_sigma(sigma_pos, n)[1], geo, keep, np.asarray(tab["mu_size_status"]) == "ok",
         snr_threshold)
-    snr, dof, signif, tested, consistency, fails, basis, _ = result
+    snr, dof, signif, tested, consistency, fails, basis = result[:7]
     tab["significance_geometric"] = tab["significance"]
     tab["anomalous_geometric"] = tab["anomalous"]
     tab["ln_mu_field"] = field[0]
@@ -761,6 +780,11 @@ def _joint_test(tab, theta2, flux, sigma_pos, keep, snr_threshold):
     tab["field_consistency"] = consistency
     tab["smooth_field_fails"] = fails
     tab["joint_basis"] = basis
+    # the prediction the flux ratio is tested against, and its error (the flux
+    # ratio's own error not included): what a sensitivity map or an abundance
+    # limit of the joint test reads
+    tab["ln_mu_predicted"] = np.where(tested, result.prediction, np.nan)
+    tab["ln_mu_predicted_err"] = np.where(tested, np.sqrt(result.prediction_var), np.nan)
     tab["snr"] = snr
     tab["snr_dof"] = np.where(tested, dof, np.nan)
     tab["significance"] = signif

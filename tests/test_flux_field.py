@@ -173,7 +173,7 @@ def test_joint_pass_combines_by_inverse_variance():
     # one pair: geometry 0.10 +- 0.2 (known), field 0.30 +- 0.1, flux 0.9 +- 0.05
     geo = (np.array([0.1]), np.array([0.04]), np.array([np.inf]), np.array([True]))
     field = (np.array([0.3]), np.array([0.01]), np.array([True]))
-    snr, dof, signif, tested, cons, fails, basis, _ = _joint_pass(
+    snr, dof, signif, tested, cons, fails, basis, *_ = _joint_pass(
         np.array([0.9]), np.array([0.05]), geo, field, 3.0)
     pred = (0.1 / 0.04 + 0.3 / 0.01) / (1 / 0.04 + 1 / 0.01)
     var = 1 / (1 / 0.04 + 1 / 0.01)
@@ -181,6 +181,21 @@ def test_joint_pass_combines_by_inverse_variance():
     assert dof[0] == np.inf and signif[0] == pytest.approx(snr[0])
     assert cons[0] == pytest.approx(0.2 / np.sqrt(0.05))
     assert tested[0] and not fails[0] and basis[0] == "geometry+field"
+
+
+def test_the_joint_prediction_is_in_the_table():
+    t = _raise(_noisy("cluster_fold", 20, 1, 0.005), [4])
+    r = _check(t, 0.005, test="joint")
+    tested = np.asarray(r["tested"], dtype=bool)
+    ln_flux = np.log(np.asarray(r["mu_flux"], dtype=float))
+    ln_flux_err = np.asarray(r["mu_flux_err"], dtype=float) / np.asarray(r["mu_flux"], float)
+    total = np.hypot(ln_flux_err, r["ln_mu_predicted_err"])
+    snr = np.abs(ln_flux - r["ln_mu_predicted"]) / total
+    assert np.allclose(snr[tested], np.asarray(r["snr"])[tested])
+    assert np.isnan(r["ln_mu_predicted"][~tested]).all()
+    # the combination is at least as precise as the field alone
+    both = tested & (np.asarray(r["joint_basis"]) == "geometry+field")
+    assert (r["ln_mu_predicted_err"][both] <= r["ln_mu_field_err"][both] + 1e-15).all()
 
 
 def test_joint_test_flags_what_the_geometry_cannot():
