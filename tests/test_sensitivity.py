@@ -493,3 +493,32 @@ def test_subhalo_kwargs_may_be_angle_quantities():
                                rtol=1e-12)
     with pytest.raises(ValueError, match="subhalo theta_E must be an angle"):
         flux_excess(a0, {"theta_E": 0.02 * u.kg}, d)
+
+
+def test_the_joint_reference_error_is_the_joint_prediction_error():
+    """test="joint": sigma_rel is the joint test's prediction error at the reference pair
+    (checked against check_duality on the analogue's constellation), and the detection
+    SNRs scale by the ratio of the errors."""
+    import numpy as np
+
+    from lensdual.duality import check_duality
+    from lensdual.simulation.scenarios import smacs0723_analog
+
+    sp = 0.005 * u.arcsec
+    geo = smacs0723_reference(sigma_pos=sp)
+    joint = smacs0723_reference(sigma_pos=sp, test="joint", flux_rel_err=0.02)
+    pairs = smacs0723_analog(seed=0).constellation()
+    for band in pairs.meta["bands"]:
+        for k in "12":
+            pairs[f"flux_err{k}_{band}"] = 0.02 * pairs[f"flux{k}_{band}"]
+    row = int(np.flatnonzero(np.asarray(pairs["source"]) == 0)[0])
+    r = check_duality(pairs, sigma_pos=sp, test="joint")
+    assert joint["sigma_rel"] == pytest.approx(float(r["ln_mu_predicted_err"][row]))
+    assert joint["sigma_rel"] < geo["sigma_rel"]
+    kw = dict(n_angles=6, n_grid=120, sigma_pos=sp)
+    snr_geo = detection_snr_map([1e8] * u.Msun, [1.0], **kw)
+    snr_joint = detection_snr_map([1e8] * u.Msun, [1.0], test="joint", **kw)
+    assert float(snr_joint["snr_mean"][0]) == pytest.approx(
+        float(snr_geo["snr_mean"][0]) * geo["sigma_rel"] / joint["sigma_rel"], rel=1e-9)
+    with pytest.raises(ValueError, match="pass the joint test's error as sigma_rel"):
+        detection_snr_map([1e8] * u.Msun, [1.0], sigma_rel=0.1, test="joint")

@@ -1,16 +1,20 @@
 """The reference macro image: the SMACS0723 analogue's Jacobian and ``mu_size`` noise."""
 
+import warnings
+
 import numpy as np
 from astropy import units as u
 
 from .._pairs_table import positions
-from .._validation import as_int
+from .._validation import as_int, as_real
+from ..exceptions import LensdualWarning
 
 __all__ = ["smacs0723_reference"]
 
 
 def smacs0723_reference(*, seed=0, source=0, image=2, sigma_pos=0.06 * u.arcsec,
-                        n_bootstrap=500, bootstrap_seed=0, method="adaptive"):
+                        n_bootstrap=500, bootstrap_seed=0, method="adaptive",
+                        test="geometric", flux_rel_err=0.02):
     """Macro Jacobian and size-magnification noise of the SMACS0723 analogue.
 
     The macro image is the image on arc L``image`` of source ``source`` of
@@ -35,6 +39,18 @@ def smacs0723_reference(*, seed=0, source=0, image=2, sigma_pos=0.06 * u.arcsec,
         methods only).
     method : str
         Size-magnification estimator (default ``"adaptive"``).
+    test : {"geometric", "joint"}
+        ``"joint"``: ``sigma_rel`` is the error of the joint test's prediction
+        of the pair's ``ln mu`` (``ln_mu_predicted_err`` of
+        :func:`~lensdual.duality.check_duality` with ``test="joint"``: the
+        geometry and the other pairs' flux ratios combined), with fluxes of
+        relative error ``flux_rel_err`` per image and band. Where the
+        analogue's constellation does not resolve the lens map at
+        ``sigma_pos`` the flux field declines and the error is the geometric
+        one.
+    flux_rel_err : float
+        Relative flux error per image and band of the joint test (default
+        0.02).
 
     Returns
     -------
@@ -42,8 +58,9 @@ def smacs0723_reference(*, seed=0, source=0, image=2, sigma_pos=0.06 * u.arcsec,
         ``jacobian`` ((2, 2) ``d beta / d theta`` at the image),
         ``mu_macro`` (signed ``1 / det``), ``mu_size``, ``mu_size_err``,
         ``sigma_rel`` (the relative error: the error of ``ln mu_size`` for
-        ``"adaptive"``, ``mu_size_err / mu_size`` for the bootstrap methods),
-        ``method``, ``position`` (the image, arcsec), ``image``.
+        ``"adaptive"``, ``mu_size_err / mu_size`` for the bootstrap methods,
+        the joint prediction's error for ``test="joint"``), ``method``,
+        ``test``, ``position`` (the image, arcsec), ``image``.
 
     Notes
     -----
@@ -84,6 +101,28 @@ def smacs0723_reference(*, seed=0, source=0, image=2, sigma_pos=0.06 * u.arcsec,
     mu = float(size["mu_size"][rows[0]])
     err = float(size["mu_size_err"][rows[0]])
     ln_err = float(size["ln_mu_size_err"][rows[0]])
+    sigma_rel = ln_err if method == "adaptive" else err / mu
+    if test == "joint":
+        sigma_rel = _joint_sigma_rel(p, rows[0], sigma_pos, flux_rel_err)
+    elif test != "geometric":
+        raise ValueError(f"test must be 'geometric' or 'joint', got {test!r}")
     return {"jacobian": jac, "mu_macro": 1.0 / float(np.linalg.det(jac)), "mu_size": mu,
-            "mu_size_err": err, "sigma_rel": ln_err if method == "adaptive" else err / mu,
-            "method": method, "position": pos[0], "image": img}
+            "mu_size_err": err, "sigma_rel": sigma_rel, "method": method, "test": test,
+            "position": pos[0], "image": img}
+
+
+def _joint_sigma_rel(pairs, row, sigma_pos, flux_rel_err):
+    """The joint test's prediction error of ``ln mu`` at one pair of exact positions."""
+    from ..duality import check_duality
+
+    flux_rel_err = as_real(flux_rel_err, "flux_rel_err", minimum=0.0, inclusive=False)
+    tab = pairs.copy()
+    for band in tab.meta["bands"]:
+        for k in "12":
+            tab[f"flux_err{k}_{band}"] = flux_rel_err * tab[f"flux{k}_{band}"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", LensdualWarning)
+        result = check_duality(tab, sigma_pos=sigma_pos, test="joint")
+    if result["tested"][row]:
+        return float(result["ln_mu_predicted_err"][row])
+    return float(result["ln_mu_size_err"][row])

@@ -170,7 +170,7 @@ def detection_snr_map(masses, r_eff, *, jacobian=None, sigma_rel=None, sigma_pos
                       concentration="mcr", percentiles=(50, 68, 95), n_angles=36,
                       signal="ratio", definition="paper", seed=None, z_lens=0.39,
                       z_source=2.2, cosmology=None, box=10.0, n_grid=400, client=None,
-                      executor=None, chunk_size=1):
+                      executor=None, chunk_size=1, test="geometric", flux_rel_err=0.02):
     """Sub-halo detection SNR over masses and ``r_eff`` (paper Fig. 9).
 
     For each mass (circular TNFW, ``r_trunc = 30 Rs``) and each ``r_eff``
@@ -198,6 +198,13 @@ def detection_snr_map(masses, r_eff, *, jacobian=None, sigma_rel=None, sigma_pos
     sigma_pos : `~astropy.units.Quantity`, optional
         Positional error of that reference (default 0.06 arcsec); only with
         ``jacobian=None`` and ``sigma_rel=None``.
+    test, flux_rel_err
+        With ``jacobian=None`` and ``sigma_rel=None``: the test whose error the
+        default ``sigma_rel`` is (``"geometric"``, default, or ``"joint"``:
+        the joint test's prediction error with fluxes of relative error
+        ``flux_rel_err``), see :func:`smacs0723_reference`. For a user's own
+        constellation, pass ``sigma_rel`` from its duality table
+        (``ln_mu_size_err``, or ``ln_mu_predicted_err`` of the joint test).
     concentration : "mcr" or float
         ``"mcr"``: the mass-concentration relation; a number multiplies it
         (5 for the paper's second row of Fig. 9).
@@ -278,6 +285,9 @@ def detection_snr_map(masses, r_eff, *, jacobian=None, sigma_rel=None, sigma_pos
     box, n = _check_grid(box, n_grid)
     cs = as_int(chunk_size, "chunk_size", minimum=1)
     pool = _check_pool(client, executor)
+    if test != "geometric" and (sigma_rel is not None or jacobian is not None):
+        raise ValueError("test only chooses the default sigma_rel of the SMACS0723 reference; "
+                         "with a jacobian or sigma_rel, pass the joint test's error as sigma_rel")
     if sigma_rel is not None:
         sigma = as_real(sigma_rel, "sigma_rel", minimum=0.0, inclusive=False)
         if sigma_pos is not None:
@@ -287,11 +297,12 @@ def detection_snr_map(masses, r_eff, *, jacobian=None, sigma_rel=None, sigma_pos
     if jacobian is None:
         sp = 0.06 * u.arcsec if sigma_pos is None else sigma_pos
         as_angle_scalar(sp, "sigma_pos", allow_zero=False)
-        ref = smacs0723_reference(sigma_pos=sp)
+        ref = smacs0723_reference(sigma_pos=sp, test=test, flux_rel_err=flux_rel_err)
         a = ref["jacobian"]
         if sigma_rel is None:
             sigma = ref["sigma_rel"]
             meta["sigma_pos"] = sp
+            meta["test"] = test
     else:
         a = _as_jacobian(jacobian)
         if sigma_rel is None:
