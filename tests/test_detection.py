@@ -686,7 +686,7 @@ def test_custom_filter_is_used(scene):
 
 
 # ---------------------------------------------------------------------------
-# messages that name the input and the fix (issue 15, item 10)
+# messages that name the input and the fix
 # ---------------------------------------------------------------------------
 
 

@@ -1,7 +1,7 @@
 """Docstring examples of the public API run as tests, against the installed package.
 
 Every function and class in the ``__all__`` of the modules in ``MODULES``
-must have an ``Examples`` section (issue 14), and its examples (and those of
+must have an ``Examples`` section, and its examples (and those of
 the class's methods) run here with the options of ``setup.cfg``
 (``NORMALIZE_WHITESPACE``, ``ELLIPSIS`` and pytest-doctestplus'
 ``FLOAT_CMP``). The examples are found through the objects themselves, so
@@ -23,6 +23,7 @@ output_checker = pytest.importorskip("pytest_doctestplus.output_checker")
 MODULES = (
     "lensdual.estimators",
     "lensdual.duality",
+    "lensdual.flux_field",
     "lensdual.pairing",
     "lensdual.photometry",
     "lensdual.sensitivity",

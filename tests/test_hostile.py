@@ -1,4 +1,4 @@
-"""Hostile inputs to ``lensdual run`` (issue 15): each case reproduced on a broken copy
+"""Hostile inputs to ``lensdual run``: each case reproduced on a broken copy
 of the demo's configuration, asserting the exit code, the message and that nothing
 half-written is left."""
 

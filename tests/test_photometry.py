@@ -683,7 +683,7 @@ def test_measure_pairs_flagged_fit_is_nan(two_arcs):
 
 
 # ---------------------------------------------------------------------------
-# oversampled PSF images (issue 15, item 9)
+# oversampled PSF images
 # ---------------------------------------------------------------------------
 
 
@@ -824,7 +824,7 @@ def test_measure_pairs_oversampled_psf(two_arcs, measured):
 
 
 # ---------------------------------------------------------------------------
-# one bad candidate does not stop the run (issue 15, item 8)
+# one bad candidate does not stop the run
 # ---------------------------------------------------------------------------
 
 
@@ -921,7 +921,7 @@ def test_measure_pairs_negative_flux_is_named(two_arcs):
 
 
 # ---------------------------------------------------------------------------
-# messages that name the input and the fix (issue 15, item 10)
+# messages that name the input and the fix
 # ---------------------------------------------------------------------------
 
 
@@ -1069,7 +1069,7 @@ def test_cutout_box_and_fallback(small_image, monkeypatch):
 
 
 # ---------------------------------------------------------------------------
-# ArcPSFPhotometry: set up once, called on images (issue 14, item 2)
+# ArcPSFPhotometry: set up once, called on images
 # ---------------------------------------------------------------------------
 
 
