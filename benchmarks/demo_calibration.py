@@ -20,8 +20,9 @@ import numpy as np
 from astropy import units as u
 from astropy.coordinates import SkyCoord
 
-from lensdual.cli import DEMO_BANDS, analyse, compare_with_truth, simulate_demo
+from lensdual.demo import DEMO_BANDS, compare_with_truth, simulate_demo
 from lensdual.duality import check_duality
+from lensdual.pipeline import analyse
 from lensdual.simulation import render_mock_images
 
 

@@ -9,11 +9,8 @@ named in a TOML configuration file (see :mod:`lensdual.config`).
 
 The pipeline itself, for both, is :func:`lensdual.pipeline.analyse`, which a
 Python user calls directly; this module only parses the command line, reads
-and writes the files and shows progress. ``analyse``, ``Analysis``,
-``PipelineError``, ``verdict``, ``format_pairs_table``, ``pairing_doubts``,
-``simulate_demo``, ``compare_with_truth``, ``DEMO_SUBHALOES`` and
-``DEMO_BANDS`` are importable from here too, as before; they live in
-:mod:`lensdual.pipeline` and :mod:`lensdual.demo`.
+and writes the files and shows progress; the demo's pieces live in
+:mod:`lensdual.demo`.
 
 Exit codes: 0 success, 1 the analysis failed, 2 bad command line or
 configuration (nothing is written then), 130 interrupted by Ctrl-C (nothing is
@@ -27,8 +24,7 @@ import warnings
 from contextlib import contextmanager
 from pathlib import Path
 
-# The pipeline and the demo live in lensdual.pipeline and lensdual.demo; the names
-# marked "re-exported" stay importable from lensdual.cli for existing scripts.
+# The pipeline and the demo live in lensdual.pipeline and lensdual.demo.
 from ._outputs import (
     ANALYSIS_OUTPUTS,
     KNOT_OUTPUTS,
@@ -45,7 +41,6 @@ from ._outputs import (
     write_table,
 )
 from .demo import (
-    DEMO_BANDS,  # noqa: F401 (re-exported)
     DEMO_SUBHALOES,
     compare_with_truth,
     render_demo,
@@ -59,11 +54,8 @@ from .pipeline import (
     _analyse_knot_config,
     _parametric_paragraph,
     analyse,
-    format_pairs_table,  # noqa: F401 (re-exported)
     format_report,
     knot_report,
-    pairing_doubts,  # noqa: F401 (re-exported)
-    verdict,  # noqa: F401 (re-exported)
 )
 
 __all__ = [

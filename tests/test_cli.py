@@ -169,17 +169,10 @@ def test_the_demo_from_python_gives_the_command_s_report(demo_dir):
                                    rtol=1e-12, err_msg=name)
 
 
-def test_pipeline_names_stay_importable_from_the_cli():
-    import lensdual.cli as cli
+def test_bad_pipeline_settings_fail_before_any_work():
     import lensdual.demo
     import lensdual.pipeline
 
-    for name in ("analyse", "Analysis", "PipelineError", "verdict", "format_pairs_table",
-                 "pairing_doubts"):
-        assert getattr(cli, name) is getattr(lensdual.pipeline, name), name
-    for name in ("simulate_demo", "compare_with_truth", "DEMO_SUBHALOES", "DEMO_BANDS"):
-        assert getattr(cli, name) is getattr(lensdual.demo, name), name
-    # bad settings fail before any work
     with pytest.raises(ValueError, match="estimator must be one of"):
         lensdual.pipeline.analyse({"L1": {}, "L2": {}}, estimator="quad3")
     with pytest.raises(ValueError, match="between 3 and 18"):

@@ -10,7 +10,8 @@ from _demo_config import absolute_config, write
 from astropy.io import fits
 from astropy.table import QTable
 
-from lensdual.cli import format_pairs_table, main, verdict
+from lensdual.cli import main
+from lensdual.pipeline import format_pairs_table, verdict
 
 
 def no_leftovers(tmp_path, out):
