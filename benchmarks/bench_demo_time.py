@@ -1,0 +1,70 @@
+"""Wall time of ``lensdual demo``: the first run after install (cold Numba cache) and warm.
+
+Run on demand (a few minutes)::
+
+    python benchmarks/bench_demo_time.py [--runs 2]
+
+Each run is a fresh process (``python -m lensdual demo --quiet`` into a
+temporary folder) with ``NUMBA_CACHE_DIR`` pointing at a new empty folder for
+the first run, so that every kernel compiles as after a fresh install, and at
+the same folder for the warm runs. Also reports, from the cold run, where the
+compilation goes: the kernels whose compilation (nested kernels included)
+took longest. The README's figures are this benchmark's.
+"""
+
+import argparse
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+_PROFILE = r"""
+import collections, sys, time
+from numba.core import event
+cm = event.install_recorder("numba:compile")
+rec = cm.__enter__()
+from lensdual.cli import main
+main(["demo", "--outdir", sys.argv[1], "--quiet"])
+cm.__exit__(None, None, None)
+per, starts = collections.defaultdict(float), {}
+for ts, e in rec.buffer:
+    d = e.data.get("dispatcher")
+    key = f"{d.py_func.__module__}.{d.py_func.__qualname__}" if d is not None else "?"
+    if e.is_start:
+        starts[(key, id(e.data.get("args")))] = ts
+    else:
+        t0 = starts.pop((key, id(e.data.get("args"))), None)
+        if t0 is not None:
+            per[key] += ts - t0
+for k, v in sorted(per.items(), key=lambda kv: -kv[1])[:8]:
+    print(f"{v:7.1f} s  {k}")
+"""
+
+
+def _run(args, cache, out):
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(cache))
+    t0 = time.perf_counter()
+    proc = subprocess.run([sys.executable, *args, str(out)], env=env, capture_output=True,
+                          text=True, check=True)
+    return time.perf_counter() - t0, proc.stdout
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--runs", type=int, default=2, help="warm runs (default 2)")
+    args = parser.parse_args(argv)
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        cold, profile = _run(["-c", _PROFILE], tmp / "cache", tmp / "cold")
+        print(f"first run (cold Numba cache): {cold:.1f} s; compilation, nested included:")
+        print(profile.rstrip())
+        for k in range(args.runs):
+            warm, _ = _run(["-m", "lensdual", "demo", "--quiet", "--outdir"], tmp / "cache",
+                           tmp / f"warm{k}")
+            print(f"warm run {k + 1}: {warm:.1f} s")
+
+
+if __name__ == "__main__":
+    main()
