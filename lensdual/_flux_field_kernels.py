@@ -9,7 +9,7 @@ import numpy as np
 from numba import njit
 
 from ._numba import JIT_OPTIONS
-from .estimators._linalg import _equilibrate, _orthonormalise, _well_conditioned
+from .estimators._linalg import mgs_factor
 
 __all__ = []
 
@@ -64,11 +64,7 @@ def _weighted_fit(dw, y, s, m, degree, cond_max, coef, a):
             design[i, c] = row[c] / s[i]
     scale = np.empty(p)
     r = np.zeros((p, p))
-    if not _equilibrate(design, p, scale):
-        return False
-    if not _orthonormalise(design, p, r):
-        return False
-    if not _well_conditioned(r, p, cond_max):
+    if not mgs_factor(design, p, scale, r, cond_max):
         return False
     # rows = S^-1 R^-1 Q^T, then coef = rows @ (y / s) and a = rows[0] / s
     rinv = np.zeros((p, p))
@@ -156,10 +152,10 @@ def predict_all(pos, y, s, sig2, usable, resolved, n_local, n_check, min_check, 
     yy = np.empty(n_check)
     ss = np.empty(n_check)
     sg = np.empty(n_check)
+    others = np.empty(n, dtype=np.int64)
     for i in range(n):
         value[i] = np.nan
         var[i] = np.nan
-        others = np.empty(n, dtype=np.int64)
         count = 0
         for j in range(n):
             if usable[j] and j != i:

@@ -1,7 +1,8 @@
 """The small dense solvers of the estimators' Numba kernels (unit-free, no checks).
 
 - :func:`lstsq_mgs`: least squares by modified Gram-Schmidt, for the Quad
-  estimators' weighted designs.
+  estimators' weighted designs; :func:`mgs_factor`, its factorisation, also
+  for the flux field's fits (:mod:`lensdual._flux_field_kernels`).
 - :func:`cholesky_factor`, :func:`factored_solve`,
   :func:`inverse_entry`, :func:`slope_covariance`: Cholesky factors of the
   adaptive estimator's equilibrated normal matrices and what it reads off them.
@@ -98,6 +99,24 @@ def _qr_solve(Q, R, Y, ncol, scale, sol):
 
 
 @njit(**JIT_OPTIONS)
+def mgs_factor(A, ncol, scale, R, cond_max):
+    """Factor ``A[:, :ncol] = Q R S`` in place by modified Gram-Schmidt.
+
+    The columns are scaled to unit norm first (their norms into ``scale``,
+    ``S = diag(scale)``), then orthonormalised with two passes per column
+    (``A`` becomes Q, ``R`` (>=ncol, >=ncol), zero below the diagonal,
+    receives R). Returns False when a column vanishes or the smallest pivot
+    is below ``1 / cond_max`` of the largest (the design is numerically rank
+    deficient).
+    """
+    if not _equilibrate(A, ncol, scale):
+        return False
+    if not _orthonormalise(A, ncol, R):
+        return False
+    return _well_conditioned(R, ncol, cond_max)
+
+
+@njit(**JIT_OPTIONS)
 def lstsq_mgs(A, Y, ncol, sol, cond_max):
     """Least squares ``min ||A[:, :ncol] B - Y||`` by modified Gram-Schmidt.
 
@@ -113,11 +132,7 @@ def lstsq_mgs(A, Y, ncol, sol, cond_max):
     """
     scale = np.empty(ncol)
     R = np.zeros((ncol, ncol))
-    if not _equilibrate(A, ncol, scale):
-        return False
-    if not _orthonormalise(A, ncol, R):
-        return False
-    if not _well_conditioned(R, ncol, cond_max):
+    if not mgs_factor(A, ncol, scale, R, cond_max):
         return False
     _qr_solve(A, R, Y, ncol, scale, sol)
     return True
