@@ -639,7 +639,6 @@ def check_duality(
         # rows of the kept pairs -> pair ids of the whole table
         rows = np.flatnonzero(keep)[np.asarray(size.meta["reverse_map_rows"], dtype=int)]
         meta["reverse_map_pairs"] = [int(i) for i in np.asarray(tab["pair_id"])[rows]]
-    meta["n_flagged"] = int(np.count_nonzero(tab["anomalous"]))
     meta.update(joint_meta)
     meta.update(_family_summary(np.asarray(tab["p_value"], dtype=float), snr_threshold))
     tab.meta["duality"] = meta
@@ -736,7 +735,7 @@ def _joint_passes(pos2, ln_flux, ln_flux_err, sig2, geo, keep, resolved, snr_thr
     ``pos2`` (N, 2) and ``sig2`` (N,) in arcsec; ``geo`` as in :func:`_joint_pass`;
     ``keep`` the pairs that may inform the field; ``resolved`` where the
     adaptive fits passed. Returns ``(result, field, flagged)``: the last pass's
-    :func:`_joint_pass` tuple, :func:`lensdual.flux_field._field_arrays`'s tuple
+    `_JointPass`, its flux field (:func:`lensdual.flux_field._field_arrays`)
     and the pairs left out of the others' field.
     """
     from .flux_field import _field_arrays
@@ -745,12 +744,12 @@ def _joint_passes(pos2, ln_flux, ln_flux_err, sig2, geo, keep, resolved, snr_thr
     flagged = np.zeros(ln_flux.size, dtype=bool)
     for _ in range(_JOINT_MAX_PASSES):
         field = _field_arrays(pos2, ln_flux, ln_flux_err, sig2, usable & ~flagged, resolved)
-        f_ok = (field[2] == "ok") & keep
-        result = _joint_pass(ln_flux, ln_flux_err, geo, (field[0], field[1], f_ok),
+        f_ok = (field.status == "ok") & keep
+        result = _joint_pass(ln_flux, ln_flux_err, geo, (field.value, field.var, f_ok),
                              snr_threshold)
-        if np.array_equal(result[7], flagged):
+        if np.array_equal(result.outlier, flagged):
             break
-        flagged = result[7]
+        flagged = result.outlier
     return result, field, flagged
 
 
@@ -770,16 +769,16 @@ def _joint_test(tab, theta2, flux, sigma_pos, keep, snr_threshold):
         np.asarray(theta2.to_value(u.arcsec), dtype=float), ln_flux, ln_flux_err,
         _as_sigma(sigma_pos, n)[1], geo, keep, np.asarray(tab["mu_size_status"]) == "ok",
         snr_threshold)
-    snr, dof, signif, tested, consistency, fails, basis = result[:7]
+    snr, dof, signif, tested = result.snr, result.dof, result.significance, result.tested
     tab["significance_geometric"] = tab["significance"]
     tab["anomalous_geometric"] = tab["anomalous"]
-    tab["ln_mu_field"] = field[0]
-    tab["ln_mu_field_err"] = np.sqrt(field[1])
-    tab["field_status"] = field[2]
-    tab["field_n"] = field[3]
-    tab["field_consistency"] = consistency
-    tab["smooth_field_fails"] = fails
-    tab["joint_basis"] = basis
+    tab["ln_mu_field"] = field.value
+    tab["ln_mu_field_err"] = np.sqrt(field.var)
+    tab["field_status"] = field.status
+    tab["field_n"] = field.n_used
+    tab["field_consistency"] = result.consistency
+    tab["smooth_field_fails"] = result.fails
+    tab["joint_basis"] = result.basis
     # the prediction the flux ratio is tested against, and its error (the flux
     # ratio's own error not included): what a sensitivity map or an abundance
     # limit of the joint test reads
@@ -795,7 +794,7 @@ def _joint_test(tab, theta2, flux, sigma_pos, keep, snr_threshold):
     tab["p_value_holm"] = holm_adjust(pval)
     tab["anomalous"] = tested & (signif > snr_threshold)
     ids = np.asarray(tab["pair_id"])
-    return {"field_model_sd": float(np.sqrt(field[4])),
+    return {"field_model_sd": float(np.sqrt(field.model_var)),
             "field_excluded_pairs": [int(i) for i in ids[flagged]]}
 
 
@@ -887,7 +886,7 @@ def _null_block_joint(t1, t2, noise1, noise2, sigma, wp, ln_flux, ln_flux_err, k
         geo = (ln_size[b], ln_sd[b] ** 2, size_dof[b], g_ok[b])
         result, _, _ = _joint_passes(t2 + noise2[b], ln_flux[b], ln_flux_err, sigma[1], geo,
                                      keep, fit_ok[b], snr_threshold)
-        out[b] = np.where(result[3], result[2], np.nan)
+        out[b] = np.where(result.tested, result.significance, np.nan)
     return out
 
 

@@ -31,12 +31,15 @@ The prediction at pair ``i`` (see :ref:`joint-test` for the specification):
    one common model variance is added to every prediction until they are.
 """
 
+from typing import NamedTuple
+
 import numpy as np
 from astropy import units as u
 from astropy.table import QTable
 from scipy.optimize import brentq
 
 from . import _flux_field_kernels as _kernels
+from .estimators.core import _as_sigma
 
 __all__ = ["flux_field_prediction", "FIELD_STATUS", "N_LOCAL", "N_CHECK"]
 
@@ -79,42 +82,43 @@ def _common_variance(resid, var):
     return float(brentq(excess, 0.0, upper, xtol=1e-14, rtol=1e-10))
 
 
-def _flux_field(pos, y, s, sig2, usable, resolved):
-    """Leave-one-out flux-field predictions (arrays, arcsec); see the module docstring."""
+class _Field(NamedTuple):
+    """The flux field of every pair (see :func:`_field_arrays`)."""
+
+    value: np.ndarray  # predicted ln mu, NaN where not "ok"
+    var: np.ndarray  # its variance, the common model variance included
+    status: np.ndarray  # FIELD_STATUS per pair
+    n_used: np.ndarray  # neighbours of the cubic check
+    model_var: float  # the common model variance of step 4
+
+
+def _field_arrays(pos, y, s, sig2, usable=None, resolved=None):
+    """The flux field of checked arrays (arcsec), see the module docstring.
+
+    Pairs with a NaN position, value or error, or a non-positive error, inform
+    nobody; a NaN position gets status "excluded".
+    """
     n = y.size
+    placed = np.isfinite(pos).all(axis=1)
+    finite = np.isfinite(y) & np.isfinite(s) & (s > 0) & placed
+    usable = finite if usable is None else usable & finite
+    resolved = np.ones(n, dtype=bool) if resolved is None else resolved
     value = np.empty(n)
     var = np.empty(n)
     code = np.empty(n, dtype=np.int64)
     n_used = np.empty(n, dtype=np.int64)
-    _kernels.predict_all(np.ascontiguousarray(pos, dtype=float), np.ascontiguousarray(y),
-                         np.ascontiguousarray(s), np.ascontiguousarray(sig2),
+    _kernels.predict_all(np.ascontiguousarray(np.where(placed[:, None], pos, 0.0)),
+                         np.where(finite, y, 0.0), np.where(finite, s, 1.0),
+                         np.ascontiguousarray(sig2, dtype=float),
                          np.ascontiguousarray(usable, dtype=np.bool_),
                          np.ascontiguousarray(resolved, dtype=np.bool_), N_LOCAL, N_CHECK,
                          _MIN_CHECK, _COND_MAX, value, var, code, n_used)
-    status = np.asarray(FIELD_STATUS)[code]
-    ok = code == _kernels.OK
+    ok = (code == _kernels.OK) & placed
     calib = ok & usable
     model_var = _common_variance(y[calib] - value[calib], s[calib] ** 2 + var[calib])
-    var = np.where(ok, var + model_var, np.nan)
-    return value, var, status, n_used, model_var
-
-
-def _field_arrays(pos, y, s, sig2, usable=None, resolved=None):
-    """The flux field of checked arrays (arcsec): ``(value, var, status, n_used,
-    model_var)``. Pairs with a NaN position, value or error, or a non-positive
-    error, inform nobody; a NaN position gets status "excluded"."""
-    n = y.size
-    finite = np.isfinite(y) & np.isfinite(s) & (s > 0) & np.isfinite(pos).all(axis=1)
-    usable = finite if usable is None else usable & finite
-    resolved = np.ones(n, dtype=bool) if resolved is None else resolved
-    lost = ~np.isfinite(pos).all(axis=1)
-    value, var, status, n_used, model_var = _flux_field(
-        np.where(np.isfinite(pos), pos, 0.0), np.where(finite, y, 0.0),
-        np.where(finite, s, 1.0), sig2, usable, resolved)
-    status = np.where(lost, "excluded", status)
-    value = np.where(lost, np.nan, value)
-    var = np.where(lost, np.nan, var)
-    return value, var, status, n_used, model_var
+    status = np.where(placed, np.asarray(FIELD_STATUS)[code], "excluded")
+    return _Field(np.where(ok, value, np.nan), np.where(ok, var + model_var, np.nan), status,
+                  n_used, model_var)
 
 
 def flux_field_prediction(theta2, ln_mu_flux, ln_mu_flux_err, *, sigma_pos=None, usable=None,
@@ -129,7 +133,8 @@ def flux_field_prediction(theta2, ln_mu_flux, ln_mu_flux_err, *, sigma_pos=None,
         ``ln mu_flux`` of every pair (bands combined) and its error, shape (N,).
         Pairs with a NaN value or error do not inform the others.
     sigma_pos : `~astropy.units.Quantity`, optional
-        Position errors on L2, a scalar or shape (N,) (an angle); ``None`` for
+        Position errors, as for :func:`~lensdual.estimators.size_magnification`
+        (a scalar, shape (N,) or (2, N); the L2 row is used); ``None`` for
         none. They widen the neighbours' weights and the prediction's error by
         the fitted gradient of the field.
     usable : array-like of bool, optional
@@ -197,15 +202,7 @@ def flux_field_prediction(theta2, ln_mu_flux, ln_mu_flux_err, *, sigma_pos=None,
                          f"{y.shape} and {s.shape}")
     if np.any(s < 0):
         raise ValueError("ln_mu_flux_err must be >= 0")
-    if sigma_pos is None:
-        sig2 = np.zeros(n)
-    else:
-        if not isinstance(sigma_pos, u.Quantity) or sigma_pos.unit.physical_type != "angle":
-            raise TypeError("sigma_pos must be a Quantity with angular units")
-        sig2 = np.broadcast_to(np.asarray(sigma_pos.to_value(u.arcsec), dtype=float),
-                               (n,)).copy()
-        if not np.isfinite(sig2).all() or (sig2 < 0).any():
-            raise ValueError("sigma_pos must be finite and >= 0")
+    sig2 = np.zeros(n) if sigma_pos is None else _as_sigma(sigma_pos, n)[1]
     if usable is not None:
         usable = np.asarray(usable, dtype=bool)
         if usable.shape != (n,):
@@ -214,11 +211,11 @@ def flux_field_prediction(theta2, ln_mu_flux, ln_mu_flux_err, *, sigma_pos=None,
         resolved = np.asarray(resolved, dtype=bool)
         if resolved.shape != (n,):
             raise ValueError(f"resolved must have shape ({n},), got {resolved.shape}")
-    value, var, status, n_used, model_var = _field_arrays(pos, y, s, sig2, usable, resolved)
+    field = _field_arrays(pos, y, s, sig2, usable, resolved)
     out = QTable()
-    out["ln_mu_field"] = value
-    out["ln_mu_field_err"] = np.sqrt(var)
-    out["field_status"] = status
-    out["field_n"] = n_used
-    out.meta["field_model_sd"] = float(np.sqrt(model_var))
+    out["ln_mu_field"] = field.value
+    out["ln_mu_field_err"] = np.sqrt(field.var)
+    out["field_status"] = field.status
+    out["field_n"] = field.n_used
+    out.meta["field_model_sd"] = float(np.sqrt(field.model_var))
     return out
