@@ -546,7 +546,7 @@ def _brightest(mag, n):
     return np.argsort(np.where(np.isfinite(mag), mag, np.inf), kind="stable")[:n]
 
 
-def _hypotheses(p, q, parity, rng, mags=None, bound=DEFAULT_MAX_MAGNIFICATION):
+def _hypotheses(p, q, parity, rng, mags, bound):
     """Affine maps (A (H, 2, 2), b (H, 2)) from matched triangles, x1 = A x2 + b.
 
     The triangles are those of all points (:func:`_triangle_matches`) and,
@@ -554,7 +554,9 @@ def _hypotheses(p, q, parity, rng, mags=None, bound=DEFAULT_MAX_MAGNIFICATION):
     ``_N_BRIGHT`` brightest points of each catalogue, described by each
     other only: in a catalogue crowded with faint spurious detections, these
     are the triangles most likely made of true counterparts. The bright
-    hypotheses are kept first when the hypotheses must be drawn down.
+    hypotheses are kept first when the hypotheses must be drawn down. Only
+    maps with ``|det A|`` in ``[1/bound, bound]`` and a stretch below ``bound``
+    are kept.
     """
     src, dst = _triangle_matches(p, q, rng)
     n_first = 0
@@ -735,7 +737,7 @@ def _refine(i, j, p, q, centre, order, inliers):
     return i, j, d2, _robust_rms(d2, 2 * len(coef))[0]
 
 
-def _search(p, q, parity, tau2, colours, order, rng, bound=DEFAULT_MAX_MAGNIFICATION):
+def _search(p, q, parity, tau2, colours, order, rng, bound):
     """Best inlier correspondences (i, j) of the automatic search, and the hypothesis count."""
     colour_ok = colours.ok
     mags = None if colours.mag1 is None else (colours.mag1, colours.mag2)
@@ -1022,8 +1024,7 @@ def _chance_gate2(coef, p, q, centre, rms_rob, n_pairs, colour_ok, gate2):
     return np.where(tail >= chance, gate2, np.minimum(gate2, narrow))
 
 
-def _decoy_inliers(p, q, parity, tol, colours, order, rng, n_inliers,
-                   bound=DEFAULT_MAX_MAGNIFICATION):
+def _decoy_inliers(p, q, parity, tol, colours, order, rng, n_inliers, bound):
     """Most inliers the search finds on decoys of catalogue 2, or None when not needed.
 
     Run only in a crowded pairing (:func:`_crowded`), where a chance map
@@ -1051,7 +1052,7 @@ def _bound_hint(bound):
 
 
 def _automatic_pairing(p, q, centre, *, parity, order, tol, cap, max_residual, colours, rng,
-                       bound=DEFAULT_MAX_MAGNIFICATION):
+                       bound):
     """Search for the map, then assign the pairs one to one along it (twice)."""
     colour_chi2, colour_ok = colours.chi2, colours.ok
     n2 = len(q)

@@ -218,7 +218,7 @@ def analyse(images, *, psf=None, estimator=DEFAULT_METHOD, sigma_pos="auto",
     """
     from .duality import check_duality
     from .estimators import METHODS
-    from .pairing import pair_constellations
+    from .pairing import DEFAULT_MAX_MAGNIFICATION, pair_constellations
     from .photometry import measure_pairs
 
     psf = dict(psf or {})
@@ -250,11 +250,11 @@ def analyse(images, *, psf=None, estimator=DEFAULT_METHOD, sigma_pos="auto",
             arc: _significant(cat, bands, arc) for arc, cat in cats.items()}
         with progress.step("pair"):
             try:
-                bound = {} if max_magnification is None else {
-                    "max_magnification": max_magnification}
                 pairs = pair_constellations(
                     to_pair["L1"], to_pair["L2"], ids=manual_pairs, position_columns="sky",
-                    flux_columns=[f"flux_{b}" for b in bands], seed=seed, **bound)
+                    flux_columns=[f"flux_{b}" for b in bands], seed=seed,
+                    max_magnification=(DEFAULT_MAX_MAGNIFICATION if max_magnification is None
+                                       else max_magnification))
             except ValueError as err:
                 raise PipelineError(f"pairing failed: {err}") from err
             if len(pairs) < n_min:
