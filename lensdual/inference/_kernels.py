@@ -1,0 +1,343 @@
+"""Numba kernels of :mod:`lensdual.inference` (private): images of a point source
+perturbed by many truncated-NFW sub-haloes in a locally linear macro lens.
+
+Frame: the observed image at the origin, arcsec. With ``A`` the smooth
+``d beta / d theta`` at the image, ``kbar`` the mean convergence of the
+population (removed as a uniform sheet, so that only its fluctuation acts)
+and haloes at ``h_k``, the local lens map is
+
+    G(x) = (A + kbar I) x - sum_k alpha_k(x - h_k),
+
+and the source sits at ``t = G(0)``, so that the origin is an image, as an
+observed image is wherever it is observed. Its magnification is exact:
+``1 / det(A + kbar I - sum_k H_k(-h_k))``. Other images appear only near a
+halo whose Hessian can cancel the macro field; they are found by inverse
+ray shooting on a triangulated grid around such a halo (the other haloes'
+field linearised at the origin), each root polished by damped Newton. The
+flux excess is ``sum_i |mu_i| * |det A|``.
+"""
+
+import math
+
+import numpy as np
+from numba import njit
+
+from .._numba import JIT_OPTIONS
+from ..sensitivity._kernels import PROFILE_TNFW, deflection_hessian
+
+__all__ = []
+
+
+@njit(**JIT_OPTIONS)
+def _field(hx, hy, rs, rho0, rt, lo, hi, x, y):
+    """Sum of deflections and Hessians of haloes ``lo..hi-1`` at (x, y)."""
+    ax = 0.0
+    ay = 0.0
+    fxx = 0.0
+    fxy = 0.0
+    fyy = 0.0
+    for k in range(lo, hi):
+        bx, by, gxx, gxy, gyy = deflection_hessian(PROFILE_TNFW, rs[k], rho0[k], rt[k],
+                                                   x - hx[k], y - hy[k])
+        ax += bx
+        ay += by
+        fxx += gxx
+        fxy += gxy
+        fyy += gyy
+    return ax, ay, fxx, fxy, fyy
+
+
+@njit(**JIT_OPTIONS)
+def _residual(b00, b01, b10, b11, tx, ty, hx, hy, rs, rho0, rt, lo, hi, x, y):
+    ax, ay, fxx, fxy, fyy = _field(hx, hy, rs, rho0, rt, lo, hi, x, y)
+    return (b00 * x + b01 * y - ax - tx, b10 * x + b11 * y - ay - ty,
+            b00 - fxx, b01 - fxy, b10 - fxy, b11 - fyy)
+
+
+@njit(**JIT_OPTIONS)
+def _newton(b00, b01, b10, b11, tx, ty, hx, hy, rs, rho0, rt, lo, hi, x, y, scale):
+    """Damped Newton on ``G(x) = t``; returns (x, y, |G - t|, det of the Jacobian)."""
+    rx, ry, j00, j01, j10, j11 = _residual(b00, b01, b10, b11, tx, ty, hx, hy, rs, rho0, rt,
+                                           lo, hi, x, y)
+    res = math.hypot(rx, ry)
+    for _ in range(60):
+        det = j00 * j11 - j01 * j10
+        if det == 0.0 or not math.isfinite(det):
+            break
+        dx = (j11 * rx - j01 * ry) / det
+        dy = (-j10 * rx + j00 * ry) / det
+        lam = 1.0
+        improved = False
+        for _k in range(30):
+            xn = x - lam * dx
+            yn = y - lam * dy
+            sx, sy, k00, k01, k10, k11 = _residual(b00, b01, b10, b11, tx, ty, hx, hy, rs,
+                                                   rho0, rt, lo, hi, xn, yn)
+            rn = math.hypot(sx, sy)
+            if rn < res or rn == 0.0:
+                improved = True
+                break
+            lam *= 0.5
+        if not improved:
+            break
+        step = lam * math.hypot(dx, dy)
+        x, y, rx, ry, res = xn, yn, sx, sy, rn
+        j00, j01, j10, j11 = k00, k01, k10, k11
+        if res <= 1e-14 * scale or step <= 1e-15 * scale:
+            break
+    return x, y, res, j00 * j11 - j01 * j10
+
+
+@njit(**JIT_OPTIONS)
+def _add(x, y, det, pos, mu, n, dedup):
+    for k in range(n):
+        if math.hypot(pos[k, 0] - x, pos[k, 1] - y) <= dedup:
+            return n
+    if n < pos.shape[0]:
+        pos[n, 0] = x
+        pos[n, 1] = y
+        mu[n] = 1.0 / det
+        return n + 1
+    return n
+
+
+@njit(**JIT_OPTIONS)
+def _in_triangle(ux, uy, vx, vy, wx, wy, tx, ty):
+    """Barycentric weights of ``t`` in triangle (u, v, w), or (-1, -1)."""
+    e1x = vx - ux
+    e1y = vy - uy
+    e2x = wx - ux
+    e2y = wy - uy
+    den = e1x * e2y - e1y * e2x
+    if den == 0.0:
+        return -1.0, -1.0
+    px = tx - ux
+    py = ty - uy
+    b1 = (px * e2y - py * e2x) / den
+    b2 = (e1x * py - e1y * px) / den
+    eps = 1e-12
+    if b1 >= -eps and b2 >= -eps and b1 + b2 <= 1.0 + eps:
+        return b1, b2
+    return -1.0, -1.0
+
+
+@njit(**JIT_OPTIONS)
+def _box_grid(b00, b01, b10, b11, tx, ty, hx, hy, rs, rho0, rt, n_h, k, half, n, gx, gy):
+    """``G - t`` on the (n+1)^2 nodes of the box of half-width ``half`` around halo ``k``."""
+    cx = hx[k]
+    cy = hy[k]
+    # haloes near the box are summed exactly on the grid, the rest linearised at its centre
+    near = 2.0 * half
+    lx, ly, lxx, lxy, lyy = 0.0, 0.0, 0.0, 0.0, 0.0
+    for j in range(n_h):
+        if math.hypot(hx[j] - cx, hy[j] - cy) > near:
+            bx, by, gxx, gxy, gyy = deflection_hessian(PROFILE_TNFW, rs[j], rho0[j], rt[j],
+                                                       cx - hx[j], cy - hy[j])
+            lx += bx
+            ly += by
+            lxx += gxx
+            lxy += gxy
+            lyy += gyy
+    step = 2.0 * half / n
+    for i in range(n + 1):
+        xi = cx - half + i * step
+        for jj in range(n + 1):
+            yj = cy - half + jj * step
+            ax = lx + lxx * (xi - cx) + lxy * (yj - cy)
+            ay = ly + lxy * (xi - cx) + lyy * (yj - cy)
+            for j in range(n_h):
+                if math.hypot(hx[j] - cx, hy[j] - cy) <= near:
+                    bx, by, _, _, _ = deflection_hessian(PROFILE_TNFW, rs[j], rho0[j], rt[j],
+                                                         xi - hx[j], yj - hy[j])
+                    ax += bx
+                    ay += by
+            gx[i, jj] = b00 * xi + b01 * yj - ax - tx
+            gy[i, jj] = b10 * xi + b11 * yj - ay - ty
+
+
+@njit(**JIT_OPTIONS)
+def _box_images(b00, b01, b10, b11, tx, ty, hx, hy, rs, rho0, rt, n_h, k, half, n, gx, gy,
+                pos, mu, n_found, scale, dedup, accept):
+    """Roots of ``G = t`` in the box of half-width ``half`` around halo ``k``."""
+    _box_grid(b00, b01, b10, b11, tx, ty, hx, hy, rs, rho0, rt, n_h, k, half, n, gx, gy)
+    cx = hx[k]
+    cy = hy[k]
+    step = 2.0 * half / n
+    # the central image of the halo, close to its centre
+    xs, ys, res, det = _newton(b00, b01, b10, b11, tx, ty, hx, hy, rs, rho0, rt, 0, n_h,
+                               cx + 0.01 * step, cy + 0.01 * step, scale)
+    if res <= accept and det != 0.0:
+        n_found = _add(xs, ys, det, pos, mu, n_found, dedup)
+    for i in range(n):
+        for jj in range(n):
+            c0x = gx[i, jj]
+            c1x = gx[i + 1, jj]
+            c2x = gx[i + 1, jj + 1]
+            c3x = gx[i, jj + 1]
+            if min(min(c0x, c1x), min(c2x, c3x)) > 0.0 or max(max(c0x, c1x), max(c2x, c3x)) < 0.0:
+                continue
+            c0y = gy[i, jj]
+            c1y = gy[i + 1, jj]
+            c2y = gy[i + 1, jj + 1]
+            c3y = gy[i, jj + 1]
+            if min(min(c0y, c1y), min(c2y, c3y)) > 0.0 or max(max(c0y, c1y), max(c2y, c3y)) < 0.0:
+                continue
+            x0 = cx - half + i * step
+            y0 = cy - half + jj * step
+            for tri in range(2):
+                if tri == 0:
+                    w1, w2 = _in_triangle(c0x, c0y, c1x, c1y, c2x, c2y, 0.0, 0.0)
+                    sx = x0 + w1 * step + w2 * step
+                    sy = y0 + w2 * step
+                else:
+                    w1, w2 = _in_triangle(c0x, c0y, c2x, c2y, c3x, c3y, 0.0, 0.0)
+                    sx = x0 + w1 * step
+                    sy = y0 + w1 * step + w2 * step
+                if w1 < 0.0:
+                    continue
+                xs, ys, res, det = _newton(b00, b01, b10, b11, tx, ty, hx, hy, rs, rho0, rt, 0,
+                                           n_h, sx, sy, scale)
+                if res <= accept and det != 0.0:
+                    n_found = _add(xs, ys, det, pos, mu, n_found, dedup)
+    return n_found
+
+
+@njit(**JIT_OPTIONS)
+def _s_min(b00, b01, b10, b11):
+    """Smallest singular value of a 2x2 matrix."""
+    p = b00 * b00 + b01 * b01 + b10 * b10 + b11 * b11
+    q = abs(b00 * b11 - b01 * b10)
+    return math.sqrt(max(0.5 * p - math.sqrt(max(0.25 * p * p - q * q, 0.0)), 0.0))
+
+
+@njit(**JIT_OPTIONS)
+def image_excess(b00, b01, b10, b11, det0, hx, hy, rs, rho0, rt, te, hsup, n_h, lam_min,
+                 box_factor, box_cap, n, gx, gy, pos, mu):
+    """Flux excess and image count of the image at the origin.
+
+    ``b`` is the local ``d beta / d theta`` with the sheet and the Hessians
+    (at the origin) of the haloes that cannot make images in it; haloes
+    ``0..n_h-1`` are the others, summed in full; ``det0`` is the smooth
+    ``|det A|``. Where their Hessian norms ``hsup`` sum to less than the
+    smallest singular value of ``b``, the map is invertible everywhere and
+    the origin is the only image; otherwise a halo whose norm reaches half
+    that value gets a grid box of half-width ``min(box_factor * te /
+    sqrt(lam_min), box_cap * te)`` (``te``: the point-mass Einstein radius
+    of its total mass) when the origin lies inside the box.
+    """
+    ax, ay, fxx, fxy, fyy = _field(hx, hy, rs, rho0, rt, 0, n_h, 0.0, 0.0)
+    tx = -ax
+    ty = -ay
+    det = (b00 - fxx) * (b11 - fyy) - (b01 - fxy) * (b10 - fxy)
+    pos[0, 0] = 0.0
+    pos[0, 1] = 0.0
+    mu[0] = 1.0 / det
+    n_found = 1
+    s_min = _s_min(b00, b01, b10, b11)
+    total = 0.0
+    scale = 1e-3
+    for k in range(n_h):
+        total += hsup[k]
+        scale = max(scale, te[k])
+    if total >= s_min:
+        dedup = 1e-7 * scale
+        accept = 1e-10 * scale
+        for k in range(n_h):
+            if te[k] <= 0.0 or hsup[k] < 0.5 * s_min:
+                continue
+            half = min(box_factor * te[k] / math.sqrt(lam_min), box_cap * te[k])
+            if abs(hx[k]) > half or abs(hy[k]) > half:
+                continue
+            n_found = _box_images(b00, b01, b10, b11, tx, ty, hx, hy, rs, rho0, rt, n_h, k, half,
+                                  n, gx, gy, pos, mu, n_found, scale, dedup, accept)
+    s = 0.0
+    for i in range(n_found):
+        s += abs(mu[i])
+    return s * det0, n_found
+
+
+@njit(**JIT_OPTIONS)
+def excess_grid(a00, a01, a10, a11, kbar_max, hx, hy, rs, rho0, rt, te, hsup, tag, starts,
+                frac, lam_min, strong, box_factor, box_cap, n, max_images, excess, counts):
+    """Flux excesses of one image on an abundance grid, for many realisations.
+
+    Realisation ``r`` holds haloes ``starts[r]..starts[r+1]-1``, sorted by
+    their ``tag`` (uniform in [0, 1)); at abundance ``frac[j]`` (a fraction
+    of the largest) it keeps the haloes with ``tag < frac[j]`` and the sheet
+    ``-kbar_max * frac[j]``. A halo whose Hessian norm is below ``strong``
+    times the smallest singular value of ``A``, or whose box cannot reach
+    the origin, acts through its Hessian at the origin (summed in tag
+    order); the others are solved in full. ``excess`` and ``counts`` are
+    (R, S).
+    """
+    gx = np.empty((n + 1, n + 1))
+    gy = np.empty((n + 1, n + 1))
+    pos = np.empty((max_images, 2))
+    mu = np.empty(max_images)
+    det0 = abs(a00 * a11 - a01 * a10)
+    s_min = _s_min(a00, a01, a10, a11)
+    n_tot = hx.shape[0]
+    sx = np.empty(n_tot)
+    sy = np.empty(n_tot)
+    srs = np.empty(n_tot)
+    srho = np.empty(n_tot)
+    srt = np.empty(n_tot)
+    ste = np.empty(n_tot)
+    ssup = np.empty(n_tot)
+    for r in range(starts.shape[0] - 1):
+        lo = starts[r]
+        hi = starts[r + 1]
+        ns = 0
+        cxx = 0.0
+        cxy = 0.0
+        cyy = 0.0
+        k = lo
+        for j in range(frac.shape[0]):
+            # haloes enter in tag order: strong ones are compacted, weak ones summed into c
+            while k < hi and tag[k] < frac[j]:
+                reach = min(box_factor * te[k] / math.sqrt(lam_min), box_cap * te[k])
+                if hsup[k] >= strong * s_min and max(abs(hx[k]), abs(hy[k])) <= 2.0 * reach:
+                    sx[ns] = hx[k]
+                    sy[ns] = hy[k]
+                    srs[ns] = rs[k]
+                    srho[ns] = rho0[k]
+                    srt[ns] = rt[k]
+                    ste[ns] = te[k]
+                    ssup[ns] = hsup[k]
+                    ns += 1
+                else:
+                    _, _, fxx, fxy, fyy = deflection_hessian(PROFILE_TNFW, rs[k], rho0[k],
+                                                             rt[k], -hx[k], -hy[k])
+                    cxx += fxx
+                    cxy += fxy
+                    cyy += fyy
+                k += 1
+            kb = kbar_max * frac[j]
+            e, c = image_excess(a00 + kb - cxx, a01 - cxy, a10 - cxy, a11 + kb - cyy, det0,
+                                sx, sy, srs, srho, srt, ste, ssup, ns, lam_min, box_factor,
+                                box_cap, n, gx, gy, pos, mu)
+            excess[r, j] = e
+            counts[r, j] = c
+
+
+@njit(**JIT_OPTIONS)
+def enclosed(rs, rho0, rt, radius, out):
+    """``R alpha(R)`` of each halo: its projected mass within ``R`` over pi (arcsec^2).
+
+    ``radius <= 0`` takes ``R`` far outside the truncation radius, where it
+    is the squared point-mass Einstein radius of the total mass.
+    """
+    for k in range(rs.shape[0]):
+        big = radius if radius > 0.0 else 1e4 * max(rt[k], rs[k])
+        ax, _, _, _, _ = deflection_hessian(PROFILE_TNFW, rs[k], rho0[k], rt[k], big, 0.0)
+        out[k] = max(ax * big, 0.0)
+
+
+@njit(**JIT_OPTIONS)
+def hessian_sup(rs, rho0, rt, out):
+    """Largest Hessian norm of each halo: at lenstronomy's floor ``R = 0.001 Rs``,
+    where its convergence and mean convergence peak."""
+    for k in range(rs.shape[0]):
+        _, _, fxx, _, fyy = deflection_hessian(PROFILE_TNFW, rs[k], rho0[k], rt[k],
+                                               0.0011 * rs[k], 0.0)
+        out[k] = max(abs(fxx), abs(fyy))

@@ -1,0 +1,194 @@
+"""The likelihood of the measured anomalies and the posterior on the abundance (private)."""
+
+import numpy as np
+from astropy import units as u
+from astropy.table import QTable, Table
+from scipy import stats
+
+from ._forward import AnomalySimulation
+
+__all__ = ["pair_anomalies", "abundance_posterior", "INTERVALS"]
+
+#: The credible intervals reported in ``meta["inference"]`` (equal-tailed).
+INTERVALS = {"68": (0.16, 0.84), "95": (0.025, 0.975)}
+
+
+def pair_anomalies(table):
+    """Each tested pair's measured log flux anomaly and its error.
+
+    The anomaly is the log of the flux ratio over the ratio it is tested
+    against: ``ln(mu_flux / mu_size)`` for the geometric test,
+    ``ln mu_flux - ln_mu_predicted`` for the joint test (its error adds the
+    flux ratio's error to the prediction's). Its error follows Student's t
+    with ``snr_dof`` degrees of freedom, as in the test.
+
+    Parameters
+    ----------
+    table : `~astropy.table.Table`
+        A :func:`~lensdual.check_duality` result (``snr_definition="log"``).
+
+    Returns
+    -------
+    anomalies : `~astropy.table.QTable`
+        ``pair_id``, ``delta``, ``delta_err`` and ``dof`` of the tested pairs.
+
+    Raises
+    ------
+    TypeError
+        ``table`` is not a Table.
+    ValueError
+        ``table`` is not a duality result with fluxes, or has no tested pair.
+    """
+    if not isinstance(table, Table):
+        raise TypeError(f"table must be an astropy Table, got {type(table).__name__}")
+    meta = table.meta.get("duality")
+    if meta is None or "mu_flux" not in table.colnames:
+        raise ValueError("the constellation has no flux ratios tested for duality: measure its "
+                         "fluxes and run check_duality (or the pipeline) first")
+    if meta.get("snr_definition", "log") != "log":
+        raise ValueError("the anomalies are log ratios: run check_duality with "
+                         "snr_definition='log'")
+    tested = np.asarray(table["tested"], dtype=bool)
+    if not tested.any():
+        raise ValueError("no pair of the constellation was tested for duality")
+    ln_flux = np.log(np.asarray(table["mu_flux"], dtype=float))
+    ln_flux_err = np.asarray(table["mu_flux_err"], dtype=float) / np.asarray(table["mu_flux"],
+                                                                            dtype=float)
+    if meta.get("test", "geometric") == "joint":
+        pred = np.asarray(table["ln_mu_predicted"], dtype=float)
+        err = np.hypot(ln_flux_err, np.asarray(table["ln_mu_predicted_err"], dtype=float))
+    else:
+        pred = np.log(np.asarray(table["mu_size"], dtype=float))
+        ratio = np.asarray(table["duality_ratio"], dtype=float)
+        err = np.asarray(table["duality_ratio_err"], dtype=float) / ratio
+    out = QTable()
+    out["pair_id"] = np.asarray(table["pair_id"], dtype=int)[tested]
+    out["delta"] = (ln_flux - pred)[tested]
+    out["delta_err"] = err[tested]
+    out["dof"] = np.asarray(table["snr_dof"], dtype=float)[tested]
+    return out
+
+
+def _pair_likelihood(delta, err, dof, sims):
+    """Monte-Carlo likelihood of one pair on the grid: mean over realisations."""
+    z = (delta - sims) / err  # (R, S)
+    ok = np.isfinite(z)
+    z = np.where(ok, z, np.inf)
+    pdf = stats.norm.pdf(z) if not np.isfinite(dof) else stats.t.pdf(z, dof)
+    return np.sum(np.where(ok, pdf, 0.0), axis=0) / (err * np.maximum(ok.sum(axis=0), 1))
+
+
+def _system_log_likelihood(table, sim):
+    data = pair_anomalies(table)
+    if not isinstance(sim, AnomalySimulation):
+        raise TypeError(f"simulations must be AnomalySimulation objects, got {type(sim).__name__}")
+    index = {int(p): i for i, p in enumerate(sim.pair_id)}
+    missing = [int(p) for p in data["pair_id"] if int(p) not in index]
+    if missing:
+        raise ValueError(f"the simulation has no pair(s) {missing} of the constellation: "
+                         "simulate the same pairs table")
+    logl = np.zeros(sim.sigma_sub.size)
+    for row in data:
+        lik = _pair_likelihood(float(row["delta"]), float(row["delta_err"]), float(row["dof"]),
+                               sim.delta[index[int(row["pair_id"])]])
+        with np.errstate(divide="ignore"):
+            logl += np.log(lik)
+    return logl, len(data)
+
+
+def _quantile(log_grid, cdf, q):
+    return float(np.interp(q, cdf, log_grid))
+
+
+def abundance_posterior(tables, simulations):
+    r"""Posterior on the sub-halo abundance ``sigma_sub`` from one or many constellations.
+
+    Given the population, a sub-halo's effect is local, so the pairs are
+    treated as independent: the likelihood of a constellation is the
+    product over its tested pairs of the Monte-Carlo likelihood
+
+    .. math::
+
+       L_a(\sigma) = \frac{1}{R}\sum_r \frac{1}{s_a}\,
+       t_{\nu_a}\!\left(\frac{\delta_a - \delta_{a,r}(\sigma)}{s_a}\right),
+
+    with :math:`\delta_a, s_a, \nu_a` the measured anomaly, its error and
+    degrees of freedom (:func:`pair_anomalies`) and :math:`\delta_{a,r}`
+    the forward-modelled anomalies (:func:`simulate_anomalies`). Systems
+    multiply. The prior is log-uniform on the simulations' grid (its ends
+    are the prior's bounds).
+
+    Parameters
+    ----------
+    tables : Table or list of Table
+        :func:`~lensdual.check_duality` results, one per constellation.
+    simulations : AnomalySimulation or list of AnomalySimulation
+        The matching :func:`simulate_anomalies` results, on one common
+        ``sigma_sub`` grid.
+
+    Returns
+    -------
+    posterior : `~astropy.table.QTable`
+        ``sigma_sub`` (kpc^-2), ``log10_sigma_sub``, ``log_likelihood``,
+        ``posterior`` (density per dex) and ``cdf``. ``meta["inference"]``
+        holds ``median``, ``interval_68``, ``interval_95`` and
+        ``upper_95`` (kpc^-2), ``n_pairs``, ``n_systems``, ``prior`` and
+        the population.
+
+    Raises
+    ------
+    TypeError, ValueError
+        Mismatched inputs (see :func:`pair_anomalies`), or grids that differ
+        between the simulations.
+    """
+    if isinstance(tables, Table):
+        tables = [tables]
+    if isinstance(simulations, AnomalySimulation):
+        simulations = [simulations]
+    tables = list(tables)
+    simulations = list(simulations)
+    if not tables or len(tables) != len(simulations):
+        raise ValueError(f"give one simulation per constellation: {len(tables)} table(s), "
+                         f"{len(simulations)} simulation(s)")
+    grid = simulations[0].sigma_sub
+    for s in simulations[1:]:
+        if s.sigma_sub.shape != grid.shape or not np.allclose(s.sigma_sub, grid, rtol=1e-12):
+            raise ValueError("the simulations must share one sigma_sub grid")
+    logl = np.zeros(grid.size)
+    n_pairs = 0
+    for t, s in zip(tables, simulations, strict=True):
+        ll, n = _system_log_likelihood(t, s)
+        logl += ll
+        n_pairs += n
+    log_grid = np.log10(grid.to_value(u.kpc**-2))
+    if not np.isfinite(logl).any():
+        raise ValueError("the data have zero likelihood on the whole grid: an anomaly larger "
+                         "than any simulated (widen the grid, or more realisations)")
+    w = np.exp(logl - np.nanmax(logl))
+    w = np.where(np.isfinite(w), w, 0.0)
+    norm = np.trapezoid(w, log_grid)
+    dens = w / norm
+    cdf = np.concatenate([[0.0], np.cumsum(0.5 * (dens[1:] + dens[:-1]) * np.diff(log_grid))])
+    cdf = cdf / cdf[-1]
+    out = QTable()
+    out["sigma_sub"] = grid.to(u.kpc**-2)
+    out["log10_sigma_sub"] = log_grid
+    out["log_likelihood"] = logl
+    out["posterior"] = dens
+    out["cdf"] = cdf
+
+    def q(p):
+        return 10 ** _quantile(log_grid, cdf, p) * u.kpc**-2
+
+    out.meta["inference"] = {
+        "median": q(0.5),
+        "interval_68": u.Quantity([q(a) for a in INTERVALS["68"]]),
+        "interval_95": u.Quantity([q(a) for a in INTERVALS["95"]]),
+        "upper_95": q(0.95),
+        "n_pairs": n_pairs,
+        "n_systems": len(tables),
+        "prior": f"log-uniform on [{grid[0]:.4g}, {grid[-1]:.4g}]",
+        "n_realisations": int(simulations[0].delta.shape[1]),
+        "population": repr(simulations[0].population),
+    }
+    return out
