@@ -222,7 +222,7 @@ def test_sheet_is_the_mean_convergence_of_the_draws(population):
 
     rng = np.random.default_rng(8)
     centre, radius, sigma = np.array([15.0, 3.0]), 0.2, 0.02
-    kbar = _forward._mean_convergence(population, rng, centre, radius, sigma)
+    kbar = _forward._mean_convergence(population, centre, radius, sigma)
     sums = []
     for _ in range(1500):
         h = population.draw(rng, sigma, centre, radius)
@@ -244,6 +244,17 @@ def test_simulation_parallel_is_serial(population, lens_and_pairs, simulation):
         par = simulate_anomalies(pairs, system, population, simulation.sigma_sub,
                                  n_realisations=MIN_REALISATIONS, seed=2, client=pool)
     np.testing.assert_array_equal(par.delta, simulation.delta)
+
+
+def test_simulation_on_dask_is_serial(population, lens_and_pairs, simulation):
+    distributed = pytest.importorskip("distributed")
+    system, pairs = lens_and_pairs
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                  dashboard_address=None) as cluster, \
+            distributed.Client(cluster) as client:
+        on_dask = simulate_anomalies(pairs, system, population, simulation.sigma_sub,
+                                     n_realisations=MIN_REALISATIONS, seed=2, client=client)
+    np.testing.assert_array_equal(on_dask.delta, simulation.delta)
 
 
 def test_apply_population_scales_fluxes(population, lens_and_pairs):

@@ -1,8 +1,27 @@
-"""From flags to dark matter: a posterior on the sub-halo abundance."""
+r"""From flags to dark matter: a posterior on the sub-halo abundance.
+
+The chain, for one or many analysed constellations:
+
+1. :class:`SubhaloPopulation`: pyHalo's sub-halo mass function (its
+   ``sigma_sub`` normalisation), concentrations and truncation, CDM or WDM,
+   placed in a disc around each image.
+2. :func:`simulate_anomalies`: the forward model. Every pair's log flux
+   anomaly :math:`\ln(f_1/f_2)` in many realisations of the population on a
+   grid of abundances, the micro-images solved in the smooth lens's local
+   Jacobian (Numba). :func:`apply_population` applies one realisation to a
+   constellation, for mock data.
+3. :func:`pair_anomalies` and :func:`abundance_posterior`: the measured
+   anomalies and their errors from :func:`~lensdual.check_duality`, the
+   Monte-Carlo likelihood (pairs independent given the population, systems
+   multiplied) and the posterior on ``sigma_sub`` under a log-uniform prior.
+
+See the docs page "What the flags say about dark matter" for the model, its
+checks and its injection-recovery coverage.
+"""
 
 from ._forward import MIN_REALISATIONS, AnomalySimulation, apply_population, simulate_anomalies
 from ._population import MODELS, SubhaloPopulation
-from ._posterior import INTERVALS, abundance_posterior, pair_anomalies
+from ._posterior import INTERVALS, abundance_posterior, composite_weight, pair_anomalies
 
 __all__ = [
     "SubhaloPopulation",
@@ -13,5 +32,6 @@ __all__ = [
     "MIN_REALISATIONS",
     "pair_anomalies",
     "abundance_posterior",
+    "composite_weight",
     "INTERVALS",
 ]

@@ -26,7 +26,6 @@ _BOX_CAP = 20.0  # ... and at most this many Einstein radii
 _N_GRID = 32  # grid cells per side of a halo's box
 _MAX_IMAGES = 32
 _MAX_RATIO_PULL = 3.0  # median |pull| of the lens's magnification ratios that refuses a lens
-_N_MEAN = 20000  # haloes drawn to estimate the population's mean convergence
 
 
 class AnomalySimulation(NamedTuple):
@@ -153,21 +152,20 @@ def _default_radius(xy):
     return float(np.median(d.min(axis=1)))
 
 
-def _mean_convergence(population, rng, position, radius, sigma_sub):
+def _mean_convergence(population, position, radius, sigma_sub):
     """Mean convergence at the disc's centre of the haloes drawn in the disc.
 
     A halo anywhere in a disc of radius ``R`` adds, on average over its
     position, its projected mass within ``R`` of its centre over the disc's
-    area; the sum over the population is the number density times that mass.
+    area; the sum over the population is the number density times that
+    mass, averaged over the population by quadrature (so that every draw at
+    this position removes the same sheet).
     """
-    m = population._masses(rng, _N_MEAN)
-    r2d = np.full(m.size, np.hypot(*(position - population.host_centre))
-                  * population._kpc_per_arcsec)
-    rs, alpha_rs, rt = population._parameters(rng, m, r2d)
-    within = np.empty(m.size)
+    r2d = float(np.hypot(*(position - population.host_centre))) * population._kpc_per_arcsec
+    (rs, alpha_rs, rt), w = population._quadrature(r2d)
+    within = np.empty(rs.size)
     _kernels.enclosed(rs, tnfw_rho0(rs, alpha_rs), rt, radius, within)
-    w = population._turnover_factor(m)
-    return population._unbroken_density(sigma_sub) * math.pi * float(np.mean(w * within))
+    return population._unbroken_density(sigma_sub) * math.pi * float(np.sum(w * within))
 
 
 def _image_task(task):
@@ -175,7 +173,7 @@ def _image_task(task):
     pop = task.population
     rng = np.random.default_rng(task.seed)
     s_max = task.sigma[-1]
-    kbar_max = _mean_convergence(pop, rng, task.position, task.radius, s_max)
+    kbar_max = _mean_convergence(pop, task.position, task.radius, s_max)
     a = task.jac
     sym = 0.5 * (a + a.T)
     lam_min = max(float(np.min(np.abs(np.linalg.eigvalsh(sym)))), 1e-6)
@@ -264,13 +262,18 @@ def simulate_anomalies(pairs, lens, population, sigma_sub, *, n_realisations=100
         Missing positions, a bad grid, too few realisations, or redshifts
         that differ between the lens and the population.
     """
+    n_real = as_int(n_realisations, "n_realisations", minimum=MIN_REALISATIONS)
+    return _simulate(pairs, lens, population, _as_sigma_grid(sigma_sub), n_real, radius, seed,
+                     client)
+
+
+def _simulate(pairs, lens, population, sigma, n_real, radius, seed, client):
+    """:func:`simulate_anomalies` on a checked grid, any number of realisations."""
     if not isinstance(population, SubhaloPopulation):
         raise TypeError(f"population must be a SubhaloPopulation, got "
                         f"{type(population).__name__}")
     lens = _as_lens(lens, population)
     xy1, xy2 = _positions(pairs)
-    sigma = _as_sigma_grid(sigma_sub)
-    n_real = as_int(n_realisations, "n_realisations", minimum=MIN_REALISATIONS)
     if radius is None:
         radii = np.array([_default_radius(xy1), _default_radius(xy2)]) if len(pairs) > 1 else None
         if radii is None:
@@ -334,12 +337,10 @@ def apply_population(pairs, lens, population, sigma_sub, *, radius=None, seed=No
     s = _as_sigma_sub(sigma_sub)
     if s <= 0:
         raise ValueError(f"sigma_sub must be > 0, got {sigma_sub}")
-    grid = np.array([s / 2, s]) / u.kpc**2
-    sim = simulate_anomalies(pairs, lens, population, grid, n_realisations=MIN_REALISATIONS,
-                             radius=radius, seed=seed)
+    sim = _simulate(pairs, lens, population, np.array([s]), 1, radius, seed, None)
     out = QTable(pairs, copy=True)
-    e1 = sim.excess1[:, 0, -1]
-    e2 = sim.excess2[:, 0, -1]
+    e1 = sim.excess1[:, 0, 0]
+    e2 = sim.excess2[:, 0, 0]
     for band in pair_bands(out):
         for k, e in (("1", e1), ("2", e2)):
             out[f"flux{k}_{band}"] = out[f"flux{k}_{band}"] * e

@@ -229,15 +229,38 @@ class SubhaloPopulation:
 
     def _parameters(self, rng, m, r2d_kpc):
         """Angular tNFW parameters (Rs, alpha_Rs, r_trunc) [arcsec] of masses ``m``."""
+        return self._parameters_at(m, r2d_kpc, rng.standard_normal(m.size),
+                                   2 * rng.random(m.size) - 1)
+
+    def _parameters_at(self, m, r2d_kpc, scatter, los):
+        """:meth:`_parameters` for given normal deviates of the concentration and
+        line-of-sight fractions in [-1, 1] of the host's virial sphere."""
         log_c = np.interp(np.log10(m), self._log_m_grid, self._log_c_grid)
-        c = np.maximum(np.exp(log_c + _SCATTER * rng.standard_normal(m.size)), _C_MIN)
+        c = np.maximum(np.exp(log_c + _SCATTER * scatter), _C_MIN)
         rs, alpha_rs = self._lens_cosmo.nfw_physical2angle(M=m, c=c)
         half = np.sqrt(np.maximum(self._r200_host_kpc**2 - r2d_kpc**2, 0.0))
-        r3d = np.hypot(r2d_kpc, (2 * rng.random(m.size) - 1) * half)
-        r3d = np.maximum(r3d, 1e-3)
+        r3d = np.maximum(np.hypot(r2d_kpc, los * half), 1e-3)
         rt = np.asarray(self._roche.truncation_radius(m, r3d), dtype=float)
         rt = np.maximum(rt, 1e-6) / self._kpc_per_arcsec
         return np.asarray(rs, float), np.asarray(alpha_rs, float), rt
+
+    def _quadrature(self, r2d_kpc, n_mass=400, n_scatter=5, n_los=8):
+        """Nodes and weights of an average over the population at projected radius
+        ``r2d_kpc``: mass quantiles (midpoints), Gauss-Hermite concentration
+        scatter, midpoints along the line of sight; weights include the WDM
+        turnover (normalised to the unbroken power law)."""
+        a1 = self.shmf_log_slope + 1
+        q = (np.arange(n_mass) + 0.5) / n_mass
+        lo, hi = 10 ** (a1 * self.log_mlow), 10 ** (a1 * self.log_mhigh)
+        m = (lo + q * (hi - lo)) ** (1 / a1)
+        x, w = np.polynomial.hermite_e.hermegauss(n_scatter)
+        w = w / w.sum()
+        los = (np.arange(n_los) + 0.5) / n_los * 2 - 1
+        mm, zz, ll = np.meshgrid(m, x, los, indexing="ij")
+        ww = np.broadcast_to(w[None, :, None], mm.shape) / (n_mass * n_los)
+        mm, zz, ll, ww = (a.ravel() for a in (mm, zz, ll, ww))
+        ww = ww * self._turnover_factor(mm)
+        return self._parameters_at(mm, np.full(mm.size, r2d_kpc), zz, ll), ww
 
     def draw(self, rng, sigma_sub, centre, radius):
         """Sub-haloes in a disc of the lens plane.
