@@ -341,6 +341,17 @@ def test_flat_likelihood_gives_the_prior():
     assert post.meta["inference"]["median"].value == pytest.approx(10**-1.5)
 
 
+def test_posterior_round_trips_through_ecsv(tmp_path):
+    sigma = np.geomspace(0.001, 1.0, 7) * KPC2
+    post = abundance_posterior(_table(np.zeros(3), 0.05),
+                               _fake_simulation([1, 2, 3], sigma, np.zeros((3, 200, 7))))
+    post.write(tmp_path / "posterior.ecsv")
+    back = QTable.read(tmp_path / "posterior.ecsv")
+    assert back["sigma_sub"].unit == KPC2
+    np.testing.assert_allclose(back["posterior"], post["posterior"])
+    assert u.allclose(back.meta["inference"]["interval_95"], post.meta["inference"]["interval_95"])
+
+
 def test_systems_multiply():
     rng = np.random.default_rng(1)
     sigma = np.geomspace(0.001, 1.0, 9) * KPC2
@@ -378,3 +389,38 @@ def test_end_to_end_recovers_a_large_abundance(population, lens_and_pairs, simul
     lo, hi = m["interval_95"].to_value(KPC2)
     assert lo < 0.15 < hi
     assert lo > 0.002  # the data exclude the grid's smallest abundance
+
+
+@pytest.mark.parametrize("copies", [1, 4])
+def test_magnitude_weight_of_duplicated_data(copies):
+    """A Gaussian datum counted ``copies`` times: the composite log-likelihood is
+    ``copies`` times the true one, so H / J = 1 / copies (1 for independent data)."""
+    from lensdual.inference._posterior import _magnitude_weight
+
+    rng = np.random.default_rng(0)
+    log_grid = np.linspace(-3, 0, 61)
+    truths = rng.uniform(-2.5, -0.5, 4000)
+    x = truths + 0.2 * rng.standard_normal(truths.size)
+    lls = -copies * (log_grid[None, :] - x[:, None]) ** 2 / (2 * 0.2**2)
+    assert _magnitude_weight(log_grid, lls, truths) == pytest.approx(1 / copies, rel=0.05)
+
+
+def test_composite_weight_and_weighted_posterior(population, lens_and_pairs, simulation):
+    from lensdual.inference import composite_weight
+
+    system, pairs = lens_and_pairs
+    w = composite_weight(pairs, system, simulation, sigma_pos=5 * u.mas, flux_rel_err=0.02,
+                         n_mocks=20, seed=3)
+    assert 0 < w <= 1
+    mock = apply_population(pairs, system, population, 0.05 * KPC2, seed=11)
+    result = check_duality(noisy_constellation(mock, sigma_pos=5 * u.mas, flux_rel_err=0.02,
+                                               seed=12), sigma_pos=5 * u.mas, seed=0)
+    full = abundance_posterior(result, simulation)
+    half = abundance_posterior(result, simulation, weights=0.5)
+    np.testing.assert_allclose(half["log_likelihood"], 0.5 * full["log_likelihood"])
+    assert half.meta["inference"]["weights"] == [0.5]
+    with pytest.raises(ValueError, match="weights must be one number in"):
+        abundance_posterior(result, simulation, weights=1.5)
+    with pytest.raises(ValueError, match="n_mocks"):
+        composite_weight(pairs, system, simulation, sigma_pos=5 * u.mas, flux_rel_err=0.02,
+                         n_mocks=5)

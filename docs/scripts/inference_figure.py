@@ -23,6 +23,7 @@ from lensdual.inference import (  # noqa: E402
     SubhaloPopulation,
     abundance_posterior,
     apply_population,
+    composite_weight,
     simulate_anomalies,
 )
 from lensdual.simulation import noisy_constellation  # noqa: E402
@@ -43,8 +44,11 @@ def main():
     with ThreadPoolExecutor(2) as pool:
         sim = simulate_anomalies(pairs, system, pop, grid, n_realisations=1000, seed=1,
                                  client=pool)
+    weight = composite_weight(pairs, system, sim, sigma_pos=10 * u.mas, flux_rel_err=0.02,
+                              n_mocks=100, seed=2)
     lines = [f"# {FAMILY}: 20 sources, 10 mas, 2 % flux errors, 1000 realisations x 30 "
-             "abundances; pyHalo CDM population, log10 M_host = 15, masses 1e6-1e10 Msun"]
+             "abundances; pyHalo CDM population, log10 M_host = 15, masses 1e6-1e10 Msun; "
+             f"composite weight {weight:.3f}"]
     ax = None
     n_sources = len(pairs)
     paper = surface_density_limit(detection_probability_limit(n_sources, n_arcs=2), 1e8 * u.Msun,
@@ -53,7 +57,7 @@ def main():
         mock = apply_population(pairs, system, pop, truth / u.kpc**2, seed=500 + k)
         noisy = noisy_constellation(mock, sigma_pos=10 * u.mas, flux_rel_err=0.02, seed=600 + k)
         result = check_duality(noisy, sigma_pos=10 * u.mas, seed=0)
-        post = abundance_posterior(result, sim)
+        post = abundance_posterior(result, sim, weights=weight)
         m = post.meta["inference"]
         lo, hi = m["interval_95"].to_value(u.kpc**-2)
         lines.append(f"truth {truth:.3f}: median {m['median'].to_value(u.kpc**-2):.4f}, "

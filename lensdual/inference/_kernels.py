@@ -211,6 +211,34 @@ def _s_min(b00, b01, b10, b11):
 
 
 @njit(**JIT_OPTIONS)
+def _norm_at(rs, rho0, rt, r):
+    _, _, fxx, _, fyy = deflection_hessian(PROFILE_TNFW, rs, rho0, rt, r, 0.0)
+    return max(abs(fxx), abs(fyy))
+
+
+@njit(**JIT_OPTIONS)
+def critical_radius(rs, rho0, rt, level):
+    """Largest radius at which a halo's Hessian norm reaches ``level`` (0 if nowhere).
+
+    The norm, ``max(mean convergence, |2 kappa - mean convergence|)``,
+    falls with radius; bisection in log radius from lenstronomy's floor.
+    """
+    lo = 0.0011 * rs
+    if _norm_at(rs, rho0, rt, lo) < level:
+        return 0.0
+    hi = 100.0 * max(rt, rs)
+    if _norm_at(rs, rho0, rt, hi) >= level:
+        return hi
+    for _ in range(40):
+        mid = math.sqrt(lo * hi)
+        if _norm_at(rs, rho0, rt, mid) >= level:
+            lo = mid
+        else:
+            hi = mid
+    return hi
+
+
+@njit(**JIT_OPTIONS)
 def image_excess(b00, b01, b10, b11, det0, hx, hy, rs, rho0, rt, te, hsup, n_h, lam_min,
                  box_factor, box_cap, n, gx, gy, pos, mu):
     """Flux excess and image count of the image at the origin.
@@ -220,10 +248,10 @@ def image_excess(b00, b01, b10, b11, det0, hx, hy, rs, rho0, rt, te, hsup, n_h, 
     ``0..n_h-1`` are the others, summed in full; ``det0`` is the smooth
     ``|det A|``. Where their Hessian norms ``hsup`` sum to less than the
     smallest singular value of ``b``, the map is invertible everywhere and
-    the origin is the only image; otherwise a halo whose norm reaches half
-    that value gets a grid box of half-width ``min(box_factor * te /
-    sqrt(lam_min), box_cap * te)`` (``te``: the point-mass Einstein radius
-    of its total mass) when the origin lies inside the box.
+    the origin is the only image. Otherwise a halo whose norm reaches half
+    that value within ``r_c`` of its centre (:func:`critical_radius`) can
+    have images near its critical curve, at about ``r_c``; it gets a grid
+    box of half-width ``3 r_c`` when the origin lies inside it.
     """
     ax, ay, fxx, fxy, fyy = _field(hx, hy, rs, rho0, rt, 0, n_h, 0.0, 0.0)
     tx = -ax
@@ -245,8 +273,8 @@ def image_excess(b00, b01, b10, b11, det0, hx, hy, rs, rho0, rt, te, hsup, n_h, 
         for k in range(n_h):
             if te[k] <= 0.0 or hsup[k] < 0.5 * s_min:
                 continue
-            half = min(box_factor * te[k] / math.sqrt(lam_min), box_cap * te[k])
-            if abs(hx[k]) > half or abs(hy[k]) > half:
+            half = 3.0 * critical_radius(rs[k], rho0[k], rt[k], 0.5 * s_min)
+            if half <= 0.0 or abs(hx[k]) > half or abs(hy[k]) > half:
                 continue
             n_found = _box_images(b00, b01, b10, b11, tx, ty, hx, hy, rs, rho0, rt, n_h, k, half,
                                   n, gx, gy, pos, mu, n_found, scale, dedup, accept)
@@ -296,7 +324,7 @@ def excess_grid(a00, a01, a10, a11, kbar_max, hx, hy, rs, rho0, rt, te, hsup, ta
             # haloes enter in tag order: strong ones are compacted, weak ones summed into c
             while k < hi and tag[k] < frac[j]:
                 reach = min(box_factor * te[k] / math.sqrt(lam_min), box_cap * te[k])
-                if hsup[k] >= strong * s_min and max(abs(hx[k]), abs(hy[k])) <= 2.0 * reach:
+                if hsup[k] >= strong * s_min and max(abs(hx[k]), abs(hy[k])) <= 3.0 * reach:
                     sx[ns] = hx[k]
                     sy[ns] = hy[k]
                     srs[ns] = rs[k]

@@ -261,7 +261,7 @@ def composite_weight(pairs, lens, simulation, *, sigma_pos, flux_rel_err, n_mock
     grid = simulation.sigma_sub.to_value(u.kpc**-2)
     log_grid = np.log10(grid)
     rng = np.random.default_rng(seed)
-    slopes, curvatures = [], []
+    lls, truths = [], []
     for _ in range(n_mocks):
         truth = 10 ** rng.uniform(log_grid[0], log_grid[-1])
         mock = apply_population(pairs, lens, simulation.population, truth * u.kpc**-2,
@@ -272,13 +272,25 @@ def composite_weight(pairs, lens, simulation, *, sigma_pos, flux_rel_err, n_mock
                                     seed=int(rng.integers(2**31)))
         result = check_duality(noisy, sigma_pos=sigma_pos, seed=int(rng.integers(2**31)),
                                **check_kwargs)
-        ll, _ = _system_log_likelihood(result, simulation)
+        lls.append(_system_log_likelihood(result, simulation)[0])
+        truths.append(np.log10(truth))
+    return _magnitude_weight(log_grid, np.array(lls), np.array(truths))
+
+
+def _magnitude_weight(log_grid, lls, truths):
+    """``min(1, H / J)`` from log-likelihoods ``lls`` (M, S) of mocks whose truths
+    are ``truths`` (M,): H the mean curvature, J the variance of the slope at
+    the truth (finite differences on the grid)."""
+    slopes, curvatures = [], []
+    for ll, t in zip(lls, truths, strict=True):
         if not np.isfinite(ll).all():
             continue
         d1 = np.gradient(ll, log_grid)
         d2 = np.gradient(d1, log_grid)
-        slopes.append(np.interp(np.log10(truth), log_grid, d1))
-        curvatures.append(-np.interp(np.log10(truth), log_grid, d2))
+        slopes.append(np.interp(t, log_grid, d1))
+        curvatures.append(-np.interp(t, log_grid, d2))
+    if len(slopes) < 2:
+        return 1.0
     j = float(np.var(slopes, ddof=1))
     h = float(np.mean(curvatures))
     return float(min(1.0, max(h, 0.0) / j)) if j > 0 else 1.0
