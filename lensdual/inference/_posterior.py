@@ -216,7 +216,10 @@ def composite_weight(pairs, lens, simulation, *, sigma_pos, flux_rel_err, n_mock
     of a composite likelihood (a magnitude adjustment) raises it to the
     power :math:`w = H / J`, where :math:`H` is the mean curvature of the
     log-likelihood at the truth and :math:`J` the variance of its slope
-    there, both in :math:`\log_{10}\sigma`; for independent errors
+    there, both in :math:`\log_{10}\sigma` (the median and the squared
+    16-84 % half-width over the mocks: a rare mock whose anomaly only a few
+    realisations explain makes the log-likelihood jump, and its slope would
+    dominate a mean and a variance); for independent errors
     :math:`w = 1`. Both are measured on ``n_mocks`` mock universes: an
     abundance drawn from the grid's log-uniform prior, one realisation of
     the population applied to ``pairs`` (:func:`apply_population`), position
@@ -259,6 +262,9 @@ def composite_weight(pairs, lens, simulation, *, sigma_pos, flux_rel_err, n_mock
                         f"{type(simulation).__name__}")
     n_mocks = as_int(n_mocks, "n_mocks", minimum=20)
     grid = simulation.sigma_sub.to_value(u.kpc**-2)
+    if grid.size < 5:
+        raise ValueError(f"the simulation's grid has {grid.size} abundances: the slope and "
+                         "curvature of the log-likelihood need at least 5")
     log_grid = np.log10(grid)
     rng = np.random.default_rng(seed)
     lls, truths = [], []
@@ -279,8 +285,8 @@ def composite_weight(pairs, lens, simulation, *, sigma_pos, flux_rel_err, n_mock
 
 def _magnitude_weight(log_grid, lls, truths):
     """``min(1, H / J)`` from log-likelihoods ``lls`` (M, S) of mocks whose truths
-    are ``truths`` (M,): H the mean curvature, J the variance of the slope at
-    the truth (finite differences on the grid)."""
+    are ``truths`` (M,): H the median curvature, J the squared 16-84 %
+    half-width of the slope at the truth (finite differences on the grid)."""
     slopes, curvatures = [], []
     for ll, t in zip(lls, truths, strict=True):
         if not np.isfinite(ll).all():
@@ -291,6 +297,9 @@ def _magnitude_weight(log_grid, lls, truths):
         curvatures.append(-np.interp(t, log_grid, d2))
     if len(slopes) < 2:
         return 1.0
-    j = float(np.var(slopes, ddof=1))
-    h = float(np.mean(curvatures))
+    # robust: a mock whose anomaly only a few realisations explain makes the
+    # log-likelihood jump, and its slope would dominate a variance
+    lo, hi = np.percentile(slopes, [15.865, 84.135])
+    j = float((0.5 * (hi - lo)) ** 2)
+    h = float(np.median(curvatures))
     return float(min(1.0, max(h, 0.0) / j)) if j > 0 else 1.0
