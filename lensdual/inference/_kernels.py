@@ -23,7 +23,8 @@ import numpy as np
 from numba import njit
 
 from .._numba import JIT_OPTIONS
-from ..sensitivity._kernels import PROFILE_TNFW, deflection_hessian
+from ..sensitivity._kernels import PROFILE_TNFW, _in_triangle, deflection_hessian
+from ..sensitivity._kernels import _add_image as _add
 
 __all__ = []
 
@@ -86,39 +87,6 @@ def _newton(b00, b01, b10, b11, tx, ty, hx, hy, rs, rho0, rt, lo, hi, x, y, scal
         if res <= 1e-14 * scale or step <= 1e-15 * scale:
             break
     return x, y, res, j00 * j11 - j01 * j10
-
-
-@njit(**JIT_OPTIONS)
-def _add(x, y, det, pos, mu, n, dedup):
-    for k in range(n):
-        if math.hypot(pos[k, 0] - x, pos[k, 1] - y) <= dedup:
-            return n
-    if n < pos.shape[0]:
-        pos[n, 0] = x
-        pos[n, 1] = y
-        mu[n] = 1.0 / det
-        return n + 1
-    return n
-
-
-@njit(**JIT_OPTIONS)
-def _in_triangle(ux, uy, vx, vy, wx, wy, tx, ty):
-    """Barycentric weights of ``t`` in triangle (u, v, w), or (-1, -1)."""
-    e1x = vx - ux
-    e1y = vy - uy
-    e2x = wx - ux
-    e2y = wy - uy
-    den = e1x * e2y - e1y * e2x
-    if den == 0.0:
-        return -1.0, -1.0
-    px = tx - ux
-    py = ty - uy
-    b1 = (px * e2y - py * e2x) / den
-    b2 = (e1x * py - e1y * px) / den
-    eps = 1e-12
-    if b1 >= -eps and b2 >= -eps and b1 + b2 <= 1.0 + eps:
-        return b1, b2
-    return -1.0, -1.0
 
 
 @njit(**JIT_OPTIONS)
