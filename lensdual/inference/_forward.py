@@ -31,7 +31,7 @@ _MAX_RATIO_PULL = 3.0  # median |pull| of the lens's magnification ratios that r
 class AnomalySimulation(NamedTuple):
     """Forward-modelled flux anomalies of every pair of one constellation.
 
-    Attributes
+    Parameters
     ----------
     pair_id : ndarray of int, shape (P,)
     sigma_sub : `~astropy.units.Quantity`, shape (S,)
