@@ -696,6 +696,9 @@ def plot_abundance_posterior(posterior, *, ax=None, paper_bound=None, cdm=None, 
                    label="CDM reference")
     ax.set_xscale("log")
     ax.set_xlim(x[0], x[-1])
+    ax.relim()  # every posterior drawn on ax so far, not only the first
+    ax.set_autoscaley_on(True)
+    ax.autoscale_view(scalex=False)
     ax.set_ylim(bottom=0)
     ax.set_xlabel(r"$\Sigma_{\rm sub}$ (pyHalo sigma_sub) [kpc$^{-2}$]")
     ax.set_ylabel("posterior per dex")

@@ -420,3 +420,25 @@ def test_composite_weight_and_weighted_posterior(population, lens_and_pairs, sim
     with pytest.raises(ValueError, match="n_mocks"):
         composite_weight(pairs, system, simulation, sigma_pos=5 * u.mas, flux_rel_err=0.02,
                          n_mocks=5)
+
+
+def test_plot_abundance_posterior_draws_every_posterior():
+    import matplotlib.pyplot as plt
+
+    from lensdual.visualization import plot_abundance_posterior
+
+    rng = np.random.default_rng(2)
+    sigma = np.geomspace(0.001, 1.0, 13) * KPC2
+    s = 0.2 * np.sqrt(sigma.value / 0.1)
+    sims = rng.standard_normal((6, 2000, 1)) * s
+    f = _fake_simulation(np.arange(1, 7), sigma, sims)
+    broad = abundance_posterior(_table(np.zeros(6), 0.3), f)
+    sharp = abundance_posterior(_table(rng.normal(0, 0.4, 6), 0.02), f)
+    ax = plot_abundance_posterior(broad, paper_bound=0.3 * KPC2, cdm=0.025 * KPC2)
+    plot_abundance_posterior(sharp, ax=ax)
+    assert ax.get_xscale() == "log"
+    assert ax.get_ylim()[1] >= max(broad["posterior"].max(), sharp["posterior"].max())
+    assert len(ax.lines) == 6  # two posteriors, their medians, the bound, the CDM line
+    plt.close(ax.figure)
+    with pytest.raises(ValueError, match="abundance_posterior"):
+        plot_abundance_posterior(QTable({"x": [1.0]}))
