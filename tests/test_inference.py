@@ -363,6 +363,17 @@ def test_systems_multiply():
     assert both.meta["inference"]["n_systems"] == 2
 
 
+def test_systems_must_share_the_dark_matter_model(simulation):
+    wdm = simulation._replace(population=SubhaloPopulation(ZL, ZS, model="WDM", log_mhm=8.0))
+    table = _table(np.zeros(8), 0.1)
+    with pytest.raises(ValueError, match="one dark-matter model"):
+        abundance_posterior([table, table], [simulation, wdm])
+    # another host and redshift, same model: combined
+    other = simulation._replace(population=SubhaloPopulation(0.5, 2.0, log_m_host=14.5))
+    assert abundance_posterior([table, table], [simulation, other]).meta["inference"][
+        "n_systems"] == 2
+
+
 def test_posterior_bad_input(simulation):
     with pytest.raises(ValueError, match="no flux ratios"):
         pair_anomalies(QTable({"pair_id": [1], "x1": [0.0]}))

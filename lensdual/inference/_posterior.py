@@ -100,6 +100,15 @@ def _system_log_likelihood(table, sim):
     return logl, len(data)
 
 
+def _model_key(population):
+    """What must agree between systems combined into one posterior (their
+    redshifts and hosts may differ)."""
+    if population is None:
+        return None
+    return (population.model, population.log_mlow, population.log_mhigh,
+            population.shmf_log_slope, population.log_mhm)
+
+
 def _quantile(log_grid, cdf, q):
     return float(np.interp(q, cdf, log_grid))
 
@@ -162,6 +171,10 @@ def abundance_posterior(tables, simulations, *, weights=None):
     for s in simulations[1:]:
         if s.sigma_sub.shape != grid.shape or not np.allclose(s.sigma_sub, grid, rtol=1e-12):
             raise ValueError("the simulations must share one sigma_sub grid")
+    models = {_model_key(s.population) for s in simulations}
+    if len(models) > 1:
+        raise ValueError("the simulations must share one dark-matter model (model, mass range, "
+                         f"slope, half-mode mass); got {sorted(models, key=str)}")
     if weights is None:
         weights = [1.0] * len(tables)
     weights = list(np.atleast_1d(np.asarray(weights, dtype=float)))
