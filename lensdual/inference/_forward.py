@@ -7,11 +7,12 @@ import numpy as np
 from astropy import units as u
 from astropy.table import QTable, Table
 
+from .._pairs_table import pair_bands, positions
 from .._parallel import check_client, run_tasks
 from .._validation import as_int, as_real
 from ..sensitivity._kernels import tnfw_rho0
 from . import _kernels
-from ._population import SubhaloPopulation
+from ._population import SubhaloPopulation, _as_sigma_sub, _kpc2_values
 
 __all__ = ["simulate_anomalies", "apply_population", "AnomalySimulation", "MIN_REALISATIONS"]
 
@@ -70,13 +71,7 @@ class _ImageTask(NamedTuple):
 
 
 def _as_sigma_grid(sigma_sub):
-    if not isinstance(sigma_sub, u.Quantity):
-        raise TypeError("sigma_sub must be a Quantity in kpc^-2 (e.g. "
-                        f"np.geomspace(0.001, 1, 30) / u.kpc**2), got {type(sigma_sub).__name__}")
-    try:
-        s = np.atleast_1d(np.asarray(sigma_sub.to_value(u.kpc**-2), dtype=float))
-    except u.UnitConversionError:
-        raise TypeError(f"sigma_sub must be in kpc^-2, got unit {sigma_sub.unit}") from None
+    s = np.atleast_1d(_kpc2_values(sigma_sub, "sigma_sub"))
     if s.ndim != 1 or s.size < 2:
         raise ValueError(f"sigma_sub must be a 1-D grid of at least 2 values, got shape {s.shape}")
     if not np.isfinite(s).all() or (s <= 0).any():
@@ -107,17 +102,10 @@ def _as_lens(lens, population):
 
 
 def _positions(pairs):
+    """The pairs' positions, (N, 2) arcsec floats per arc, checked finite."""
     if not isinstance(pairs, Table):
         raise TypeError(f"pairs must be an astropy Table or QTable, got {type(pairs).__name__}")
-    out = []
-    for name in ("x1", "y1", "x2", "y2"):
-        if name not in pairs.colnames:
-            raise ValueError(f"pairs has no column {name!r}")
-        col = pairs[name]
-        v = u.Quantity(col, u.arcsec).value if getattr(col, "unit", None) else np.asarray(col)
-        out.append(np.asarray(v, dtype=float))
-    xy1 = np.column_stack(out[:2])
-    xy2 = np.column_stack(out[2:])
+    xy1, xy2 = (t.to_value(u.arcsec) for t in positions(pairs))
     if not (np.isfinite(xy1).all() and np.isfinite(xy2).all()):
         raise ValueError("pairs has non-finite positions")
     return xy1, xy2
@@ -263,24 +251,30 @@ def simulate_anomalies(pairs, lens, population, sigma_sub, *, n_realisations=100
         that differ between the lens and the population.
     """
     n_real = as_int(n_realisations, "n_realisations", minimum=MIN_REALISATIONS)
-    return _simulate(pairs, lens, population, _as_sigma_grid(sigma_sub), n_real, radius, seed,
-                     client)
+    return _simulate(pairs, lens, population, _as_sigma_grid(sigma_sub), n_real,
+                     _as_radii(radius), seed, client)
 
 
-def _simulate(pairs, lens, population, sigma, n_real, radius, seed, client):
-    """:func:`simulate_anomalies` on a checked grid, any number of realisations."""
+def _as_radii(radius):
+    """The user's disc radius as the (2,) radii of the two arcs, or None (the default)."""
+    if radius is None:
+        return None
+    r = as_real(u.Quantity(radius, u.arcsec).value, "radius", minimum=0.0, inclusive=False)
+    return np.array([r, r])
+
+
+def _simulate(pairs, lens, population, sigma, n_real, radii, seed, client):
+    """:func:`simulate_anomalies` on a checked grid and radii (None: the default), any
+    number of realisations."""
     if not isinstance(population, SubhaloPopulation):
         raise TypeError(f"population must be a SubhaloPopulation, got "
                         f"{type(population).__name__}")
     lens = _as_lens(lens, population)
     xy1, xy2 = _positions(pairs)
-    if radius is None:
-        radii = np.array([_default_radius(xy1), _default_radius(xy2)]) if len(pairs) > 1 else None
-        if radii is None:
+    if radii is None:
+        if len(pairs) < 2:
             raise ValueError("a single pair has no neighbours to set the radius: pass radius=")
-    else:
-        r = as_real(u.Quantity(radius, u.arcsec).value, "radius", minimum=0.0, inclusive=False)
-        radii = np.array([r, r])
+        radii = np.array([_default_radius(xy1), _default_radius(xy2)])
     client = check_client(client)
     jac1 = np.asarray(lens.jacobian(xy1 * u.arcsec), dtype=float)
     jac2 = np.asarray(lens.jacobian(xy2 * u.arcsec), dtype=float)
@@ -331,13 +325,13 @@ def apply_population(pairs, lens, population, sigma_sub, *, radius=None, seed=No
         ``subhalo_excess2`` (the factors) and ``subhalo_delta``
         (``ln`` of their ratio) added.
     """
-    from .._pairs_table import pair_bands
-    from ._population import _as_sigma_sub
+    return _apply_population(pairs, lens, population,
+                             _as_sigma_sub(sigma_sub, positive=True), _as_radii(radius), seed)
 
-    s = _as_sigma_sub(sigma_sub)
-    if s <= 0:
-        raise ValueError(f"sigma_sub must be > 0, got {sigma_sub}")
-    sim = _simulate(pairs, lens, population, np.array([s]), 1, radius, seed, None)
+
+def _apply_population(pairs, lens, population, sigma, radii, seed):
+    """:func:`apply_population` for a checked abundance (kpc^-2) and radii."""
+    sim = _simulate(pairs, lens, population, np.array([sigma]), 1, radii, seed, None)
     out = QTable(pairs, copy=True)
     e1 = sim.excess1[:, 0, 0]
     e2 = sim.excess2[:, 0, 0]

@@ -28,6 +28,8 @@ from ..sensitivity._kernels import _add_image as _add
 
 __all__ = []
 
+_FLOOR = 0.0011  # just outside lenstronomy's R >= 0.001 Rs floor, in Rs
+
 
 @njit(**JIT_OPTIONS)
 def _field(hx, hy, rs, rho0, rt, lo, hi, x, y):
@@ -191,7 +193,7 @@ def critical_radius(rs, rho0, rt, level):
     The norm, ``max(mean convergence, |2 kappa - mean convergence|)``,
     falls with radius; bisection in log radius from lenstronomy's floor.
     """
-    lo = 0.0011 * rs
+    lo = _FLOOR * rs
     if _norm_at(rs, rho0, rt, lo) < level:
         return 0.0
     hi = 100.0 * max(rt, rs)
@@ -207,8 +209,8 @@ def critical_radius(rs, rho0, rt, level):
 
 
 @njit(**JIT_OPTIONS)
-def image_excess(b00, b01, b10, b11, det0, hx, hy, rs, rho0, rt, te, hsup, n_h, lam_min,
-                 box_factor, box_cap, n, gx, gy, pos, mu):
+def image_excess(b00, b01, b10, b11, det0, hx, hy, rs, rho0, rt, te, hsup, n_h, n, gx, gy,
+                 pos, mu):
     """Flux excess and image count of the image at the origin.
 
     ``b`` is the local ``d beta / d theta`` with the sheet and the Hessians
@@ -310,8 +312,7 @@ def excess_grid(a00, a01, a10, a11, kbar_max, hx, hy, rs, rho0, rt, te, hsup, ta
                 k += 1
             kb = kbar_max * frac[j]
             e, c = image_excess(a00 + kb - cxx, a01 - cxy, a10 - cxy, a11 + kb - cyy, det0,
-                                sx, sy, srs, srho, srt, ste, ssup, ns, lam_min, box_factor,
-                                box_cap, n, gx, gy, pos, mu)
+                                sx, sy, srs, srho, srt, ste, ssup, ns, n, gx, gy, pos, mu)
             excess[r, j] = e
             counts[r, j] = c
 
@@ -334,6 +335,4 @@ def hessian_sup(rs, rho0, rt, out):
     """Largest Hessian norm of each halo: at lenstronomy's floor ``R = 0.001 Rs``,
     where its convergence and mean convergence peak."""
     for k in range(rs.shape[0]):
-        _, _, fxx, _, fyy = deflection_hessian(PROFILE_TNFW, rs[k], rho0[k], rt[k],
-                                               0.0011 * rs[k], 0.0)
-        out[k] = max(abs(fxx), abs(fyy))
+        out[k] = _norm_at(rs[k], rho0[k], rt[k], _FLOOR * rs[k])

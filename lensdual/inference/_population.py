@@ -221,11 +221,14 @@ class SubhaloPopulation:
 
     # ------------------------------------------------------------------ draws
 
-    def _masses(self, rng, n):
+    def _mass_quantiles(self, q):
+        """Masses at quantiles ``q`` of the power law (its inverse CDF)."""
         a1 = self.shmf_log_slope + 1
         lo, hi = 10 ** (a1 * self.log_mlow), 10 ** (a1 * self.log_mhigh)
-        m = (lo + rng.random(n) * (hi - lo)) ** (1 / a1)
-        return m
+        return (lo + q * (hi - lo)) ** (1 / a1)
+
+    def _masses(self, rng, n):
+        return self._mass_quantiles(rng.random(n))
 
     def _parameters(self, rng, m, r2d_kpc):
         """Angular tNFW parameters (Rs, alpha_Rs, r_trunc) [arcsec] of masses ``m``."""
@@ -249,10 +252,7 @@ class SubhaloPopulation:
         ``r2d_kpc``: mass quantiles (midpoints), Gauss-Hermite concentration
         scatter, midpoints along the line of sight; weights include the WDM
         turnover (normalised to the unbroken power law)."""
-        a1 = self.shmf_log_slope + 1
-        q = (np.arange(n_mass) + 0.5) / n_mass
-        lo, hi = 10 ** (a1 * self.log_mlow), 10 ** (a1 * self.log_mhigh)
-        m = (lo + q * (hi - lo)) ** (1 / a1)
+        m = self._mass_quantiles((np.arange(n_mass) + 0.5) / n_mass)
         x, w = np.polynomial.hermite_e.hermegauss(n_scatter)
         w = w / w.sum()
         los = (np.arange(n_los) + 0.5) / n_los * 2 - 1
@@ -296,17 +296,22 @@ class SubhaloPopulation:
         return {"x": x, "y": y, "mass": m, "rs": rs, "alpha_rs": alpha_rs, "r_trunc": rt}
 
 
-def _as_sigma_sub(value, name="sigma_sub"):
-    """A scalar abundance Quantity in kpc^-2 as a float > 0."""
+def _kpc2_values(value, name):
+    """An abundance Quantity's values in kpc^-2 (float array), or TypeError naming it."""
     if not isinstance(value, u.Quantity):
         raise TypeError(f"{name} must be a Quantity in kpc^-2 (e.g. 0.025 / u.kpc**2), "
                         f"got {type(value).__name__}")
     try:
-        v = value.to_value(u.kpc**-2)
+        return np.asarray(value.to_value(u.kpc**-2), dtype=float)
     except u.UnitConversionError:
         raise TypeError(f"{name} must be a number per area (kpc^-2), got unit {value.unit}") \
             from None
-    v = np.asarray(v, dtype=float)
-    if v.ndim != 0 or not np.isfinite(v) or v < 0:
-        raise ValueError(f"{name} must be a finite scalar >= 0, got {value}")
+
+
+def _as_sigma_sub(value, name="sigma_sub", *, positive=False):
+    """A scalar abundance Quantity in kpc^-2 as a float >= 0 (> 0 if ``positive``)."""
+    v = _kpc2_values(value, name)
+    if v.ndim != 0 or not np.isfinite(v) or v < 0 or (positive and v == 0):
+        cond = "> 0" if positive else ">= 0"
+        raise ValueError(f"{name} must be a finite scalar {cond}, got {value}")
     return float(v)

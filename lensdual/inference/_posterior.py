@@ -271,7 +271,7 @@ def composite_weight(pairs, lens, simulation, *, sigma_pos, flux_rel_err, n_mock
     from .. import check_duality
     from .._validation import as_int
     from ..simulation import noisy_constellation
-    from ._forward import apply_population
+    from ._forward import _apply_population
 
     if not isinstance(simulation, AnomalySimulation):
         raise TypeError(f"simulation must be an AnomalySimulation, got "
@@ -286,10 +286,8 @@ def composite_weight(pairs, lens, simulation, *, sigma_pos, flux_rel_err, n_mock
     lls, truths = [], []
     for _ in range(n_mocks):
         truth = 10 ** rng.uniform(log_grid[0], log_grid[-1])
-        mock = apply_population(pairs, lens, simulation.population, truth * u.kpc**-2,
-                                radius=simulation.radius[0] * u.arcsec
-                                if simulation.radius[0] == simulation.radius[1] else None,
-                                seed=int(rng.integers(2**31)))
+        mock = _apply_population(pairs, lens, simulation.population, truth,
+                                 simulation.radius, int(rng.integers(2**31)))
         noisy = noisy_constellation(mock, sigma_pos=sigma_pos, flux_rel_err=flux_rel_err,
                                     seed=int(rng.integers(2**31)))
         with warnings.catch_warnings():
