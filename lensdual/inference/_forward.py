@@ -6,6 +6,7 @@ from typing import NamedTuple
 import numpy as np
 from astropy import units as u
 from astropy.table import QTable, Table
+from scipy.spatial import cKDTree
 
 from .._pairs_table import pair_bands, positions
 from .._parallel import check_client, run_tasks
@@ -135,9 +136,9 @@ def _check_lens_ratios(pairs, jac1, jac2):
 
 def _default_radius(xy):
     """Median nearest-neighbour separation of the images on one arc [arcsec]."""
-    d = np.hypot(xy[:, None, 0] - xy[None, :, 0], xy[:, None, 1] - xy[None, :, 1])
-    np.fill_diagonal(d, np.inf)
-    return float(np.median(d.min(axis=1)))
+    nearest = cKDTree(xy).query(xy, k=2)[1][:, 1]
+    d = xy[nearest] - xy
+    return float(np.median(np.hypot(d[:, 0], d[:, 1])))
 
 
 def _mean_convergence(population, position, radius, sigma_sub):
