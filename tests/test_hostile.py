@@ -586,3 +586,40 @@ def test_bands_swapped_on_one_arc_are_named():
         check_duality(pairs, sigma_pos=0.002 * u.arcsec)
     assert "another estimator would not help" in str(info.value)
     assert "use 'quad2'" not in str(info.value)
+
+
+def test_a_saturated_source_makes_its_pair_doubtful_not_anomalous(demo_dir, tmp_path):
+    """A clean pair's L2 source clipped at 40 % of its peak in both bands (a saturated,
+    flat-topped core) is not reported as a sub-halo: its L2 fluxes are unusable
+    (FLAT_TOP), the pair is untested with the reason, and every other pair keeps its
+    measurement and its verdict."""
+    from lensdual.photometry import PhotometryFlag
+
+    before = QTable.read(demo_dir / "pairs.ecsv", format="ascii.ecsv")
+    clean = np.flatnonzero(np.asarray(before["tested"]) & ~np.asarray(before["anomalous"]))
+    k = int(clean[np.argmax(np.asarray(before["flux2_F150W"])[clean])])  # the brightest
+    cat = QTable.read(demo_dir / "catalog_L2.ecsv", format="ascii.ecsv")
+    row = int(np.flatnonzero(np.asarray(cat["id"]) == before["id2"][k])[0])
+    x, y = int(round(float(cat["x_pix"][row]))), int(round(float(cat["y_pix"][row])))
+    cfg = absolute_config(demo_dir)
+    for band, spec in cfg["arcs"]["L2"].items():
+
+        def clip(hdul):
+            stamp = hdul[0].data[y - 4:y + 5, x - 4:x + 5]
+            np.minimum(stamp, 0.4 * stamp.max(), out=stamp)
+
+        spec["image"] = str(copy_fits(spec["image"], tmp_path / f"L2_{band}.fits", clip))
+    out = tmp_path / "out"
+    assert main(["run", str(write(tmp_path / "c.toml", cfg)), "--outdir", str(out),
+                 "--quiet"]) == 0
+    after = QTable.read(out / "pairs.ecsv", format="ascii.ecsv")
+    assert not after["anomalous"][k] and not after["tested"][k]
+    assert "flat-topped core" in after["doubt"][k]
+    flat = int(PhotometryFlag.FLAT_TOP)
+    assert after["photometry_flags"][k] & flat
+    others = np.arange(len(after)) != k
+    assert not np.any(np.asarray(after["photometry_flags"])[others] & flat)
+    assert np.array_equal(np.asarray(after["anomalous"])[others],
+                          np.asarray(before["anomalous"])[others])
+    assert np.array_equal(np.asarray(after["tested"])[others],
+                          np.asarray(before["tested"])[others])

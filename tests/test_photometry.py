@@ -1259,3 +1259,71 @@ def test_a_band_offset_is_measured_removed_and_named():
     diff = np.hypot((out["x2"] - clean["x2"]).to_value("arcsec"),
                     (out["y2"] - clean["y2"]).to_value("arcsec"))
     assert np.all(diff < 5 * out["pos_err2"].to_value("arcsec"))
+
+
+def _gauss_image(sources, shape=(80, 80), sky=1.0, read=0.5, gain=0.02):
+    """Pixel-integrated Gaussian sources ``(x, y, flux, width factor)`` on a flat sky,
+    with the error map of read noise and photon noise (``gain`` counts per variance
+    unit)."""
+    yy, xx = np.mgrid[:shape[0], :shape[1]]
+    img = np.full(shape, sky)
+    for x, y, flux, widen in sources:
+        img += flux * prf(xx - x, yy - y, FWHM * widen)
+    return img, np.sqrt(read**2 + gain * img)
+
+
+def _clip(img, x, y, level, half=4):
+    """Clip the pixels about (x, y) at ``level`` times their largest value."""
+    iy, ix = int(round(y)), int(round(x))
+    stamp = img[iy - half:iy + half + 1, ix - half:ix + half + 1]
+    np.minimum(stamp, level * stamp.max(), out=stamp)
+
+
+def test_flat_topped_sources_are_flagged_unusable():
+    """A bright source clipped at 40 % of its peak (after the noise, as an ADC or
+    full well clips, or before it) is FLAT_TOP, an unusable flag, with the ridge and
+    the constant background. A bright point source, a faint one clipped as deep and
+    one clipped at 90 % of its peak (too little for the noise to tell) are not, nor
+    is a resolved source twice the PSF's width (flatter than the PSF, but not cut
+    off: its wings are broader than the PSF's too)."""
+    sources = [(20.3, 20.6, 2000, 1), (50.2, 20.1, 2000, 1), (20.7, 50.4, 2000, 1),
+               (55.5, 55.2, 40, 1), (35.0, 65.0, 2000, 2), (60.4, 36.6, 200, 1)]
+    img, err = _gauss_image(sources)
+    clean = img.copy()
+    _clip(clean, 20.7, 50.4, 0.4)  # source 2: clipped before the noise
+    rng = np.random.default_rng(0)
+    data = clean + err * rng.standard_normal(img.shape)
+    _clip(data, 20.3, 20.6, 0.4)  # source 0: clipped after the noise
+    _clip(data, 55.5, 55.2, 0.4)  # source 3: faint
+    _clip(data, 60.4, 36.6, 0.9)  # source 5: hardly clipped
+    pos = np.array([s[:2] for s in sources])
+    for background in ("ridge", "constant"):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", LensdualWarning)
+            res = psf_photometry(NDData(data, uncertainty=StdDevUncertainty(err)), pos,
+                                 psf=FWHM, background=background)
+        flat = (np.asarray(res["flags"]) & int(PhotometryFlag.FLAT_TOP)) != 0
+        assert flat.tolist() == [True, False, True, False, False, False]
+    assert PhotometryFlag.FLAT_TOP & UNUSABLE_FLAGS
+    assert "saturated" in describe_flags(PhotometryFlag.FLAT_TOP)
+
+
+def test_flat_top_test_false_alarms_at_its_alpha():
+    """Noisy bright point sources (the model itself plus Gaussian noise) are called
+    flat-topped no more often than the test's false-alarm probability (1e-4: none
+    in 3,000), and the same sources clipped at 60 % of their peak nearly always are."""
+    from lensdual.photometry._fitting import _is_flat_top
+
+    yy, xx = np.mgrid[:11, :11].reshape(2, -1).astype(float)
+    x0, y0 = 5.3, 4.8
+    psf = 3000.0 * prf(xx - x0, yy - y0)
+    r2 = (xx - x0) ** 2 + (yy - y0) ** 2
+    error = np.sqrt(1.0 + 0.05 * psf)
+    rng = np.random.default_rng(1)
+    calls = clipped = 0
+    for _ in range(3000):
+        data = psf + 2.0 + error * rng.standard_normal(psf.size)
+        calls += _is_flat_top(data, psf, error, (), r2)
+        clipped += _is_flat_top(np.minimum(data, 0.6 * data.max()), psf, error, (), r2)
+    assert calls == 0
+    assert clipped >= 2990

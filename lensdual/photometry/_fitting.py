@@ -29,6 +29,75 @@ def _box_pixels(x, y, shape, fit_shape, invalid):
     return xx.ravel(), yy.ravel()
 
 
+#: False-alarm probability of the flat-top test (`_is_flat_top`).
+FLAT_TOP_ALPHA = 1e-4
+# The clip levels tried: plateaus of 2 up to this many of the PSF's brightest pixels.
+_FLAT_TOP_MAX_PIXELS = 12
+
+
+def _weighted_chi2(columns, data, w):
+    """Chi-square and coefficients of the weighted linear least-squares fit."""
+    a = np.column_stack(columns) * np.sqrt(w)[:, None]
+    coef = np.linalg.lstsq(a, data * np.sqrt(w), rcond=None)[0]
+    return float(np.sum((a @ coef - data * np.sqrt(w)) ** 2)), coef
+
+
+def _is_flat_top(data, psf, error, background=(), radius2=None, alpha=FLAT_TOP_ALPHA):
+    """Whether a source is a PSF whose peak is clipped at a constant: saturated.
+
+    On the source's fitting box (``data`` with the other sources removed,
+    ``psf`` the unit-flux PSF at its fitted position), a PSF plus a constant
+    and the photometry's background columns (``background``, the basis of
+    its strategy) is compared with the same clipped at a free level over its
+    ``j`` brightest pixels (``j`` = 2 to 12, among the pixels above a tenth of
+    its peak; a clip must lie below the PSF on the plateau and above it
+    elsewhere). The source is flat-topped when the best clipped model lowers
+    chi-square significantly: by the extra-sum-of-squares F-test of the one
+    more parameter, at ``alpha / (J - 1)`` (``J - 1`` plateaus tried), with
+    the clipped model's residual chi-square per degree of freedom as the
+    noise scale, so that a background the basis does not follow is not taken
+    for a clip. A resolved source, flatter than the PSF but not cut off, finds
+    no clip level that lies between the PSF's values at the plateau's edge.
+    """
+    from scipy.stats import f as f_dist
+
+    w = 1.0 / error**2
+    n = data.size
+    order = np.argsort(psf)[::-1]
+    n_top = min(int(np.count_nonzero(psf >= 0.1 * psf[order[0]])), _FLAT_TOP_MAX_PIXELS,
+                n - 4 - len(background))
+    if n_top < 2:
+        return False
+    bkg = [np.ones(n), *background]
+    chi_a, _ = _weighted_chi2([psf, *bkg], data, w)
+    best = None
+    for j in range(2, n_top + 1):
+        top = np.zeros(n)
+        top[order[:j]] = 1.0
+        chi_b, coef = _weighted_chi2([psf * (1.0 - top), top, *bkg], data, w)
+        f, c = coef[:2]
+        below = psf[order[j]] if j < n else 0.0
+        if not f * below <= c <= f * psf[order[j - 1]]:
+            continue  # not a clip of this PSF
+        if best is None or chi_b < best[0]:
+            best = (chi_b, top)
+    dof = n - 2 - len(bkg)
+    if best is None or dof < 2:
+        return False
+    chi_b, top = best
+    if chi_b <= 0.0:
+        return chi_a > 0.0
+    if not (chi_a - chi_b) / (chi_b / dof) > f_dist.isf(alpha / (n_top - 1), 1, dof):
+        return False
+    if radius2 is None:
+        return True
+    # a resolved source: the clipped PSF's wings broadened fit significantly better
+    chi_c, _ = _weighted_chi2([psf * (1.0 - top), top, psf * radius2 * (1.0 - top), *bkg],
+                              data, w)
+    return bool((chi_b - chi_c) / (max(chi_c, 1e-300) / (dof - 1))
+                <= f_dist.isf(alpha, 1, dof - 1))
+
+
 def _run_photutils(model, fit_shape, data, invalid, error, init, xy_bounds, maxiters):
     """One PSFPhotometry call; returns (results, list of caught warnings)."""
     from photutils.psf import PSFPhotometry
@@ -247,6 +316,7 @@ class _SourceFitter:
             self._refine(units, neighbour_passes)
         cur = self.cur
         cur["flags"] = np.where(np.isfinite(cur["flags"]), cur["flags"], 0).astype(np.int64)
+        cur["flags"][self._flat_tops()] |= int(PhotometryFlag.FLAT_TOP)
         cur["n_pixels_fit"] = np.nan_to_num(cur["n_pixels_fit"]).astype(np.int64)
         cur["group_size"] = cur["group_size"].astype(np.int64)
         return cur, self.caught, self.failed
@@ -461,6 +531,33 @@ class _SourceFitter:
         if not np.isfinite(f):
             flags |= PhotometryFlag.NON_FINITE_FLUX
         return int(flags)
+
+    def _flat_tops(self):
+        """The sources whose fitted PSF is clipped at a constant (see `_is_flat_top`),
+        on the image minus the other sources' models; none without an error map."""
+        sc, cur = self.scene, self.cur
+        n = sc.x.size
+        flat = np.zeros(n, bool)
+        if sc.error is None:
+            return flat
+        model = np.zeros_like(sc.data)
+        for k in range(n):
+            self._add(model, k, 1.0)
+        for k in range(n):
+            f, xf, yf = cur["flux_fit"][k], cur["x_fit"][k], cur["y_fit"][k]
+            if not (np.isfinite(xf) and np.isfinite(yf) and f > 0):
+                continue
+            xx, yy = _box_pixels(xf, yf, sc.data.shape, self.fit_shape, sc.invalid)
+            if xx.size < 3:
+                continue
+            shp = cur["fwhm_fit"][k] if self.with_shape else None
+            own = f * self.profile(xx - xf, yy - yf, shp)
+            alone = sc.data[yy, xx] - sc.local_bkg[k] - (model[yy, xx] - own)
+            xb, yb = xx.astype(np.float64), yy.astype(np.float64)
+            columns = self.basis.columns(xb, yb, centre=_box_centre(xb, yb))
+            flat[k] = _is_flat_top(alone, own, sc.error[yy, xx], columns,
+                                   (xb - xf) ** 2 + (yb - yf) ** 2)
+        return flat
 
     def _add(self, img, k, sign):
         """Add (``sign`` = 1) or subtract (-1) the fitted model of source ``k`` to ``img``."""

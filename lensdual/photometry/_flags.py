@@ -45,6 +45,7 @@ class PhotometryFlag(enum.IntFlag):
     OUTSIDE_IMAGE = 1 << 16
     BAD_ERROR = 1 << 17
     FIT_FAILED = 1 << 18
+    FLAT_TOP = 1 << 19
 
 
 _FLAG_WORDS = {
@@ -63,6 +64,8 @@ _FLAG_WORDS = {
     PhotometryFlag.OUTSIDE_IMAGE: "initial position outside the image or not finite (not fitted)",
     PhotometryFlag.BAD_ERROR: "flux error not finite and positive",
     PhotometryFlag.FIT_FAILED: "the fitter raised an error",
+    PhotometryFlag.FLAT_TOP: ("flat-topped core where the PSF peaks (saturated or clipped: "
+                              "the flux is not that of a point source)"),
 }
 
 #: The flags that make a measurement unusable (its flux and position are not used).
@@ -78,6 +81,7 @@ UNUSABLE_FLAGS = (
     | PhotometryFlag.OUTSIDE_IMAGE
     | PhotometryFlag.BAD_ERROR
     | PhotometryFlag.FIT_FAILED
+    | PhotometryFlag.FLAT_TOP
 )
 _BAD_FLAGS = int(UNUSABLE_FLAGS)
 
