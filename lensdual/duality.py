@@ -18,6 +18,7 @@ from scipy import stats
 from scipy.special import chdtrc, erfc
 
 from . import _pairs_table
+from ._null_map import spline_map
 from ._pairs_table import band_fluxes as _band_fluxes
 from ._pairs_table import pair_bands
 from ._pairs_table import positions as _positions
@@ -25,7 +26,7 @@ from ._parallel import available_threads as _available_threads
 from ._parallel import check_client, run_tasks
 from ._validation import as_int, as_real
 from .estimators import DEFAULT_METHOD, DEFAULT_N_BOOTSTRAP, TESTABLE_STATUS, size_magnification
-from .estimators.core import FEW_PAIRS_HINT, _poly_terms
+from .estimators.core import FEW_PAIRS_HINT
 from .exceptions import LensdualWarning
 
 __all__ = ["POSITION_COLUMNS", "SNR_DEFINITIONS", "TESTS", "check_duality", "pair_bands",
@@ -806,46 +807,13 @@ def _joint_test(tab, theta2, flux, sigma_pos, keep, snr_threshold):
 # not depend on how blocks are grouped into tasks.
 _NULL_BLOCK = 50
 _NULL_MIN_REALISATIONS = 100
-_NULL_MAX_DEGREE = 4
-# Above this chi2/dof of the null map the real map bends faster than the null's:
-# a warning, and the verdict calls the null's confirmations of flags optimistic.
-_NULL_MAP_CHI2_DOF_MAX = 2.0
+# Below this many residual degrees of freedom per coordinate the null map
+# interpolates the pairs, so it holds their position noise: a warning, and the
+# verdict calls the null's rates uncertain.
+_NULL_MAP_MIN_RESIDUAL_DOF = 1.0
 
-
-def _smooth_map(t1, t2, sigma, alpha=0.05):
-    """A global polynomial map L2 -> L1 fitted to the pairs (the null's truth).
-
-    The lowest degree (1 to 4) whose weighted chi-square is consistent with
-    the position errors at ``alpha``, else the highest degree with at least
-    two pairs per coefficient (a map fitted with fewer wiggles between the
-    points, rougher than any lens). Returns the mapped L2 positions, the
-    map's Jacobian there, the degree and chi2/dof.
-    """
-    from scipy.stats import chi2
-
-    n = t1.shape[0]
-    centre = t2.mean(axis=0)
-    scale = np.max(np.hypot(*(t2 - centre).T))
-    u_ = (t2 - centre) / scale
-    jnorm2 = 2.0  # pilot |J|_F^2 / 2 ~ 1 before the first fit
-    best = None
-    for degree in range(1, _NULL_MAX_DEGREE + 1):
-        f, fx, fy = _poly_terms(u_, degree)
-        if n < 2 * f.shape[1]:
-            break  # keep the null map well determined (at least 2 pairs per coefficient)
-        w = 1.0 / (sigma[0] ** 2 + sigma[1] ** 2 * 0.5 * jnorm2)
-        sw = np.sqrt(w)[:, None]
-        coef = np.linalg.lstsq(f * sw, t1 * sw, rcond=None)[0]
-        resid = t1 - f @ coef
-        chi = float((w[:, None] * resid**2).sum())
-        dof = 2 * (n - f.shape[1])
-        jac = np.stack([np.column_stack([fx @ coef[:, 0], fy @ coef[:, 0]]),
-                        np.column_stack([fx @ coef[:, 1], fy @ coef[:, 1]])], axis=1) / scale
-        jnorm2 = np.median((jac**2).sum(axis=(1, 2)))
-        best = (f @ coef, jac, degree, chi / dof)
-        if chi2.sf(chi, dof) >= alpha:
-            break
-    return best
+#: The smooth map the null takes as the truth (see :mod:`lensdual._null_map`).
+_smooth_map = spline_map
 
 
 def _null_block(task):
@@ -906,8 +874,11 @@ def null_calibration(pairs, *, sigma_pos, n_realisations=1000,
     """Empirical false-alarm rate and p-values of the duality test on a null like the data.
 
     A smooth, model-independent map from arc L2 to arc L1 is fitted to the
-    pairs (a global polynomial, the lowest degree up to 4 that fits within
-    the position errors, with at least two pairs per coefficient). Each null
+    pairs: a polyharmonic smoothing spline (kernel ``-r^5``, quadratic
+    polynomial part; as smooth as the estimator's local cubic fits assume)
+    weighted by the position errors, whose smoothing minimises the unbiased
+    risk estimate of the fitted positions (no threshold: the errors are
+    known), so that it bends as much as the pairs show and no more. Each null
     realisation takes the measured L2 positions as the truth, maps them
     through it, sets the flux ratios to the map's exact ``|det J|`` (duality
     holds: no sub-halo), adds Gaussian
@@ -964,8 +935,12 @@ def null_calibration(pairs, *, sigma_pos, n_realisations=1000,
         ``expected_false_flags`` (mean number of flags per null
         realisation), ``p_any_false_flag`` (fraction of null realisations
         with at least one flag), ``family_wise_p_empirical`` (fraction with a
-        largest SNR at least the observed largest), ``map_degree`` and
-        ``map_chi2_dof`` of the null map, and the settings.
+        largest SNR at least the observed largest), the null map's ``map``
+        (in words), ``map_dof`` (its effective degrees of freedom per
+        coordinate: 6 for a quadratic map, the number of pairs for one that
+        interpolates them), ``map_chi2_dof`` and ``map_interpolates`` (fewer
+        than one residual degree of freedom per coordinate, with a warning),
+        and the settings.
 
     Raises
     ------
@@ -976,12 +951,21 @@ def null_calibration(pairs, *, sigma_pos, n_realisations=1000,
     TypeError
         ``client`` without a ``map`` method; a bad ``seed``.
 
+    Warns
+    -----
+    LensdualWarning
+        The null map interpolates the pairs (``map_interpolates``): the
+        constellation does not sample the map finely enough to tell its
+        bending from the position noise, or ``sigma_pos`` is too small; the
+        null's map then holds that noise, and its rates are uncertain.
+
     Notes
     -----
-    The null map is only as rough as a global polynomial: where the real
-    map bends faster than that (``map_chi2_dof`` well above 1, with a
-    warning), the null underestimates the estimator's truncation error and
-    the empirical rates are optimistic.
+    The null's map is the spline, not the lens: where the spline bends
+    between the pairs more than the lens does (a rough map sampled by few
+    pairs), the null flags more often than the real constellation, and its
+    per-pair p-values err on the large (safe) side; see the calibration
+    page.
 
     Examples
     --------
@@ -1007,8 +991,8 @@ def null_calibration(pairs, *, sigma_pos, n_realisations=1000,
     (8, 100)
     >>> round(float(null["p_value_empirical"][3]), 4)  # no null SNR as large: 1 / 101
     0.0099
-    >>> null.meta["map_degree"]
-    1
+    >>> round(null.meta["map_dof"], 1)  # an affine map: the polynomial part's 6
+    6.0
     """
     from .estimators.core import _as_sigma
 
@@ -1030,12 +1014,15 @@ def null_calibration(pairs, *, sigma_pos, n_realisations=1000,
     ln_flux_err = np.asarray(flux["ln_mu_flux_err"], dtype=float)
     ln_flux_err = np.where(np.isfinite(ln_flux_err), ln_flux_err, np.inf)
 
-    mapped, jac, degree, chi2_dof = _smooth_map(t1, t2, sigma)
-    if chi2_dof > _NULL_MAP_CHI2_DOF_MAX:
+    null_map = _smooth_map(t1, t2, sigma)
+    mapped, jac, chi2_dof = null_map.mapped, null_map.jacobian, null_map.chi2_dof
+    interpolates = bool(n - null_map.dof < _NULL_MAP_MIN_RESIDUAL_DOF)
+    if interpolates:
         warnings.warn(
-            f"the null map (a degree-{degree} polynomial) fits the pairs with chi2/dof = "
-            f"{chi2_dof:.2g}: the real map bends faster than the null's, so the empirical "
-            "false-alarm rates may be optimistic",
+            f"the null map ({null_map.description}) interpolates the pairs: the "
+            "constellation does not sample the map finely enough to tell its bending from "
+            "the position noise (or sigma_pos is too small), so the null holds that noise "
+            "and its empirical false-alarm rates are uncertain",
             LensdualWarning,
             stacklevel=2,
         )
@@ -1086,8 +1073,10 @@ def null_calibration(pairs, *, sigma_pos, n_realisations=1000,
         "p_any_false_flag": float((flags > 0).mean()),
         "family_wise_p_empirical": (float((1 + (null_max >= obs_max).sum()) / (1 + n_real))
                                     if np.isfinite(obs_max) else np.nan),
-        "map_degree": int(degree),
+        "map": null_map.description,
+        "map_dof": float(null_map.dof),
         "map_chi2_dof": float(chi2_dof),
+        "map_interpolates": interpolates,
         "seed_entropy": entropy,
         "method": "adaptive",
         "test": test,

@@ -29,7 +29,7 @@ from astropy import units as u
 
 from ._pairs_table import ARCS, POS_ERR_COLUMNS, arc_xy, flux_col, flux_err_col
 from ._validation import as_angle_scalar, as_real
-from .duality import _NULL_MAP_CHI2_DOF_MAX, DEFAULT_SNR_THRESHOLD, DEFAULT_TEST, TESTS
+from .duality import DEFAULT_SNR_THRESHOLD, DEFAULT_TEST, TESTS
 from .estimators import DEFAULT_METHOD, DEFAULT_N_BOOTSTRAP, estimate_sigma_pos
 
 # The seed of analyse (and of lensdual run's [analysis] seed): runs repeat.
@@ -628,10 +628,10 @@ def _null_confirmation(bad, meta):
     else:
         what = f"confirms {n_conf} of the {len(bad)} flags"
     text = f" The null calibration {what} (empirical p <= {_percent(p_thr)})."
-    if null["map_chi2_dof"] > _NULL_MAP_CHI2_DOF_MAX:
-        text += (f" But the null map fits the pairs with chi2/dof = {null['map_chi2_dof']:.2g} "
-                 "(the real map bends faster than the null's), so its empirical p-values are "
-                 "optimistic.")
+    if null.get("map_interpolates"):
+        text += (f" But the null map ({null['map']}) interpolates the pairs: the constellation "
+                 "does not sample the map finely enough to tell its bending from the position "
+                 "noise, so its empirical p-values are uncertain.")
     if n_conf < len(bad):
         text += (" A flag that the null does not confirm may come from the estimator's own "
                  "bias where the magnification ratio changes steeply across the constellation "
@@ -650,7 +650,7 @@ def _add_null_calibration(result, measured, sigma, n_realisations, snr_threshold
     result["p_value_empirical"] = null["p_value_empirical"]
     keys = ("n_realisations", "false_alarm_rate", "nominal_false_alarm_rate",
             "expected_false_flags", "p_any_false_flag", "family_wise_p_empirical",
-            "map_degree", "map_chi2_dof")
+            "map", "map_dof", "map_chi2_dof", "map_interpolates")
     result.meta["duality"]["null_calibration"] = {k: null.meta[k] for k in keys}
 
 

@@ -315,6 +315,7 @@ def test_verdict_says_which_flags_the_null_calibration_confirms():
     assert "does not confirm this flag" in verdict(res, sigma)
     res["anomalous"][[5, 9]] = [True, False]
     assert "The null calibration confirms this flag" in verdict(res, sigma)
-    # where the null map does not follow the data its confirmations are called optimistic
-    res.meta["duality"]["null_calibration"]["map_chi2_dof"] = 75.0
-    assert "chi2/dof = 75 (the real map bends faster" in verdict(res, sigma)
+    # where the null map interpolates the pairs its p-values are called uncertain
+    assert "interpolates the pairs" not in verdict(res, sigma)
+    res.meta["duality"]["null_calibration"]["map_interpolates"] = True
+    assert "interpolates the pairs: the constellation does not sample" in verdict(res, sigma)
