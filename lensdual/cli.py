@@ -49,7 +49,6 @@ from .demo import (
 )
 from .duality import DEFAULT_TEST, TESTS
 from .pipeline import (
-    Analysis,
     PipelineError,
     _analyse_knot_config,
     _parametric_paragraph,
@@ -58,15 +57,7 @@ from .pipeline import (
     knot_report,
 )
 
-__all__ = [
-    "main",
-    "build_parser",
-    "simulate_demo",
-    "analyse",
-    "Analysis",
-    "PipelineError",
-    "DEMO_SUBHALOES",
-]
+__all__ = ["main", "build_parser"]
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
 
