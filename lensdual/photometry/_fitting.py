@@ -69,17 +69,41 @@ def _is_flat_top(data, psf, error, background=(), radius2=None, alpha=FLAT_TOP_A
     if n_top < 2:
         return False
     bkg = [np.ones(n), *background]
-    chi_a, _ = _weighted_chi2([psf, *bkg], data, w)
+    sw = np.sqrt(w)
+    # the background columns are projected out once; each clip then needs a 2 x 2 solve
+    u_, sv, _ = np.linalg.svd(np.column_stack(bkg) * sw[:, None], full_matrices=False)
+    q = u_[:, sv > sv[0] * 1e-10]
+
+    def resid(x):
+        return x - q @ (q.T @ x)
+
+    y_r, p_r = resid(sw * data), resid(sw * psf)
+    yy = float(y_r @ y_r)
+    chi_a = yy - float(p_r @ y_r) ** 2 / float(p_r @ p_r)
+    pt_r, t_r = np.zeros(n), np.zeros(n)
     best = None
-    for j in range(2, n_top + 1):
-        top = np.zeros(n)
-        top[order[:j]] = 1.0
-        chi_b, coef = _weighted_chi2([psf * (1.0 - top), top, *bkg], data, w)
-        f, c = coef[:2]
+    for j in range(1, n_top + 1):
+        i = order[j - 1]
+        e_r = -(q @ q[i])
+        e_r[i] += 1.0
+        pt_r += sw[i] * psf[i] * e_r
+        t_r += sw[i] * e_r
+        if j < 2:
+            continue
+        u_r = p_r - pt_r
+        g = np.array([[u_r @ u_r, u_r @ t_r], [u_r @ t_r, t_r @ t_r]])
+        b = np.array([u_r @ y_r, t_r @ y_r])
+        try:
+            f, c = np.linalg.solve(g, b)
+        except np.linalg.LinAlgError:
+            continue
+        chi_b = yy - float(b @ (f, c))
         below = psf[order[j]] if j < n else 0.0
-        if not f * below <= c <= f * psf[order[j - 1]]:
+        if not f * below <= c <= f * psf[i]:
             continue  # not a clip of this PSF
         if best is None or chi_b < best[0]:
+            top = np.zeros(n)
+            top[order[:j]] = 1.0
             best = (chi_b, top)
     dof = n - 2 - len(bkg)
     if best is None or dof < 2:
