@@ -61,8 +61,9 @@ def main():
     print(f"30 pairs x 1000 realisations: default (threads) {t_default:.2f} s, serial "
           f"{t_serial:.2f} s (x{t_serial / t_default:.2f}); identical results")
     print(f"null false-alarm rate at SNR 3: {serial.meta['false_alarm_rate']:.4f} "
-          f"(nominal {serial.meta['nominal_false_alarm_rate']:.4f}); map degree "
-          f"{serial.meta['map_degree']}, chi2/dof {serial.meta['map_chi2_dof']:.2f}")
+          f"(nominal {serial.meta['nominal_false_alarm_rate']:.4f}); null map: "
+          f"{serial.meta['map_dof']:.1f} degrees of freedom, chi2/dof "
+          f"{serial.meta['map_chi2_dof']:.2f}")
     reverse_cost()
 
 

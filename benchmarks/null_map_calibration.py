@@ -131,7 +131,7 @@ def run_demo_cell(n_seeds, n_realisations):
         psf = {band: np.asarray(mocks[("L1", band)].psf) for band in DEMO_BANDS}
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            res = analyse(images, psf=psf, seed=seed, null_realisations=n_realisations).pairs
+            res = analyse(images, psf=psf, seed=seed, null_realisations=n_realisations).result
         null = res.meta["duality"]["null_calibration"]
         ok = np.asarray(res["tested"], dtype=bool)
         tested += int(ok.sum())
