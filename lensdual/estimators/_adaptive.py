@@ -599,7 +599,7 @@ def _add_point(A, rhs, ywy, U, Yr, W, k):
 @njit(**_INLINE)
 def _largest_fit(kk, st):
     """Coefficients of the largest reported fit ``kk`` points allow (0: none)."""
-    p_max = 0
+    p_max = np.int64(0)
     for dt in range(1, 4 - st.report_extra):
         if kk >= _ncoef(dt + st.report_extra) + st.min_extra:
             p_max = _ncoef(dt + st.report_extra)
@@ -832,7 +832,7 @@ def adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, k_dense, st, order, 
     The points are those of the neighbour ``row`` of ``a`` (``a`` included),
     ``pilot`` is the pilot Jacobian, ``chi2_crit[dof]`` the critical values of
     the chi-square test and ``st`` the :class:`AdaptiveSettings`; the other
-    arrays are scratch of :func:`adaptive_rows_knn`.
+    arrays are scratch of :func:`adaptive_knn`.
     The noise of each baseline is the effective variance
     ``s1^2 I + s2^2 P P^T`` (P the pilot Jacobian at ``a``); in the frame of
     the eigenvectors of ``P P^T`` the two output components are independent,
@@ -947,7 +947,8 @@ def adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, k_dense, st, order, 
     best_rank = best_sd = np.inf
     best_g2 = 0.0
     found = best_lin = False
-    n_cand = n_consistent = n_h = k_last = 0
+    # int64 counters from the start (a literal 0 would compile their callees once more)
+    n_cand = n_consistent = n_h = k_last = np.int64(0)
     # stored linear fits serve the two-scale estimates (report_extra == 1 only)
     two_scale = st.report_extra == 1
     for k in range(n):
@@ -1055,41 +1056,17 @@ def _quad_pilots(t1, t2, nbr, rows, weight_power, cond_max, pilot):
             pa[1, 1] = 1.0
 
 
-@njit(**JIT_OPTIONS)
-def adaptive_rows_knn(t1, t2, nbr, s1, s2, chi2_crit, k_dense, weight_power, st, rows, jac,
-                      ln_sd, status, dof):
-    """The adaptive Jacobian (:func:`adaptive_pair`) of the pairs ``rows``, from
-    their neighbour rows ``nbr`` (the other entries of the outputs are left
-    as they are).
-
-    The pilot Jacobian of the first pass is the first-order Quad one (on the
-    same neighbour rows); each further pass (``st.n_pass`` in all) uses the
-    previous pass's result (its own pilot where that failed). ``ln_sd``
-    receives the standard error of ``ln|det J|`` and ``dof`` the degrees of
-    freedom it was estimated with. ``chi2_crit`` must cover ``2 K`` degrees
-    of freedom.
-
-    Each pair's estimate depends on its own row and pilot only, so disjoint
-    sets of pairs can run in separate threads (the kernels release the GIL),
-    and a subset gives the same estimates as the whole, bit for bit. With a
-    cap (``k_dense`` below the row length ``K``) the pilot passes use the
-    ``2 k_dense`` nearest points of each row only.
-    """
+@njit(**_INLINE)
+def _rows_passes(t1, t2, nbr, s1, s2, chi2_crit, k_dense, weight_power, st, rows, scratch, jac,
+                 ln_sd, status, dof):
+    """The adaptive Jacobian (:func:`adaptive_pair`) of the pairs ``rows`` of one
+    copy, from their neighbour rows ``nbr`` (see :func:`adaptive_knn`);
+    ``scratch`` holds the work arrays of :func:`adaptive_pair`."""
+    order, dsort, U, Yr, W, A, rhs, L, scale, beta, work = scratch
     k = nbr.shape[1]
     m = rows.shape[0]
     pilot = np.empty((m, 2, 2))
     _quad_pilots(t1, t2, nbr, rows, weight_power, st.pilot_cond_max, pilot)
-    order = np.empty(k, dtype=np.int64)
-    dsort = np.empty(k)
-    U = np.empty((k, NCOEF_MAX))
-    Yr = np.empty((k, 2))
-    W = np.empty((k, 2))
-    A = np.empty((2, NCOEF_MAX, NCOEF_MAX))
-    rhs = np.empty((2, NCOEF_MAX))
-    L = np.empty((2, NCOEF_MAX, NCOEF_MAX))
-    scale = np.empty(NCOEF_MAX)
-    beta = np.empty((2, NCOEF_MAX))
-    work = np.empty(NCOEF_MAX)
     n_pass = st.n_pass
     for p in range(n_pass):
         # with a cap (k_dense < K), the passes that only make the next pass's
@@ -1109,49 +1086,63 @@ def adaptive_rows_knn(t1, t2, nbr, s1, s2, chi2_crit, k_dense, weight_power, st,
                             pilot[r, i, j] = jac[a, i, j]
 
 
-@njit(**JIT_OPTIONS)
-def adaptive_jacobians(t1, t2, s1, s2, chi2_crit, k_dense, weight_power, st, jac, ln_sd,
-                       status, dof):
-    """:func:`adaptive_rows_knn` of every pair with every point in its row (no cap)."""
-    n = t1.shape[0]
-    adaptive_rows_knn(t1, t2, all_rows(n), s1, s2, chi2_crit, k_dense, weight_power, st,
-                      np.arange(n), jac, ln_sd, status, dof)
+@njit(**_INLINE)
+def _shifted(t, noise, out):
+    """``out = t + noise`` for (N, 2) arrays."""
+    for i in range(t.shape[0]):
+        for d in range(2):
+            out[i, d] = t[i, d] + noise[i, d]
 
 
 @njit(**JIT_OPTIONS)
-def adaptive_batch_knn(t1, t2, nbr, noise1, noise2, s1, s2, chi2_crit, k_dense, weight_power,
-                       st, need, det_out, ln_sd_out, status_out, dof_out):
-    """The adaptive estimator on ``B`` noisy copies of a constellation.
+def adaptive_knn(t1, t2, nbr, noise1, noise2, s1, s2, chi2_crit, k_dense, weight_power, st, need,
+                 jac, ln_sd, status, dof):
+    """The adaptive Jacobian (:func:`adaptive_pair`) of the pairs where ``need``
+    (C, N) is true, on ``C`` copies of the constellation, from their neighbour
+    rows ``nbr``; the other entries of the outputs are left as they are.
 
-    ``noise1``, ``noise2`` are (B, N, 2) offsets; ``det_out``, ``ln_sd_out``,
-    ``status_out`` and ``dof_out`` (B, N) receive the signed determinant, the
-    error of its logarithm, the status code and the error's degrees of
-    freedom, for the pairs of each copy where ``need`` (B, N) is true
-    (:func:`adaptive_rows_knn`); the others get a NaN determinant and error
-    and ``ADAPTIVE_FAILED``. The neighbour rows stay fixed.
+    Copy ``c`` has the positions ``t1 + noise1[c]``, ``t2 + noise2[c]``
+    (``noise1``, ``noise2`` of shape (C, N, 2)); with noise arrays of shape
+    (0, N, 2) there is one copy, ``t1``, ``t2`` themselves. ``jac`` (C, N, 2, 2)
+    receives the Jacobians, ``ln_sd`` (C, N) the standard errors of
+    ``ln|det J|``, ``status`` (C, N) the status codes and ``dof`` (C, N) the
+    degrees of freedom the errors were estimated with. ``chi2_crit`` must
+    cover ``2 K`` degrees of freedom.
+
+    The pilot Jacobian of the first pass is the first-order Quad one (on the
+    same neighbour rows); each further pass (``st.n_pass`` in all) uses the
+    previous pass's result (its own pilot where that failed). Each pair's
+    estimate depends on its own row and pilot only, so disjoint sets of
+    pairs can run in separate threads (the kernels release the GIL), and a
+    subset gives the same estimates as the whole, bit for bit. With a cap
+    (``k_dense`` below the row length ``K``) the pilot passes use the
+    ``2 k_dense`` nearest points of each row only. The neighbour rows are
+    the same for every copy.
     """
-    nb = noise1.shape[0]
     n = t1.shape[0]
+    k = nbr.shape[1]
+    scratch = (np.empty(k, dtype=np.int64), np.empty(k), np.empty((k, NCOEF_MAX)),
+               np.empty((k, 2)), np.empty((k, 2)), np.empty((2, NCOEF_MAX, NCOEF_MAX)),
+               np.empty((2, NCOEF_MAX)), np.empty((2, NCOEF_MAX, NCOEF_MAX)),
+               np.empty(NCOEF_MAX), np.empty((2, NCOEF_MAX)), np.empty(NCOEF_MAX))
+    copies = noise1.shape[0] > 0
     p1 = np.empty((n, 2))
     p2 = np.empty((n, 2))
-    jac = np.empty((n, 2, 2))
-    st_ = np.empty(n, dtype=np.int64)
-    sd = np.empty(n)
-    df = np.empty(n)
-    for k in range(nb):
-        for i in range(n):
-            for d in range(2):
-                p1[i, d] = t1[i, d] + noise1[k, i, d]
-                p2[i, d] = t2[i, d] + noise2[k, i, d]
-        for i in range(n):
-            jac[i, :, :] = np.nan
-            sd[i] = np.nan
-            st_[i] = ADAPTIVE_FAILED
-            df[i] = 0.0
-        adaptive_rows_knn(p1, p2, nbr, s1, s2, chi2_crit, k_dense, weight_power, st,
-                          np.flatnonzero(need[k]), jac, sd, st_, df)
-        for i in range(n):
-            det_out[k, i] = jac[i, 0, 0] * jac[i, 1, 1] - jac[i, 0, 1] * jac[i, 1, 0]
-            ln_sd_out[k, i] = sd[i]
-            status_out[k, i] = st_[i]
-            dof_out[k, i] = df[i]
+    for c in range(need.shape[0]):
+        if copies:
+            _shifted(t1, noise1[c], p1)
+            _shifted(t2, noise2[c], p2)
+        _rows_passes(p1 if copies else t1, p2 if copies else t2, nbr, s1, s2, chi2_crit, k_dense,
+                     weight_power, st, np.flatnonzero(need[c]), scratch, jac[c], ln_sd[c],
+                     status[c], dof[c])
+
+
+def adaptive_jacobians(t1, t2, s1, s2, chi2_crit, k_dense, weight_power, st, jac, ln_sd, status,
+                       dof):
+    """:func:`adaptive_knn` of every pair with every point in its row (no cap),
+    outputs of one copy (``jac`` (N, 2, 2); ``ln_sd``, ``status``, ``dof`` (N,))."""
+    n = t1.shape[0]
+    no_noise = np.empty((0, n, 2))
+    adaptive_knn(t1, t2, all_rows(n), no_noise, no_noise, s1, s2, chi2_crit, k_dense,
+                 weight_power, st, np.ones((1, n), dtype=np.bool_), jac[None], ln_sd[None],
+                 status[None], dof[None])
