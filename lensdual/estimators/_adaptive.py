@@ -1032,24 +1032,54 @@ def adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, k_dense, st, order, 
 # ---------------------------------------------------------------------------
 
 
+@njit(**_INLINE)
+def _shifted(t, noise, out):
+    """``out = t + noise`` for (N, 2) arrays."""
+    for i in range(t.shape[0]):
+        for d in range(2):
+            out[i, d] = t[i, d] + noise[i, d]
+
+
 @njit(**JIT_OPTIONS)
-def _quad_pilots(t1, t2, nbr, rows, weight_power, cond_max, pilot):
-    """The first-order Quad Jacobian of each pair of ``rows`` on its row into
-    ``pilot`` (the identity where it fails)."""
-    k = nbr.shape[1]
+def normal_pilots(t1, t2, nbr, noise1, noise2, need, weight_power, pilot, ok):
+    """The first-order Quad Jacobians from the normal equations
+    (:func:`~lensdual.estimators._kernels._solve_normal`) of the pairs where
+    ``need`` (C, N) is true, on the copies of :func:`adaptive_knn`, into
+    ``pilot`` (C, N, 2, 2); ``ok`` (C, N) is set False where the normal
+    equations are too badly conditioned (those pilots are then
+    :func:`lstsq_pilots`). Other entries are left as they are."""
+    n = t1.shape[0]
     acc = np.empty(7)
+    copies = noise1.shape[0] > 0
+    p1 = np.empty((n, 2))
+    p2 = np.empty((n, 2))
+    for c in range(need.shape[0]):
+        if copies:
+            _shifted(t1, noise1[c], p1)
+            _shifted(t2, noise2[c], p2)
+        q1 = p1 if copies else t1
+        q2 = p2 if copies else t2
+        for a in range(n):
+            if need[c, a]:
+                _pair_sums(q1, q2, _row(nbr, a), a, weight_power, acc)
+                ok[c, a] = _solve_normal(acc, pilot[c, a])
+
+
+@njit(**JIT_OPTIONS)
+def lstsq_pilots(t1, t2, nbr, rows, weight_power, cond_max, pilot):
+    """The first-order Quad Jacobians by least squares of the pairs ``rows``
+    (whose normal equations failed, :func:`normal_pilots`) into ``pilot``
+    (N, 2, 2), the identity where that fails too. A separate kernel: it is
+    rarely needed, and compiled only then."""
+    k = nbr.shape[1]
     Aq = np.empty((k - 1, 2))
     Yq = np.empty((k - 1, 2))
     sol = np.empty((2, 2))
     for r in range(rows.shape[0]):
         a = rows[r]
-        _pair_sums(t1, t2, _row(nbr, a), a, weight_power, acc)
-        pa = pilot[r]
-        ok = _solve_normal(acc, pa)
-        if not ok:
-            ok = _jacobian_quad(t1, t2, a, _row(nbr, a), 1, weight_power, cond_max, Aq, Yq,
-                                sol, pa) == STATUS_OK
-        if not ok:
+        pa = pilot[a]
+        if _jacobian_quad(t1, t2, a, _row(nbr, a), 1, weight_power, cond_max, Aq, Yq, sol,
+                          pa) != STATUS_OK:
             pa[0, 0] = 1.0
             pa[0, 1] = 0.0
             pa[1, 0] = 0.0
@@ -1057,16 +1087,20 @@ def _quad_pilots(t1, t2, nbr, rows, weight_power, cond_max, pilot):
 
 
 @njit(**_INLINE)
-def _rows_passes(t1, t2, nbr, s1, s2, chi2_crit, k_dense, weight_power, st, rows, scratch, jac,
-                 ln_sd, status, dof):
+def _rows_passes(t1, t2, nbr, s1, s2, chi2_crit, k_dense, st, rows, pilot0, scratch, jac, ln_sd,
+                 status, dof):
     """The adaptive Jacobian (:func:`adaptive_pair`) of the pairs ``rows`` of one
-    copy, from their neighbour rows ``nbr`` (see :func:`adaptive_knn`);
-    ``scratch`` holds the work arrays of :func:`adaptive_pair`."""
+    copy, from their neighbour rows ``nbr`` and first pilots ``pilot0`` (N, 2, 2)
+    (see :func:`adaptive_knn`); ``scratch`` holds the work arrays of
+    :func:`adaptive_pair`."""
     order, dsort, U, Yr, W, A, rhs, L, scale, beta, work = scratch
     k = nbr.shape[1]
     m = rows.shape[0]
     pilot = np.empty((m, 2, 2))
-    _quad_pilots(t1, t2, nbr, rows, weight_power, st.pilot_cond_max, pilot)
+    for r in range(m):
+        for i in range(2):
+            for j in range(2):
+                pilot[r, i, j] = pilot0[rows[r], i, j]
     n_pass = st.n_pass
     for p in range(n_pass):
         # with a cap (k_dense < K), the passes that only make the next pass's
@@ -1086,17 +1120,9 @@ def _rows_passes(t1, t2, nbr, s1, s2, chi2_crit, k_dense, weight_power, st, rows
                             pilot[r, i, j] = jac[a, i, j]
 
 
-@njit(**_INLINE)
-def _shifted(t, noise, out):
-    """``out = t + noise`` for (N, 2) arrays."""
-    for i in range(t.shape[0]):
-        for d in range(2):
-            out[i, d] = t[i, d] + noise[i, d]
-
-
 @njit(**JIT_OPTIONS)
-def adaptive_knn(t1, t2, nbr, noise1, noise2, s1, s2, chi2_crit, k_dense, weight_power, st, need,
-                 jac, ln_sd, status, dof):
+def adaptive_knn(t1, t2, nbr, noise1, noise2, s1, s2, chi2_crit, k_dense, st, need, pilot, jac,
+                 ln_sd, status, dof):
     """The adaptive Jacobian (:func:`adaptive_pair`) of the pairs where ``need``
     (C, N) is true, on ``C`` copies of the constellation, from their neighbour
     rows ``nbr``; the other entries of the outputs are left as they are.
@@ -1109,8 +1135,9 @@ def adaptive_knn(t1, t2, nbr, noise1, noise2, s1, s2, chi2_crit, k_dense, weight
     degrees of freedom the errors were estimated with. ``chi2_crit`` must
     cover ``2 K`` degrees of freedom.
 
-    The pilot Jacobian of the first pass is the first-order Quad one (on the
-    same neighbour rows); each further pass (``st.n_pass`` in all) uses the
+    The pilot Jacobian of the first pass is ``pilot`` (C, N, 2, 2): the
+    first-order Quad one on the same neighbour rows (:func:`normal_pilots`,
+    :func:`lstsq_pilots`); each further pass (``st.n_pass`` in all) uses the
     previous pass's result (its own pilot where that failed). Each pair's
     estimate depends on its own row and pilot only, so disjoint sets of
     pairs can run in separate threads (the kernels release the GIL), and a
@@ -1133,16 +1160,33 @@ def adaptive_knn(t1, t2, nbr, noise1, noise2, s1, s2, chi2_crit, k_dense, weight
             _shifted(t1, noise1[c], p1)
             _shifted(t2, noise2[c], p2)
         _rows_passes(p1 if copies else t1, p2 if copies else t2, nbr, s1, s2, chi2_crit, k_dense,
-                     weight_power, st, np.flatnonzero(need[c]), scratch, jac[c], ln_sd[c],
-                     status[c], dof[c])
+                     st, np.flatnonzero(need[c]), pilot[c], scratch, jac[c], ln_sd[c], status[c],
+                     dof[c])
+
+
+def run_adaptive(t1, t2, nbr, noise1, noise2, s1, s2, chi2_crit, k_dense, weight_power, st, need,
+                 jac, ln_sd, status, dof):
+    """:func:`adaptive_knn` with its first pilots: :func:`normal_pilots`, and
+    :func:`lstsq_pilots` for the copies where some normal equations failed
+    (arguments as :func:`adaptive_knn`'s, with ``weight_power`` for the pilots)."""
+    pilot = np.empty(need.shape + (2, 2))
+    ok = np.ones(need.shape, dtype=np.bool_)
+    normal_pilots(t1, t2, nbr, noise1, noise2, need, weight_power, pilot, ok)
+    failed = need & ~ok
+    for c in np.flatnonzero(failed.any(axis=1)):
+        p1, p2 = (t1 + noise1[c], t2 + noise2[c]) if noise1.shape[0] else (t1, t2)
+        lstsq_pilots(p1, p2, nbr, np.flatnonzero(failed[c]), weight_power, st.pilot_cond_max,
+                     pilot[c])
+    adaptive_knn(t1, t2, nbr, noise1, noise2, s1, s2, chi2_crit, k_dense, st, need, pilot, jac,
+                 ln_sd, status, dof)
 
 
 def adaptive_jacobians(t1, t2, s1, s2, chi2_crit, k_dense, weight_power, st, jac, ln_sd, status,
                        dof):
-    """:func:`adaptive_knn` of every pair with every point in its row (no cap),
+    """:func:`run_adaptive` of every pair with every point in its row (no cap),
     outputs of one copy (``jac`` (N, 2, 2); ``ln_sd``, ``status``, ``dof`` (N,))."""
     n = t1.shape[0]
     no_noise = np.empty((0, n, 2))
-    adaptive_knn(t1, t2, all_rows(n), no_noise, no_noise, s1, s2, chi2_crit, k_dense,
+    run_adaptive(t1, t2, all_rows(n), no_noise, no_noise, s1, s2, chi2_crit, k_dense,
                  weight_power, st, np.ones((1, n), dtype=np.bool_), jac[None], ln_sd[None],
                  status[None], dof[None])

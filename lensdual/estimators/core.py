@@ -346,7 +346,7 @@ def _adaptive_forward(t1, t2, sigma, wp, max_neighbours=DEFAULT_MAX_NEIGHBOURS, 
     def run(part):
         need = np.zeros((1, n), dtype=bool)
         need[0, part] = True
-        _adaptive_kernels.adaptive_knn(*_kernel_arrays(t1, t2, nbr, no_noise, no_noise, sigma),
+        _adaptive_kernels.run_adaptive(*_kernel_arrays(t1, t2, nbr, no_noise, no_noise, sigma),
                                        *settings, need, *outputs)
 
     threads = available_threads(_MAX_THREADS)
@@ -423,7 +423,7 @@ def _adaptive_batch_forward(t1, t2, noise1, noise2, sigma, wp, max_neighbours, n
     nbr = _neighbour_rows(t2, max_neighbours)
     need = np.ones((b, n), dtype=bool) if need is None else np.ascontiguousarray(need)
     jac, ln_sd, status, dof = outputs = _adaptive_outputs(b, n)
-    _adaptive_kernels.adaptive_knn(*_kernel_arrays(t1, t2, nbr, noise1, noise2, sigma),
+    _adaptive_kernels.run_adaptive(*_kernel_arrays(t1, t2, nbr, noise1, noise2, sigma),
                                    *_adaptive_settings(nbr, n, wp), need, *outputs)
     det = jac[..., 0, 0] * jac[..., 1, 1] - jac[..., 0, 1] * jac[..., 1, 0]
     return det, ln_sd, status, dof
