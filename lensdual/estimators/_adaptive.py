@@ -599,7 +599,7 @@ def _add_point(A, rhs, ywy, U, Yr, W, k):
 @njit(**_INLINE)
 def _largest_fit(kk, st):
     """Coefficients of the largest reported fit ``kk`` points allow (0: none)."""
-    p_max = 0
+    p_max = np.int64(0)
     for dt in range(1, 4 - st.report_extra):
         if kk >= _ncoef(dt + st.report_extra) + st.min_extra:
             p_max = _ncoef(dt + st.report_extra)
@@ -832,7 +832,7 @@ def adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, k_dense, st, order, 
     The points are those of the neighbour ``row`` of ``a`` (``a`` included),
     ``pilot`` is the pilot Jacobian, ``chi2_crit[dof]`` the critical values of
     the chi-square test and ``st`` the :class:`AdaptiveSettings`; the other
-    arrays are scratch of :func:`adaptive_rows_knn`.
+    arrays are scratch of :func:`adaptive_knn`.
     The noise of each baseline is the effective variance
     ``s1^2 I + s2^2 P P^T`` (P the pilot Jacobian at ``a``); in the frame of
     the eigenvectors of ``P P^T`` the two output components are independent,
@@ -947,7 +947,8 @@ def adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, k_dense, st, order, 
     best_rank = best_sd = np.inf
     best_g2 = 0.0
     found = best_lin = False
-    n_cand = n_consistent = n_h = k_last = 0
+    # int64 counters from the start (a literal 0 would compile their callees once more)
+    n_cand = n_consistent = n_h = k_last = np.int64(0)
     # stored linear fits serve the two-scale estimates (report_extra == 1 only)
     two_scale = st.report_extra == 1
     for k in range(n):
@@ -1031,65 +1032,75 @@ def adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, k_dense, st, order, 
 # ---------------------------------------------------------------------------
 
 
+@njit(**_INLINE)
+def _shifted(t, noise, out):
+    """``out = t + noise`` for (N, 2) arrays."""
+    for i in range(t.shape[0]):
+        for d in range(2):
+            out[i, d] = t[i, d] + noise[i, d]
+
+
 @njit(**JIT_OPTIONS)
-def _quad_pilots(t1, t2, nbr, rows, weight_power, cond_max, pilot):
-    """The first-order Quad Jacobian of each pair of ``rows`` on its row into
-    ``pilot`` (the identity where it fails)."""
-    k = nbr.shape[1]
+def normal_pilots(t1, t2, nbr, noise1, noise2, need, weight_power, pilot, ok):
+    """The first-order Quad Jacobians from the normal equations
+    (:func:`~lensdual.estimators._kernels._solve_normal`) of the pairs where
+    ``need`` (C, N) is true, on the copies of :func:`adaptive_knn`, into
+    ``pilot`` (C, N, 2, 2); ``ok`` (C, N) is set False where the normal
+    equations are too badly conditioned (those pilots are then
+    :func:`lstsq_pilots`). Other entries are left as they are."""
+    n = t1.shape[0]
     acc = np.empty(7)
+    copies = noise1.shape[0] > 0
+    p1 = np.empty((n, 2))
+    p2 = np.empty((n, 2))
+    for c in range(need.shape[0]):
+        if copies:
+            _shifted(t1, noise1[c], p1)
+            _shifted(t2, noise2[c], p2)
+        q1 = p1 if copies else t1
+        q2 = p2 if copies else t2
+        for a in range(n):
+            if need[c, a]:
+                _pair_sums(q1, q2, _row(nbr, a), a, weight_power, acc)
+                ok[c, a] = _solve_normal(acc, pilot[c, a])
+
+
+@njit(**JIT_OPTIONS)
+def lstsq_pilots(t1, t2, nbr, rows, weight_power, cond_max, pilot):
+    """The first-order Quad Jacobians by least squares of the pairs ``rows``
+    (whose normal equations failed, :func:`normal_pilots`) into ``pilot``
+    (N, 2, 2), the identity where that fails too. A separate kernel: it is
+    rarely needed, and compiled only then."""
+    k = nbr.shape[1]
     Aq = np.empty((k - 1, 2))
     Yq = np.empty((k - 1, 2))
     sol = np.empty((2, 2))
     for r in range(rows.shape[0]):
         a = rows[r]
-        _pair_sums(t1, t2, _row(nbr, a), a, weight_power, acc)
-        pa = pilot[r]
-        ok = _solve_normal(acc, pa)
-        if not ok:
-            ok = _jacobian_quad(t1, t2, a, _row(nbr, a), 1, weight_power, cond_max, Aq, Yq,
-                                sol, pa) == STATUS_OK
-        if not ok:
+        pa = pilot[a]
+        if _jacobian_quad(t1, t2, a, _row(nbr, a), 1, weight_power, cond_max, Aq, Yq, sol,
+                          pa) != STATUS_OK:
             pa[0, 0] = 1.0
             pa[0, 1] = 0.0
             pa[1, 0] = 0.0
             pa[1, 1] = 1.0
 
 
-@njit(**JIT_OPTIONS)
-def adaptive_rows_knn(t1, t2, nbr, s1, s2, chi2_crit, k_dense, weight_power, st, rows, jac,
-                      ln_sd, status, dof):
-    """The adaptive Jacobian (:func:`adaptive_pair`) of the pairs ``rows``, from
-    their neighbour rows ``nbr`` (the other entries of the outputs are left
-    as they are).
-
-    The pilot Jacobian of the first pass is the first-order Quad one (on the
-    same neighbour rows); each further pass (``st.n_pass`` in all) uses the
-    previous pass's result (its own pilot where that failed). ``ln_sd``
-    receives the standard error of ``ln|det J|`` and ``dof`` the degrees of
-    freedom it was estimated with. ``chi2_crit`` must cover ``2 K`` degrees
-    of freedom.
-
-    Each pair's estimate depends on its own row and pilot only, so disjoint
-    sets of pairs can run in separate threads (the kernels release the GIL),
-    and a subset gives the same estimates as the whole, bit for bit. With a
-    cap (``k_dense`` below the row length ``K``) the pilot passes use the
-    ``2 k_dense`` nearest points of each row only.
-    """
+@njit(**_INLINE)
+def _rows_passes(t1, t2, nbr, s1, s2, chi2_crit, k_dense, st, rows, pilot0, scratch, jac, ln_sd,
+                 status, dof):
+    """The adaptive Jacobian (:func:`adaptive_pair`) of the pairs ``rows`` of one
+    copy, from their neighbour rows ``nbr`` and first pilots ``pilot0`` (N, 2, 2)
+    (see :func:`adaptive_knn`); ``scratch`` holds the work arrays of
+    :func:`adaptive_pair`."""
+    order, dsort, U, Yr, W, A, rhs, L, scale, beta, work = scratch
     k = nbr.shape[1]
     m = rows.shape[0]
     pilot = np.empty((m, 2, 2))
-    _quad_pilots(t1, t2, nbr, rows, weight_power, st.pilot_cond_max, pilot)
-    order = np.empty(k, dtype=np.int64)
-    dsort = np.empty(k)
-    U = np.empty((k, NCOEF_MAX))
-    Yr = np.empty((k, 2))
-    W = np.empty((k, 2))
-    A = np.empty((2, NCOEF_MAX, NCOEF_MAX))
-    rhs = np.empty((2, NCOEF_MAX))
-    L = np.empty((2, NCOEF_MAX, NCOEF_MAX))
-    scale = np.empty(NCOEF_MAX)
-    beta = np.empty((2, NCOEF_MAX))
-    work = np.empty(NCOEF_MAX)
+    for r in range(m):
+        for i in range(2):
+            for j in range(2):
+                pilot[r, i, j] = pilot0[rows[r], i, j]
     n_pass = st.n_pass
     for p in range(n_pass):
         # with a cap (k_dense < K), the passes that only make the next pass's
@@ -1110,48 +1121,72 @@ def adaptive_rows_knn(t1, t2, nbr, s1, s2, chi2_crit, k_dense, weight_power, st,
 
 
 @njit(**JIT_OPTIONS)
-def adaptive_jacobians(t1, t2, s1, s2, chi2_crit, k_dense, weight_power, st, jac, ln_sd,
-                       status, dof):
-    """:func:`adaptive_rows_knn` of every pair with every point in its row (no cap)."""
-    n = t1.shape[0]
-    adaptive_rows_knn(t1, t2, all_rows(n), s1, s2, chi2_crit, k_dense, weight_power, st,
-                      np.arange(n), jac, ln_sd, status, dof)
+def adaptive_knn(t1, t2, nbr, noise1, noise2, s1, s2, chi2_crit, k_dense, st, need, pilot, jac,
+                 ln_sd, status, dof):
+    """The adaptive Jacobian (:func:`adaptive_pair`) of the pairs where ``need``
+    (C, N) is true, on ``C`` copies of the constellation, from their neighbour
+    rows ``nbr``; the other entries of the outputs are left as they are.
 
+    Copy ``c`` has the positions ``t1 + noise1[c]``, ``t2 + noise2[c]``
+    (``noise1``, ``noise2`` of shape (C, N, 2)); with noise arrays of shape
+    (0, N, 2) there is one copy, ``t1``, ``t2`` themselves. ``jac`` (C, N, 2, 2)
+    receives the Jacobians, ``ln_sd`` (C, N) the standard errors of
+    ``ln|det J|``, ``status`` (C, N) the status codes and ``dof`` (C, N) the
+    degrees of freedom the errors were estimated with. ``chi2_crit`` must
+    cover ``2 K`` degrees of freedom.
 
-@njit(**JIT_OPTIONS)
-def adaptive_batch_knn(t1, t2, nbr, noise1, noise2, s1, s2, chi2_crit, k_dense, weight_power,
-                       st, need, det_out, ln_sd_out, status_out, dof_out):
-    """The adaptive estimator on ``B`` noisy copies of a constellation.
-
-    ``noise1``, ``noise2`` are (B, N, 2) offsets; ``det_out``, ``ln_sd_out``,
-    ``status_out`` and ``dof_out`` (B, N) receive the signed determinant, the
-    error of its logarithm, the status code and the error's degrees of
-    freedom, for the pairs of each copy where ``need`` (B, N) is true
-    (:func:`adaptive_rows_knn`); the others get a NaN determinant and error
-    and ``ADAPTIVE_FAILED``. The neighbour rows stay fixed.
+    The pilot Jacobian of the first pass is ``pilot`` (C, N, 2, 2): the
+    first-order Quad one on the same neighbour rows (:func:`normal_pilots`,
+    :func:`lstsq_pilots`); each further pass (``st.n_pass`` in all) uses the
+    previous pass's result (its own pilot where that failed). Each pair's
+    estimate depends on its own row and pilot only, so disjoint sets of
+    pairs can run in separate threads (the kernels release the GIL), and a
+    subset gives the same estimates as the whole, bit for bit. With a cap
+    (``k_dense`` below the row length ``K``) the pilot passes use the
+    ``2 k_dense`` nearest points of each row only. The neighbour rows are
+    the same for every copy.
     """
-    nb = noise1.shape[0]
     n = t1.shape[0]
+    k = nbr.shape[1]
+    scratch = (np.empty(k, dtype=np.int64), np.empty(k), np.empty((k, NCOEF_MAX)),
+               np.empty((k, 2)), np.empty((k, 2)), np.empty((2, NCOEF_MAX, NCOEF_MAX)),
+               np.empty((2, NCOEF_MAX)), np.empty((2, NCOEF_MAX, NCOEF_MAX)),
+               np.empty(NCOEF_MAX), np.empty((2, NCOEF_MAX)), np.empty(NCOEF_MAX))
+    copies = noise1.shape[0] > 0
     p1 = np.empty((n, 2))
     p2 = np.empty((n, 2))
-    jac = np.empty((n, 2, 2))
-    st_ = np.empty(n, dtype=np.int64)
-    sd = np.empty(n)
-    df = np.empty(n)
-    for k in range(nb):
-        for i in range(n):
-            for d in range(2):
-                p1[i, d] = t1[i, d] + noise1[k, i, d]
-                p2[i, d] = t2[i, d] + noise2[k, i, d]
-        for i in range(n):
-            jac[i, :, :] = np.nan
-            sd[i] = np.nan
-            st_[i] = ADAPTIVE_FAILED
-            df[i] = 0.0
-        adaptive_rows_knn(p1, p2, nbr, s1, s2, chi2_crit, k_dense, weight_power, st,
-                          np.flatnonzero(need[k]), jac, sd, st_, df)
-        for i in range(n):
-            det_out[k, i] = jac[i, 0, 0] * jac[i, 1, 1] - jac[i, 0, 1] * jac[i, 1, 0]
-            ln_sd_out[k, i] = sd[i]
-            status_out[k, i] = st_[i]
-            dof_out[k, i] = df[i]
+    for c in range(need.shape[0]):
+        if copies:
+            _shifted(t1, noise1[c], p1)
+            _shifted(t2, noise2[c], p2)
+        _rows_passes(p1 if copies else t1, p2 if copies else t2, nbr, s1, s2, chi2_crit, k_dense,
+                     st, np.flatnonzero(need[c]), pilot[c], scratch, jac[c], ln_sd[c], status[c],
+                     dof[c])
+
+
+def run_adaptive(t1, t2, nbr, noise1, noise2, s1, s2, chi2_crit, k_dense, weight_power, st, need,
+                 jac, ln_sd, status, dof):
+    """:func:`adaptive_knn` with its first pilots: :func:`normal_pilots`, and
+    :func:`lstsq_pilots` for the copies where some normal equations failed
+    (arguments as :func:`adaptive_knn`'s, with ``weight_power`` for the pilots)."""
+    pilot = np.empty(need.shape + (2, 2))
+    ok = np.ones(need.shape, dtype=np.bool_)
+    normal_pilots(t1, t2, nbr, noise1, noise2, need, weight_power, pilot, ok)
+    failed = need & ~ok
+    for c in np.flatnonzero(failed.any(axis=1)):
+        p1, p2 = (t1 + noise1[c], t2 + noise2[c]) if noise1.shape[0] else (t1, t2)
+        lstsq_pilots(p1, p2, nbr, np.flatnonzero(failed[c]), weight_power, st.pilot_cond_max,
+                     pilot[c])
+    adaptive_knn(t1, t2, nbr, noise1, noise2, s1, s2, chi2_crit, k_dense, st, need, pilot, jac,
+                 ln_sd, status, dof)
+
+
+def adaptive_jacobians(t1, t2, s1, s2, chi2_crit, k_dense, weight_power, st, jac, ln_sd, status,
+                       dof):
+    """:func:`run_adaptive` of every pair with every point in its row (no cap),
+    outputs of one copy (``jac`` (N, 2, 2); ``ln_sd``, ``status``, ``dof`` (N,))."""
+    n = t1.shape[0]
+    no_noise = np.empty((0, n, 2))
+    run_adaptive(t1, t2, all_rows(n), no_noise, no_noise, s1, s2, chi2_crit, k_dense,
+                 weight_power, st, np.ones((1, n), dtype=np.bool_), jac[None], ln_sd[None],
+                 status[None], dof[None])

@@ -338,28 +338,43 @@ def _adaptive_forward(t1, t2, sigma, wp, max_neighbours=DEFAULT_MAX_NEIGHBOURS, 
     estimate is the same as in a run on every pair)."""
     n = t1.shape[0]
     nbr = _neighbour_rows(t2, max_neighbours)
-    jac = np.full((n, 2, 2), np.nan)
-    ln_sd = np.full(n, np.nan)
-    status = np.full(n, _adaptive_kernels.ADAPTIVE_FAILED, dtype=np.int64)
-    dof = np.zeros(n)
     rows = np.arange(n) if rows is None else np.asarray(rows, dtype=np.int64)
     settings = _adaptive_settings(nbr, n, wp)
+    no_noise = np.empty((0, n, 2))
+    outputs = _adaptive_outputs(1, n)
+
+    def run(part):
+        need = np.zeros((1, n), dtype=bool)
+        need[0, part] = True
+        _adaptive_kernels.run_adaptive(*_kernel_arrays(t1, t2, nbr, no_noise, no_noise, sigma),
+                                       *settings, need, *outputs)
+
     threads = available_threads(_MAX_THREADS)
     if rows.size < _THREAD_MIN_PAIRS or threads < 2:
-        _adaptive_kernels.adaptive_rows_knn(t1, t2, nbr, sigma[0], sigma[1], *settings, rows,
-                                            jac, ln_sd, status, dof)
-        return jac, ln_sd, status, dof
-    # independent pairs: chunks in threads (same result as one call, bit for bit)
-    edges = np.linspace(0, rows.size, 4 * threads + 1).astype(int)
+        run(rows)
+    else:
+        # independent pairs: chunks in threads (same result as one call, bit for bit)
+        edges = np.linspace(0, rows.size, 4 * threads + 1).astype(int)
+        with ThreadPoolExecutor(threads) as pool:
+            list(pool.map(run, [rows[edges[i]:edges[i + 1]] for i in range(len(edges) - 1)]))
+    return tuple(out[0] for out in outputs)
 
-    def run(i):
-        _adaptive_kernels.adaptive_rows_knn(t1, t2, nbr, sigma[0], sigma[1], *settings,
-                                            rows[edges[i]:edges[i + 1]], jac, ln_sd, status,
-                                            dof)
 
-    with ThreadPoolExecutor(threads) as pool:
-        list(pool.map(run, range(len(edges) - 1)))
-    return jac, ln_sd, status, dof
+def _adaptive_outputs(copies, n):
+    """The adaptive kernel's outputs for ``copies`` copies of ``n`` pairs, as
+    for pairs it does not estimate: NaN Jacobians and errors, "failed", 0
+    degrees of freedom."""
+    return (np.full((copies, n, 2, 2), np.nan), np.full((copies, n), np.nan),
+            np.full((copies, n), _adaptive_kernels.ADAPTIVE_FAILED, dtype=np.int64),
+            np.zeros((copies, n)))
+
+
+def _kernel_arrays(t1, t2, nbr, noise1, noise2, sigma):
+    """The array arguments of the adaptive kernel before its settings, each
+    contiguous, writeable float64 (one compiled version of the kernel)."""
+    arrays = (t1, t2, noise1, noise2, sigma[0], sigma[1])
+    t1, t2, noise1, noise2, s1, s2 = (np.require(a, np.float64, ["C", "W"]) for a in arrays)
+    return t1, t2, np.require(nbr, np.int64, ["C", "W"]), noise1, noise2, s1, s2
 
 
 def _adaptive_batch(t1, t2, noise1, noise2, sigma, wp=2.0,
@@ -406,14 +421,11 @@ def _adaptive_batch_forward(t1, t2, noise1, noise2, sigma, wp, max_neighbours, n
     "failed")."""
     b, n = noise1.shape[:2]
     nbr = _neighbour_rows(t2, max_neighbours)
-    det = np.empty((b, n))
-    ln_sd = np.empty((b, n))
-    status = np.empty((b, n), dtype=np.int64)
-    dof = np.empty((b, n))
     need = np.ones((b, n), dtype=bool) if need is None else np.ascontiguousarray(need)
-    _adaptive_kernels.adaptive_batch_knn(t1, t2, nbr, noise1, noise2, sigma[0], sigma[1],
-                                         *_adaptive_settings(nbr, n, wp), need, det, ln_sd,
-                                         status, dof)
+    jac, ln_sd, status, dof = outputs = _adaptive_outputs(b, n)
+    _adaptive_kernels.run_adaptive(*_kernel_arrays(t1, t2, nbr, noise1, noise2, sigma),
+                                   *_adaptive_settings(nbr, n, wp), need, *outputs)
+    det = jac[..., 0, 0] * jac[..., 1, 1] - jac[..., 0, 1] * jac[..., 1, 0]
     return det, ln_sd, status, dof
 
 

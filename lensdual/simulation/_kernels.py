@@ -181,6 +181,22 @@ def bucket_triangles(bx, by, tri, tol, x0, y0, cell, nbx, nby, max_cover):
 
 
 @njit(**JIT_OPTIONS)
+def _grow(src, tid, bary, n):
+    """Copies of the first ``n`` entries of the candidate arrays in arrays twice as long."""
+    cap = 2 * n
+    src2 = np.empty(cap, dtype=np.int64)
+    tid2 = np.empty(cap, dtype=np.int64)
+    bary2 = np.empty((cap, 3), dtype=np.float64)
+    # element loops: a slice assignment would compile NumPy's broadcasting checks
+    for i in range(n):
+        src2[i] = src[i]
+        tid2[i] = tid[i]
+        for k in range(3):
+            bary2[i, k] = bary[i, k]
+    return src2, tid2, bary2
+
+
+@njit(**JIT_OPTIONS)
 def _test_and_append(s, t, sx, sy, bx, by, tri, tol, w, src, tid, bary, n):
     a = tri[t, 0]
     b = tri[t, 1]
@@ -188,14 +204,7 @@ def _test_and_append(s, t, sx, sy, bx, by, tri, tol, w, src, tid, bary, n):
     if not point_in_triangle(sx[s], sy[s], bx[a], by[a], bx[b], by[b], bx[c], by[c], tol[t], w):
         return src, tid, bary, n
     if n == src.shape[0]:
-        cap = 2 * n
-        src2 = np.empty(cap, dtype=np.int64)
-        tid2 = np.empty(cap, dtype=np.int64)
-        bary2 = np.empty((cap, 3), dtype=np.float64)
-        src2[:n] = src
-        tid2[:n] = tid
-        bary2[:n] = bary
-        src, tid, bary = src2, tid2, bary2
+        src, tid, bary = _grow(src, tid, bary, n)
     src[n] = s
     tid[n] = t
     bary[n, 0] = w[0]
@@ -220,7 +229,8 @@ def find_candidates(sx, sy, bx, by, tri, tol, x0, y0, cell, nbx, nby, start, ite
     tid = np.empty(cap, dtype=np.int64)
     bary = np.empty((cap, 3), dtype=np.float64)
     w = np.empty(3, dtype=np.float64)
-    n = 0
+    # an int64 from the start: a literal 0 would compile _test_and_append once more
+    n = np.int64(0)
     ng = global_tris.shape[0]
     for s in range(m):
         fi = np.floor((sx[s] - x0) / cell)
