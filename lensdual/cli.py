@@ -50,11 +50,11 @@ from .demo import (
 from .duality import DEFAULT_TEST, TESTS
 from .pipeline import (
     PipelineError,
-    _analyse_knot_config,
-    _parametric_paragraph,
     analyse,
+    analyse_knot_config,
     format_report,
     knot_report,
+    parametric_paragraph,
 )
 
 __all__ = ["main", "build_parser"]
@@ -189,7 +189,7 @@ def _cmd_demo(args):
                     table = parametric_outputs(analysis, tmp, fit=True, z_lens=0.39,
                                                z_source=2.2, sigma_pos=sigma, centre=centre,
                                                seed=args.seed, fit_kwargs=fit_kwargs(**settings))
-                report += "\n\n" + _parametric_paragraph(table)
+                report += "\n\n" + parametric_paragraph(table)
             write_analysis(analysis, tmp, report, title="lensdual demo", images=images)
     except _FAILURES as err:
         return _finish(args, "demo", progress, start, error=err)
@@ -250,7 +250,7 @@ def _cmd_run(args):
                         z_lens=par.z_lens, z_source=par.z_source, sigma_pos=par.sigma_pos,
                         centre=par.centre, seed=config.seed,
                         fit_kwargs=fit_kwargs(par.fix_centre))
-                extra = ["", _parametric_paragraph(table)]
+                extra = ["", parametric_paragraph(table)]
             report = format_report(analysis, extra)
             with progress.step("write outputs"):
                 write_analysis(analysis, tmp, report, title=Path(args.config).stem,
@@ -267,7 +267,7 @@ def _run_knots(args, config, start):
     removed = []
     try:
         with progress.step("knot constellation"):
-            analysis = _analyse_knot_config(config)
+            analysis = analyse_knot_config(config)
         report = knot_report(analysis)
         with atomic_directory(config.outdir, removed) as tmp, progress.step("write outputs"):
             write_knot_outputs(analysis, tmp, report)

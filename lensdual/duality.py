@@ -736,15 +736,15 @@ def _joint_passes(pos2, ln_flux, ln_flux_err, sig2, geo, keep, resolved, snr_thr
     ``pos2`` (N, 2) and ``sig2`` (N,) in arcsec; ``geo`` as in :func:`_joint_pass`;
     ``keep`` the pairs that may inform the field; ``resolved`` where the
     adaptive fits passed. Returns ``(result, field, flagged)``: the last pass's
-    `_JointPass`, its flux field (:func:`lensdual.flux_field._field_arrays`)
+    `_JointPass`, its flux field (:func:`lensdual.flux_field.field_arrays`)
     and the pairs left out of the others' field.
     """
-    from .flux_field import _field_arrays
+    from .flux_field import field_arrays
 
     usable = keep & np.isfinite(ln_flux) & np.isfinite(ln_flux_err)
     flagged = np.zeros(ln_flux.size, dtype=bool)
     for _ in range(_JOINT_MAX_PASSES):
-        field = _field_arrays(pos2, ln_flux, ln_flux_err, sig2, usable & ~flagged, resolved)
+        field = field_arrays(pos2, ln_flux, ln_flux_err, sig2, usable & ~flagged, resolved)
         f_ok = (field.status == "ok") & keep
         result = _joint_pass(ln_flux, ln_flux_err, geo, (field.value, field.var, f_ok),
                              snr_threshold)
@@ -756,7 +756,7 @@ def _joint_passes(pos2, ln_flux, ln_flux_err, sig2, geo, keep, resolved, snr_thr
 
 def _joint_test(tab, theta2, flux, sigma_pos, keep, snr_threshold):
     """Replace the test columns of ``tab`` by the joint test's (see check_duality)."""
-    from .estimators.core import _as_sigma
+    from .estimators.core import as_sigma
 
     n = len(tab)
     ln_flux = np.log(np.asarray(flux["mu_flux"], dtype=float))
@@ -768,7 +768,7 @@ def _joint_test(tab, theta2, flux, sigma_pos, keep, snr_threshold):
                np.asarray(tab["ln_mu_size_err_dof"], dtype=float), geo_tested)
     result, field, flagged = _joint_passes(
         np.asarray(theta2.to_value(u.arcsec), dtype=float), ln_flux, ln_flux_err,
-        _as_sigma(sigma_pos, n)[1], geo, keep, np.asarray(tab["mu_size_status"]) == "ok",
+        as_sigma(sigma_pos, n)[1], geo, keep, np.asarray(tab["mu_size_status"]) == "ok",
         snr_threshold)
     snr, dof, signif, tested = result.snr, result.dof, result.significance, result.tested
     tab["significance_geometric"] = tab["significance"]
@@ -819,7 +819,7 @@ _smooth_map = spline_map
 def _null_block(task):
     """SNRs of one block of null realisations (module level: picklable)."""
     (block, entropy, size, t1, t2, sigma, mu_true, ln_flux_err, wp, joint) = task
-    from .estimators.core import _adaptive_batch
+    from .estimators.core import adaptive_batch
 
     rng = np.random.default_rng(np.random.SeedSequence(entropy, spawn_key=(block,)))
     n = t1.shape[0]
@@ -829,7 +829,7 @@ def _null_block(task):
     if joint is not None:
         return _null_block_joint(t1, t2, noise1, noise2, sigma, wp, ln_flux, ln_flux_err,
                                  *joint)
-    mu_size, ln_sd, ok, size_dof = _adaptive_batch(t1, t2, noise1, noise2, sigma, wp)
+    mu_size, ln_sd, ok, size_dof = adaptive_batch(t1, t2, noise1, noise2, sigma, wp)
     with np.errstate(divide="ignore", invalid="ignore"):
         total = np.hypot(ln_flux_err[None, :], ln_sd)
         snr = np.abs(ln_flux - np.log(mu_size)) / total
@@ -842,9 +842,9 @@ def _null_block(task):
 def _null_block_joint(t1, t2, noise1, noise2, sigma, wp, ln_flux, ln_flux_err, keep,
                       snr_threshold):
     """Joint-test significances of one block of null realisations."""
-    from .estimators.core import _adaptive_batch
+    from .estimators.core import adaptive_batch
 
-    mu_size, ln_sd, ok, size_dof, fit_ok = _adaptive_batch(t1, t2, noise1, noise2, sigma, wp,
+    mu_size, ln_sd, ok, size_dof, fit_ok = adaptive_batch(t1, t2, noise1, noise2, sigma, wp,
                                                            with_ok=True)
     out = np.full(ln_flux.shape, np.nan)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -994,7 +994,7 @@ def null_calibration(pairs, *, sigma_pos, n_realisations=1000,
     >>> round(null.meta["map_dof"], 1)  # an affine map: the polynomial part's 6
     6.0
     """
-    from .estimators.core import _as_sigma
+    from .estimators.core import as_sigma
 
     n_real = as_int(n_realisations, "n_realisations", minimum=1)
     if n_real < _NULL_MIN_REALISATIONS:
@@ -1009,7 +1009,7 @@ def null_calibration(pairs, *, sigma_pos, n_realisations=1000,
     t1 = np.ascontiguousarray(theta1.to_value(u.arcsec))
     t2 = np.ascontiguousarray(theta2.to_value(u.arcsec))
     n = t1.shape[0]
-    sigma = _as_sigma(sigma_pos, n, positive=True)
+    sigma = as_sigma(sigma_pos, n, positive=True)
     flux = flux_ratios(pairs)
     ln_flux_err = np.asarray(flux["ln_mu_flux_err"], dtype=float)
     ln_flux_err = np.where(np.isfinite(ln_flux_err), ln_flux_err, np.inf)

@@ -39,7 +39,7 @@ from astropy.table import QTable
 from scipy.optimize import brentq
 
 from . import _flux_field_kernels as _kernels
-from .estimators.core import _as_sigma
+from .estimators.core import as_sigma
 
 __all__ = ["flux_field_prediction", "FIELD_STATUS", "N_LOCAL", "N_CHECK"]
 
@@ -83,7 +83,7 @@ def _common_variance(resid, var):
 
 
 class _Field(NamedTuple):
-    """The flux field of every pair (see :func:`_field_arrays`)."""
+    """The flux field of every pair (see :func:`field_arrays`)."""
 
     value: np.ndarray  # predicted ln mu, NaN where not "ok"
     var: np.ndarray  # its variance, the common model variance included
@@ -92,7 +92,7 @@ class _Field(NamedTuple):
     model_var: float  # the common model variance of step 4
 
 
-def _field_arrays(pos, y, s, sig2, usable=None, resolved=None):
+def field_arrays(pos, y, s, sig2, usable=None, resolved=None):
     """The flux field of checked arrays (arcsec), see the module docstring.
 
     Pairs with a NaN position, value or error, or a non-positive error, inform
@@ -202,7 +202,7 @@ def flux_field_prediction(theta2, ln_mu_flux, ln_mu_flux_err, *, sigma_pos=None,
                          f"{y.shape} and {s.shape}")
     if np.any(s < 0):
         raise ValueError("ln_mu_flux_err must be >= 0")
-    sig2 = np.zeros(n) if sigma_pos is None else _as_sigma(sigma_pos, n)[1]
+    sig2 = np.zeros(n) if sigma_pos is None else as_sigma(sigma_pos, n)[1]
     if usable is not None:
         usable = np.asarray(usable, dtype=bool)
         if usable.shape != (n,):
@@ -211,7 +211,7 @@ def flux_field_prediction(theta2, ln_mu_flux, ln_mu_flux_err, *, sigma_pos=None,
         resolved = np.asarray(resolved, dtype=bool)
         if resolved.shape != (n,):
             raise ValueError(f"resolved must have shape ({n},), got {resolved.shape}")
-    field = _field_arrays(pos, y, s, sig2, usable, resolved)
+    field = field_arrays(pos, y, s, sig2, usable, resolved)
     out = QTable()
     out["ln_mu_field"] = field.value
     out["ln_mu_field_err"] = np.sqrt(field.var)

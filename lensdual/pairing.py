@@ -240,7 +240,7 @@ def _catalogs(catalog1, catalog2, position_columns, id_column, reference):
     return ids1, pos1.value, None, ids2, pos2.value, None, None
 
 
-def _catalog_positions(catalog, name, position_columns, reference):
+def catalog_positions(catalog, name, position_columns, reference):
     """Tangent-plane positions (N, 2) in arcsec of one catalogue (for figures)."""
     _, pos = _raw_catalog(catalog, name, position_columns, None)
     if isinstance(pos, SkyCoord):
@@ -253,7 +253,7 @@ def _catalog_positions(catalog, name, position_columns, reference):
     return pos.value
 
 
-def _pairs_positions(pairs):
+def pairs_positions(pairs):
     """(x1, x2): the (N, 2) arcsec positions of a pairs table."""
     if not isinstance(pairs, Table):
         raise TypeError(f"pairs must be an astropy Table or QTable, got {type(pairs).__name__}")

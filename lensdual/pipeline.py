@@ -33,7 +33,7 @@ from .duality import DEFAULT_SNR_THRESHOLD, DEFAULT_TEST, TESTS
 from .estimators import DEFAULT_METHOD, DEFAULT_N_BOOTSTRAP, estimate_sigma_pos
 
 # The seed of analyse (and of lensdual run's [analysis] seed): runs repeat.
-_DEFAULT_SEED = 0
+DEFAULT_SEED = 0
 
 __all__ = [
     "Analysis",
@@ -160,7 +160,7 @@ def _check_catalogue_footprint(catalog, images, arc):
 
 def analyse(images, *, psf=None, estimator=DEFAULT_METHOD, sigma_pos="auto",
             n_bootstrap=DEFAULT_N_BOOTSTRAP, snr_threshold=DEFAULT_SNR_THRESHOLD,
-            seed=_DEFAULT_SEED,
+            seed=DEFAULT_SEED,
             catalogs=None, manual_pairs=None, progress=None, null_realisations=0,
             oversampling=None, test=DEFAULT_TEST, max_magnification=None):
     """Run the pipeline from images of two arcs to the duality table.
@@ -710,7 +710,7 @@ def format_report(analysis, extra=()):
     return "\n".join(parts)
 
 
-def _parametric_paragraph(table):
+def parametric_paragraph(table):
     """The report's paragraph on a parametric comparison table."""
     meta = table.meta.get("parametric", {})
     parts = []
@@ -883,7 +883,7 @@ def analyse_knots(catalogue, macro_images, *, knots=None, assign=None, mapping=N
                         models=loaded)
 
 
-def _analyse_knot_config(config):
+def analyse_knot_config(config):
     """:func:`analyse_knots` on the ``[knots]`` section of a run configuration."""
     spec = config.knots
     macro = spec.centres if spec.centres is not None else list(spec.macro_images)

@@ -178,9 +178,9 @@ def plot_pairing_map(pairs, catalog1=None, catalog2=None, *, ax=None, offset=Non
     from astropy import units as u
     from matplotlib.collections import LineCollection
 
-    from .pairing import _catalog_positions, _pairs_positions
+    from .pairing import catalog_positions, pairs_positions
 
-    x1, x2 = _pairs_positions(pairs)
+    x1, x2 = pairs_positions(pairs)
     meta_map = pairs.meta.get("map") or {}
     a_mat = meta_map.get("A")
     if a_mat is None:
@@ -207,7 +207,7 @@ def plot_pairing_map(pairs, catalog1=None, catalog2=None, *, ax=None, offset=Non
     ):
         if cat is None:
             continue
-        xy = _catalog_positions(cat, name, meta.get("position_columns", ("x", "y")),
+        xy = catalog_positions(cat, name, meta.get("position_columns", ("x", "y")),
                                 meta.get("reference"))
         if transform is not None:
             xy = transform(xy)

@@ -670,7 +670,7 @@ def test_reverse_map_where_the_forward_fit_is_untestable(monkeypatch):
     # the null calibration's batches follow the same rule, copy by copy
     noise1 = s * rng.standard_normal((3, len(t1), 2))
     noise2 = s * rng.standard_normal((3, len(t1), 2))
-    det_b, sd_b, ok_b, dof_b = core._adaptive_batch(t1, t2, noise1, noise2, sig)
+    det_b, sd_b, ok_b, dof_b = core.adaptive_batch(t1, t2, noise1, noise2, sig)
     for k in range(3):
         jk, sdk, stk, dofk, _ = core._adaptive(t1 + noise1[k], t2 + noise2[k], sig, 2.0)
         np.testing.assert_allclose(det_b[k], np.abs(np.linalg.det(jk)), rtol=1e-10)

@@ -44,3 +44,35 @@ def test_no_library_module_names_the_workspace_data():
     found = [f"{p.relative_to(PACKAGE)}:{n}" for p in _sources()
              for n, line in enumerate(p.read_text().splitlines(), 1) if pattern.search(line)]
     assert found == []
+
+
+def _unit(parts):
+    """A subpackage is one unit of the package; each top-level module is its own."""
+    return parts[0] if len(parts) > 1 else ".".join(parts)
+
+
+def test_no_private_name_is_imported_from_another_unit():
+    """A name with a leading underscore (a dunder aside) is imported only within its
+    own subpackage or top-level module; shared internals are public names, in
+    private modules where they are not API (importing a private module is allowed)."""
+    import ast
+
+    found = []
+    for path in _sources():
+        rel = list(path.relative_to(PACKAGE).with_suffix("").parts)
+        pkg = rel[:-1]
+        src = _unit(rel) if rel[-1] != "__init__" else (pkg[0] if pkg else "__init__")
+        for node in ast.walk(ast.parse(path.read_text())):
+            if not (isinstance(node, ast.ImportFrom) and node.level > 0):
+                continue
+            target = pkg[: len(pkg) - (node.level - 1)] + (node.module or "").split(".")
+            target = [t for t in target if t]
+            for alias in node.names:
+                name = alias.name
+                full = PACKAGE.joinpath(*target, name)
+                if full.is_dir() or full.with_suffix(".py").exists():
+                    continue  # a module
+                private = name.startswith("_") and not name.startswith("__")
+                if private and src != (_unit(target) if target else "__init__"):
+                    found.append(f"{path.relative_to(PACKAGE)}:{node.lineno} {name}")
+    assert found == []

@@ -21,7 +21,7 @@ from ..duality import DEFAULT_SNR_THRESHOLD, DEFAULT_TEST, TESTS
 from ..estimators import DEFAULT_METHOD, DEFAULT_N_BOOTSTRAP, METHODS
 from ..pairing import DEFAULT_MAX_MAGNIFICATION
 from ..parametric.fitting import DEFAULT_MODEL
-from ..pipeline import _DEFAULT_SEED
+from ..pipeline import DEFAULT_SEED
 from ._writer import _toml_string, _toml_value
 
 __all__ = ["Field", "FIELDS", "TABLES", "REQUIRED", "MIN_NULL_REALISATIONS", "table_keys",
@@ -214,7 +214,7 @@ FIELDS = (
        choices=tuple(TESTS)),
     _F("analysis", "snr_threshold", "real", DEFAULT_SNR_THRESHOLD,
        "significance threshold of a duality violation", above=0),
-    _F("analysis", "seed", "integer", _DEFAULT_SEED, "seed of the random numbers", minimum=0),
+    _F("analysis", "seed", "integer", DEFAULT_SEED, "seed of the random numbers", minimum=0),
     _F("analysis", "null_realisations", "integer", 0,
        f"realisations of the null calibration: 0 (off) or >= {MIN_NULL_REALISATIONS} "
        "(>= 370 for its empirical p-values to confirm a flag at SNR 3); "

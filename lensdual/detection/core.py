@@ -137,12 +137,12 @@ class PointSourceMap:
 
 def _unpack(image, band):
     """Return (float64 data, valid map or None, unit or None, wcs or None)."""
-    from ..photometry import _file_of, _squeeze_plane
+    from ..photometry._inputs import file_of, squeeze_plane
 
     name = f"images[{band!r}]"
-    path = _file_of(image)
+    path = file_of(image)
     in_file = "" if path is None else f" (file {path})"
-    image = _squeeze_plane(image, name)
+    image = squeeze_plane(image, name)
     data, mask, unit, wcs, unc = split_image(image, name)
     if data.size == 0:
         raise ValueError(f"images[{band!r}] is empty (shape {data.shape})")

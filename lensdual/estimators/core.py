@@ -266,7 +266,7 @@ def relative_jacobian(theta1, theta2, method="quad", *, weight_power=2, min_angl
         if sigma_pos is None:
             raise ValueError("method 'adaptive' needs sigma_pos (the position errors its "
                              "local fits are tested against)")
-        sigma = _as_sigma(sigma_pos, t1.shape[0], positive=True)
+        sigma = as_sigma(sigma_pos, t1.shape[0], positive=True)
         jac, _, status, _, _ = _adaptive(t1, t2, sigma, wp, cap)
         _warn_adaptive(status)
         return jac
@@ -377,7 +377,7 @@ def _kernel_arrays(t1, t2, nbr, noise1, noise2, sigma):
     return t1, t2, np.require(nbr, np.int64, ["C", "W"]), noise1, noise2, s1, s2
 
 
-def _adaptive_batch(t1, t2, noise1, noise2, sigma, wp=2.0,
+def adaptive_batch(t1, t2, noise1, noise2, sigma, wp=2.0,
                     max_neighbours=DEFAULT_MAX_NEIGHBOURS, with_ok=False):
     """The adaptive estimator on noisy copies ``t + noise`` (shape (B, N, 2)).
 
@@ -451,7 +451,7 @@ def _warn_adaptive(status):
         )
 
 
-def _as_sigma(sigma_pos, n, positive=False):
+def as_sigma(sigma_pos, n, positive=False):
     """Return per-arc, per-pair positional sigmas as a (2, N) array in arcsec.
 
     With ``positive``, zero errors are refused (the adaptive estimator
@@ -689,7 +689,7 @@ def size_magnification(
     """
     t1, t2, code, wp, min_sin = _prepare(theta1, theta2, method, weight_power, min_angle)
     n = t1.shape[0]
-    sigma = _as_sigma(sigma_pos, n, positive=method == "adaptive")
+    sigma = as_sigma(sigma_pos, n, positive=method == "adaptive")
     n_bootstrap = as_int(n_bootstrap, "n_bootstrap", minimum=1)
     cap = _max_neighbours(max_neighbours, method)
     if method == "adaptive":

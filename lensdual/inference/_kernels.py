@@ -23,8 +23,8 @@ import numpy as np
 from numba import njit
 
 from .._numba import JIT_OPTIONS
-from ..sensitivity._kernels import PROFILE_TNFW, _in_triangle, deflection_hessian
-from ..sensitivity._kernels import _add_image as _add
+from ..sensitivity._kernels import PROFILE_TNFW, deflection_hessian, in_triangle
+from ..sensitivity._kernels import add_image as _add
 
 __all__ = []
 
@@ -156,11 +156,11 @@ def _box_images(b00, b01, b10, b11, tx, ty, hx, hy, rs, rho0, rt, n_h, k, half, 
             y0 = cy - half + jj * step
             for tri in range(2):
                 if tri == 0:
-                    w1, w2 = _in_triangle(c0x, c0y, c1x, c1y, c2x, c2y, 0.0, 0.0)
+                    w1, w2 = in_triangle(c0x, c0y, c1x, c1y, c2x, c2y, 0.0, 0.0)
                     sx = x0 + w1 * step + w2 * step
                     sy = y0 + w2 * step
                 else:
-                    w1, w2 = _in_triangle(c0x, c0y, c2x, c2y, c3x, c3y, 0.0, 0.0)
+                    w1, w2 = in_triangle(c0x, c0y, c2x, c2y, c3x, c3y, 0.0, 0.0)
                     sx = x0 + w1 * step
                     sy = y0 + w1 * step + w2 * step
                 if w1 < 0.0:

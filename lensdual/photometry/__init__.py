@@ -20,7 +20,6 @@ The subpackage's modules (all private; everything public is imported here):
 
 from ._background import BACKGROUND_STRATEGIES
 from ._flags import UNUSABLE_FLAGS, PhotometryFlag, describe_flags
-from ._inputs import _file_of, _squeeze_plane  # noqa: F401 - used by lensdual.detection
 from ._pairs import measure_pairs
 from ._profiles import _GaussianProfile  # noqa: F401 - used by the tests
 from ._psf import ArcPSFPhotometry, psf_photometry

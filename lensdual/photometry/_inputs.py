@@ -36,7 +36,7 @@ def _as_wcs(wcs, name):
 _FILE_KEYS = ("FILENAME", "filename", "file", "FILE", "path")
 
 
-def _file_of(image):
+def file_of(image):
     """The file an NDData was read from, from its ``meta`` (None when unknown)."""
     meta = getattr(image, "meta", None)
     if not meta:
@@ -54,7 +54,7 @@ def _file_of(image):
 def _describe_input(name, image, label=None):
     """``label`` or ``name``, with the file the image was read from when known."""
     text = name if label is None else str(label)
-    path = _file_of(image)
+    path = file_of(image)
     if path is not None and path not in text:
         text += f" (file {path})"
     return text
@@ -78,7 +78,7 @@ def _plane_wcs(wcs):
     return wcs
 
 
-def _squeeze_plane(image, name, stacklevel=4):
+def squeeze_plane(image, name, stacklevel=4):
     """A 2-D image from a cube with a single plane (shape (1, ny, nx)), with a warning.
 
     Other inputs are returned as they are (2-D, or wrong in a way that
@@ -124,10 +124,10 @@ def _squeeze_plane(image, name, stacklevel=4):
 def _split_parts(image, name, label=None, stacklevel=4):
     """The parts of an image, nothing copied: (where, data, mask, unit, wcs, uncertainty).
 
-    ``stacklevel`` is that of the warning of `_squeeze_plane`, counted from it.
+    ``stacklevel`` is that of the warning of `squeeze_plane`, counted from it.
     """
     where = _describe_input(name, image, label)
-    image = _squeeze_plane(image, where, stacklevel)
+    image = squeeze_plane(image, where, stacklevel)
     data, mask, unit, wcs, unc = split_image(image, name)
     wcs = _as_wcs(wcs, f"{name}.wcs")
     return where, data, mask, unit, wcs, unc

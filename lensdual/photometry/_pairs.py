@@ -36,9 +36,9 @@ from ._inputs import (
     _as_oversampling,
     _as_wcs,
     _describe_input,
-    _file_of,
     _pixel_to_tangent_errors,
-    _squeeze_plane,
+    file_of,
+    squeeze_plane,
 )
 from ._psf import ArcPSFPhotometry
 
@@ -61,7 +61,7 @@ def _check_images(images, name):
             raise TypeError(
                 f"{name}[{band!r}] must be a CCDData or NDData with a WCS, got {type(img).__name__}"
             )
-        img = _squeeze_plane(img, f"{name}[{band!r}]")
+        img = squeeze_plane(img, f"{name}[{band!r}]")
         out[band] = img
         if img.wcs is None:
             raise ValueError(f"{name}[{band!r}] has no WCS; measure_pairs needs celestial WCSs")
@@ -287,7 +287,7 @@ def _measure_arc(arc, images, sky_init, bands, phot_of, reference, troubles, src
         img = images[band]
         res, flags, bad, xb, yb, sig = _fit_band(phot_of[band], img, sky_init, arc, band,
                                                  reference)
-        troubles.record_fits(arc, band, flags, bad, src_ids, _file_of(img))
+        troubles.record_fits(arc, band, flags, bad, src_ids, file_of(img))
         ok = np.isfinite(xb) & np.isfinite(yb) & np.isfinite(sig) & (sig > 0) & ~bad
         per_band.append((np.where(ok, xb, np.nan), np.where(ok, yb, np.nan), sig, ok))
         fluxes[band] = _usable_fluxes(res, flags, bad)

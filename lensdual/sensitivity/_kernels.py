@@ -177,7 +177,7 @@ def _newton(a00, a01, a10, a11, profile, p0, p1, p2, tx, ty, x, y, scale):
 
 
 @njit(**JIT_OPTIONS)
-def _add_image(x, y, det, pos, mu, n_found, dedup):
+def add_image(x, y, det, pos, mu, n_found, dedup):
     for k in range(n_found):
         if math.hypot(pos[k, 0] - x, pos[k, 1] - y) <= dedup:
             return n_found
@@ -190,7 +190,7 @@ def _add_image(x, y, det, pos, mu, n_found, dedup):
 
 
 @njit(**JIT_OPTIONS)
-def _in_triangle(ux, uy, vx, vy, wx, wy, tx, ty):
+def in_triangle(ux, uy, vx, vy, wx, wy, tx, ty):
     """Barycentric weights (wv, ww) of t in triangle (u, v, w), or (-1, -1) outside."""
     e1x = vx - ux
     e1y = vy - uy
@@ -233,7 +233,7 @@ def solve_offset(a00, a01, a10, a11, profile, p0, p1, p2, dx, dy, half_width, n,
     # macro image start (may lie outside the box)
     xs, ys, res, det = _newton(a00, a01, a10, a11, profile, p0, p1, p2, tx, ty, -dx, -dy, scale)
     if res <= accept and det != 0.0:
-        n_found = _add_image(xs, ys, det, pos, mu, n_found, dedup)
+        n_found = add_image(xs, ys, det, pos, mu, n_found, dedup)
     # central image start: deflection dominated, alpha(x) ~ A0 (x + d)
     t2 = tx * tx + ty * ty
     if t2 > 0.0:
@@ -244,7 +244,7 @@ def solve_offset(a00, a01, a10, a11, profile, p0, p1, p2, dx, dy, half_width, n,
         xs, ys, res, det = _newton(a00, a01, a10, a11, profile, p0, p1, p2, tx, ty,
                                    -te2 * tx / t2, -te2 * ty / t2, scale)
         if res <= accept and det != 0.0:
-            n_found = _add_image(xs, ys, det, pos, mu, n_found, dedup)
+            n_found = add_image(xs, ys, det, pos, mu, n_found, dedup)
     for i in range(n):
         for j in range(n):
             # quick reject: target outside the bounding box of the cell's corners
@@ -264,11 +264,11 @@ def solve_offset(a00, a01, a10, a11, profile, p0, p1, p2, dx, dy, half_width, n,
             y0 = -half_width + j * step
             for tri in range(2):
                 if tri == 0:
-                    b1, b2 = _in_triangle(c0x, c0y, c1x, c1y, c2x, c2y, tx, ty)
+                    b1, b2 = in_triangle(c0x, c0y, c1x, c1y, c2x, c2y, tx, ty)
                     sx = x0 + b1 * step + b2 * step
                     sy = y0 + b2 * step
                 else:
-                    b1, b2 = _in_triangle(c0x, c0y, c2x, c2y, c3x, c3y, tx, ty)
+                    b1, b2 = in_triangle(c0x, c0y, c2x, c2y, c3x, c3y, tx, ty)
                     sx = x0 + b1 * step
                     sy = y0 + b1 * step + b2 * step
                 if b1 < 0.0:
@@ -276,7 +276,7 @@ def solve_offset(a00, a01, a10, a11, profile, p0, p1, p2, dx, dy, half_width, n,
                 xs, ys, res, det = _newton(a00, a01, a10, a11, profile, p0, p1, p2, tx, ty,
                                            sx, sy, scale)
                 if res <= accept and det != 0.0:
-                    n_found = _add_image(xs, ys, det, pos, mu, n_found, dedup)
+                    n_found = add_image(xs, ys, det, pos, mu, n_found, dedup)
     return n_found
 
 
