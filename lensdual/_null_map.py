@@ -159,15 +159,17 @@ def spline_map(t1, t2, sigma):
     sw = np.sqrt(w)
     k, grad = _kernel(u, KERNEL)
     poly, poly_x, poly_y = _poly(u, _DEGREE[KERNEL])
-    n_poly = poly.shape[1]
     kt = sw[:, None] * k * sw[None, :]
     pt = sw[:, None] * poly
-    q, rr = np.linalg.qr(pt, mode="complete")
-    q1, q2 = q[:, :n_poly], q[:, n_poly:]
+    # the polynomial part's column space and its complement (rank-revealing: pairs on
+    # a line or a conic leave some polynomial columns dependent)
+    q, sv, _ = np.linalg.svd(pt, full_matrices=True)
+    rank = int(np.count_nonzero(sv > sv[0] * 1e-10))
+    q2 = q[:, rank:]
     e, v = np.linalg.eigh(q2.T @ kt @ q2)
     e = np.clip(e, 0.0, None)
     yt = sw[:, None] * t1
-    z = v.T @ (q2.T @ yt)  # (n - n_poly, 2)
+    z = v.T @ (q2.T @ yt)  # (n - rank, 2)
     z2 = (z**2).sum(axis=1)
     top = max(float(e.max()), np.finfo(float).tiny)
     grid = np.log(top) + np.log(10.0) * np.linspace(-_DECADES_BELOW, _DECADES_ABOVE, _GRID)
@@ -182,7 +184,7 @@ def spline_map(t1, t2, sigma):
     gamma = v @ (z / (e + lam)[:, None])
     ct = q2 @ gamma
     fitted_t = kt @ ct
-    dcoef = np.linalg.solve(rr[:n_poly], q1.T @ (yt - fitted_t))  # the polynomial part
+    dcoef = np.linalg.lstsq(pt, yt - fitted_t, rcond=None)[0]  # the polynomial part
     c = sw[:, None] * ct
     mapped = k @ c + poly @ dcoef
     jac = np.einsum("ijk,jc->ick", grad, c)

@@ -119,3 +119,18 @@ def test_a_finely_sampled_curved_map_is_followed():
     coef = np.linalg.lstsq(p, t1, rcond=None)[0]
     err_affine = np.median(np.abs(coef[1:].T[None] - _curved_jacobian(t2)))
     assert err < 0.2 * err_affine
+
+
+def test_pairs_on_a_line_or_a_conic_give_a_map():
+    """On a line (or a circle) some of the quadratic part's columns are dependent: the
+    spline keeps the independent ones (a line leaves 3, as its affine fit) instead of
+    failing on a singular matrix, and still follows the pairs within their errors."""
+    s = np.linspace(-1, 1, 12)
+    rng = np.random.default_rng(4)
+    for t2, rank in ((np.column_stack([s, 0.5 * s]), 3),
+                     (np.column_stack([np.cos(s + 1), np.sin(s + 1)]), 5)):
+        t1 = _curved(t2) + 0.001 * rng.standard_normal(t2.shape)
+        m = spline_map(t1, t2, np.full((2, 12), 0.001))
+        assert np.isfinite(m.mapped).all() and np.isfinite(m.jacobian).all()
+        assert m.dof >= rank - 1e-9
+        assert np.abs(m.mapped - t1).max() < 0.005
