@@ -1033,11 +1033,15 @@ def adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, k_dense, st, order, 
 
 
 @njit(**_INLINE)
-def _shifted(t, noise, out):
-    """``out = t + noise`` for (N, 2) arrays."""
+def _copy_positions(t, noise, c, out):
+    """The positions of copy ``c``: ``out = t + noise[c]``, or ``t`` itself when
+    there are no copies (``noise`` empty)."""
+    if noise.shape[0] == 0:
+        return t
     for i in range(t.shape[0]):
         for d in range(2):
-            out[i, d] = t[i, d] + noise[i, d]
+            out[i, d] = t[i, d] + noise[c, i, d]
+    return out
 
 
 @njit(**JIT_OPTIONS)
@@ -1050,15 +1054,11 @@ def normal_pilots(t1, t2, nbr, noise1, noise2, need, weight_power, pilot, ok):
     :func:`lstsq_pilots`). Other entries are left as they are."""
     n = t1.shape[0]
     acc = np.empty(7)
-    copies = noise1.shape[0] > 0
     p1 = np.empty((n, 2))
     p2 = np.empty((n, 2))
     for c in range(need.shape[0]):
-        if copies:
-            _shifted(t1, noise1[c], p1)
-            _shifted(t2, noise2[c], p2)
-        q1 = p1 if copies else t1
-        q2 = p2 if copies else t2
+        q1 = _copy_positions(t1, noise1, c, p1)
+        q2 = _copy_positions(t2, noise2, c, p2)
         for a in range(n):
             if need[c, a]:
                 _pair_sums(q1, q2, _row(nbr, a), a, weight_power, acc)
@@ -1152,16 +1152,12 @@ def adaptive_knn(t1, t2, nbr, noise1, noise2, s1, s2, chi2_crit, k_dense, st, ne
                np.empty((k, 2)), np.empty((k, 2)), np.empty((2, NCOEF_MAX, NCOEF_MAX)),
                np.empty((2, NCOEF_MAX)), np.empty((2, NCOEF_MAX, NCOEF_MAX)),
                np.empty(NCOEF_MAX), np.empty((2, NCOEF_MAX)), np.empty(NCOEF_MAX))
-    copies = noise1.shape[0] > 0
     p1 = np.empty((n, 2))
     p2 = np.empty((n, 2))
     for c in range(need.shape[0]):
-        if copies:
-            _shifted(t1, noise1[c], p1)
-            _shifted(t2, noise2[c], p2)
-        _rows_passes(p1 if copies else t1, p2 if copies else t2, nbr, s1, s2, chi2_crit, k_dense,
-                     st, np.flatnonzero(need[c]), pilot[c], scratch, jac[c], ln_sd[c], status[c],
-                     dof[c])
+        _rows_passes(_copy_positions(t1, noise1, c, p1), _copy_positions(t2, noise2, c, p2),
+                     nbr, s1, s2, chi2_crit, k_dense, st, np.flatnonzero(need[c]), pilot[c],
+                     scratch, jac[c], ln_sd[c], status[c], dof[c])
 
 
 def run_adaptive(t1, t2, nbr, noise1, noise2, s1, s2, chi2_crit, k_dense, weight_power, st, need,
