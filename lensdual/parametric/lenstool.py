@@ -68,6 +68,7 @@ from astropy.cosmology import FlatLambdaCDM, LambdaCDM, w0waCDM
 from astropy.table import QTable
 
 from .._frames import ARCSEC_PER_RAD as _ARCSEC_PER_RAD
+from .._lens.model import LensModelBase
 from .._validation import DEFAULT_COSMOLOGY, as_cosmology, as_int, as_positions, as_real
 from . import _kernels
 from ._multiplane import LenstoolMultiPlaneLensModel
@@ -1200,13 +1201,15 @@ class LenstoolModel:
                                      label=f"Lenstool model {self.path.name}")
 
 
-class LenstoolLensModel:
+class LenstoolLensModel(LensModelBase):
     """Sum of dPIE, NFW and external-shear potentials, lenstronomy ``LensModel``-like.
 
     Positions are plain float arrays (any shape, broadcast together) in
     arcsec in the model frame; every method takes lenstronomy's ``kwargs``
     argument and ignores it. Evaluated by the Numba kernels of
-    ``lensdual.parametric._kernels``. Made by `LenstoolModel.lens_model`.
+    ``lensdual.parametric._kernels``: `alpha`, `hessian` and ``kappa`` (a
+    closed form); ``ray_shooting``, ``gamma`` and ``magnification`` follow
+    from the first two. Made by `LenstoolModel.lens_model`.
 
     Parameters
     ----------
@@ -1331,24 +1334,6 @@ class LenstoolLensModel:
                                x, y)
         return self._shaped(out[:, 0], shape), self._shaped(out[:, 1], shape)
 
-    def ray_shooting(self, x, y, kwargs=None, k=None):
-        """Source-plane positions ``(x - alpha_x, y - alpha_y)``, arcsec.
-
-        Parameters
-        ----------
-        x, y : array_like
-            Image-plane positions, arcsec (any shape).
-        kwargs, k
-            Ignored (lenstronomy's ``LensModel`` interface).
-
-        Returns
-        -------
-        beta_x, beta_y : `~numpy.ndarray`
-            Source-plane positions, arcsec, of the shape of ``x``.
-        """
-        ax, ay = self.alpha(x, y)
-        return np.subtract(x, ax), np.subtract(y, ay)
-
     def hessian(self, x, y, kwargs=None, k=None, diff=None):
         """Second derivatives of the potential, ``(f_xx, f_xy, f_yx, f_yy)``.
 
@@ -1387,44 +1372,11 @@ class LenstoolLensModel:
                                 _kernels.nfw_deflection_hessian, "both"), x, y)
         return tuple(self._shaped(out[:, i], shape) for i in range(5))
 
-    def kappa(self, x, y, kwargs=None, k=None):
-        """Convergence at ``(x, y)`` (closed form).
-
-        Parameters
-        ----------
-        x, y : array_like
-            Image-plane positions, arcsec (any shape).
-        kwargs, k
-            Ignored (lenstronomy's ``LensModel`` interface).
-
-        Returns
-        -------
-        kappa : `~numpy.ndarray`
-            Of the shape of ``x``.
-        """
+    def _kappa(self, x, y):
+        """The convergence in closed form (the kernels' own, not from the Hessian)."""
         out, shape = self._run((_kernels.dpie_convergence, _kernels.nfw_convergence, "kappa"),
                                x, y)
         return self._shaped(out, shape)
-
-    def magnification(self, x, y, kwargs=None, k=None):
-        """Signed magnification ``1 / det(d beta / d theta)``.
-
-        Parameters
-        ----------
-        x, y : array_like
-            Image-plane positions, arcsec (any shape).
-        kwargs, k
-            Ignored (lenstronomy's ``LensModel`` interface).
-
-        Returns
-        -------
-        mu : `~numpy.ndarray`
-            Of the shape of ``x``.
-        """
-        fxx, fxy, _, fyy = self.hessian(x, y)
-        det = (1.0 - fxx) * (1.0 - fyy) - fxy * fxy
-        with np.errstate(divide="ignore"):
-            return 1.0 / det
 
 
 def _shear(x, y, shear, kind):
