@@ -76,3 +76,42 @@ def test_no_private_name_is_imported_from_another_unit():
                 if private and src != (_unit(target) if target else "__init__"):
                     found.append(f"{path.relative_to(PACKAGE)}:{node.lineno} {name}")
     assert found == []
+
+
+def _imported_modules(path):
+    """The lensdual modules that ``path`` imports, at module or function level, as
+    dotted names (``from . import x`` gives the package and ``package.x``)."""
+    import ast
+
+    package = ["lensdual", *path.relative_to(PACKAGE).with_suffix("").parts[:-1]]
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            found.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package[: len(package) - (node.level - 1)]
+                module = ".".join(base + ([node.module] if node.module else []))
+            else:
+                module = node.module
+            found.add(module)
+            found.update(f"{module}.{alias.name}" for alias in node.names)
+    return found
+
+
+def _importers_of(units, target):
+    """``path: module`` for every module of the subpackages ``units`` that imports
+    ``target`` or a module in it."""
+    return [f"{p.relative_to(PACKAGE)}: {m}" for unit in units
+            for p in sorted((PACKAGE / unit).rglob("*.py"))
+            for m in sorted(_imported_modules(p))
+            if m == target or m.startswith(target + ".")]
+
+
+def test_parametric_does_not_import_simulation():
+    """Simulation builds on the parametric models, not the other way round; the
+    lens layer both use (lensdual._lens) imports neither."""
+    assert _importers_of(["parametric", "_lens"], "lensdual.simulation") == []
+    assert _importers_of(["_lens"], "lensdual.parametric") == []
+    # the walk sees function-level imports
+    assert _importers_of(["simulation"], "lensdual.parametric")

@@ -1192,7 +1192,7 @@ class LenstoolModel:
         -------
         system : `~lensdual.simulation.LensSystem`
         """
-        from ..simulation.lens_system import LensSystem
+        from .._lens.system import LensSystem
 
         model = self.lens_model(z_source, n_threads=n_threads)
         kwargs = [{"center_x": float(x), "center_y": float(y)} for x, y in model.centres]
