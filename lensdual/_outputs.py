@@ -23,6 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .exceptions import OutputConflictError
+
 #: The file in an output directory that lists what lensdual wrote there.
 MANIFEST = ".lensdual-outputs"
 #: Files that ``lensdual demo --write-config`` writes for the user to run and
@@ -48,13 +50,6 @@ KNOT_OUTPUTS = ("knot_images.ecsv", "report.txt")
 #: A temporary directory whose process is gone is removed after this long when
 #: its name does not say which process made it.
 _ORPHAN_AGE_S = 3600.0
-
-
-class OutputConflictError(FileExistsError):
-    """A command would replace a file of its output directory that lensdual did not write.
-
-    Nothing is written then; the message names the file.
-    """
 
 
 def _digest(path):

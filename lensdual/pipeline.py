@@ -31,6 +31,7 @@ from ._pairs_table import ARCS, POS_ERR_COLUMNS, arc_xy, flux_col, flux_err_col
 from ._validation import as_angle_scalar, as_real
 from .duality import DEFAULT_SNR_THRESHOLD, DEFAULT_TEST, TESTS
 from .estimators import DEFAULT_METHOD, DEFAULT_N_BOOTSTRAP, estimate_sigma_pos
+from .exceptions import PipelineError
 
 # The seed of analyse (and of lensdual run's [analysis] seed): runs repeat.
 DEFAULT_SEED = 0
@@ -59,10 +60,6 @@ _MIN_PAIRS_WHY = {
 #: Below this many pairs the paper's estimators fit one nearly global map: their
 #: mu_size is almost the same for every pair and their error omits the map's curvature.
 _FEW_PAIRS = 7
-
-
-class PipelineError(RuntimeError):
-    """The analysis cannot go on (no detections, too few pairs, ...)."""
 
 
 class _NoProgress:

@@ -115,3 +115,33 @@ def test_parametric_does_not_import_simulation():
     assert _importers_of(["_lens"], "lensdual.parametric") == []
     # the walk sees function-level imports
     assert _importers_of(["simulation"], "lensdual.parametric")
+
+
+def test_every_error_and_warning_class_is_defined_in_exceptions():
+    """Errors and warnings live in lensdual.exceptions (their old modules re-export
+    them), each under LensdualError or LensdualWarning, with the builtin base it had."""
+    import ast
+
+    import lensdual.exceptions as exc
+
+    pattern = re.compile(r"(Error|Warning|Exception)$")
+    found = []
+    for path in _sources():
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ClassDef) and path.name != "exceptions.py" and any(
+                    pattern.search(ast.unparse(base)) for base in node.bases):
+                found.append(f"{path.relative_to(PACKAGE)}:{node.lineno} {node.name}")
+    assert found == []
+    for name in exc.__all__:
+        cls = getattr(exc, name)
+        assert issubclass(cls, (exc.LensdualError, exc.LensdualWarning)), name
+    assert issubclass(exc.ConfigError, ValueError) and issubclass(exc.HDUError, ValueError)
+    assert issubclass(exc.OutputConflictError, FileExistsError)
+    assert issubclass(exc.PipelineError, RuntimeError)
+    from lensdual._outputs import OutputConflictError
+    from lensdual.config import ConfigError
+    from lensdual.parametric import LenstoolKeywordWarning
+    from lensdual.pipeline import PipelineError
+
+    assert (ConfigError, OutputConflictError, PipelineError, LenstoolKeywordWarning) == (
+        exc.ConfigError, exc.OutputConflictError, exc.PipelineError, exc.LenstoolKeywordWarning)

@@ -70,6 +70,7 @@ from astropy.table import QTable
 from .._frames import ARCSEC_PER_RAD as _ARCSEC_PER_RAD
 from .._lens.model import LensModelBase
 from .._validation import DEFAULT_COSMOLOGY, as_cosmology, as_int, as_positions, as_real
+from ..exceptions import LenstoolKeywordWarning
 from . import _kernels
 from ._multiplane import LenstoolMultiPlaneLensModel
 
@@ -319,10 +320,6 @@ def _cosmology(path, blocks):
             return FlatLambdaCDM(H0=h0, Om0=om, Tcmb0=0.0)
         return LambdaCDM(H0=h0, Om0=om, Ode0=ox, Tcmb0=0.0)
     return w0waCDM(H0=h0, Om0=om, Ode0=ox, w0=w0, wa=wa, Tcmb0=0.0)
-
-
-class LenstoolKeywordWarning(UserWarning):
-    """A keyword of a Lenstool file that lensdual does not interpret and does not know."""
 
 
 # Keywords of the blocks lensdual reads (runmode, grille) that it knowingly ignores,
