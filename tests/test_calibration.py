@@ -371,7 +371,7 @@ def test_chi2_critical_values():
 
 def test_report_words_for_student_t_pairs():
     """The report states the significance a flag is set on, and why it is below the SNR."""
-    from lensdual.pipeline import _significance, _snr_words
+    from lensdual._report import _significance, _snr_words
 
     tab = QTable({"snr": [4.0, 4.0], "snr_dof": [np.inf, 6.0],
                   "significance": [4.0, float(duality_significance(4.0, 6.0))]})
