@@ -145,3 +145,23 @@ def test_every_error_and_warning_class_is_defined_in_exceptions():
 
     assert (ConfigError, OutputConflictError, PipelineError, LenstoolKeywordWarning) == (
         exc.ConfigError, exc.OutputConflictError, exc.PipelineError, exc.LenstoolKeywordWarning)
+
+
+def test_plotting_lives_in_visualization():
+    """Figures are drawn in lensdual.visualization (re-exported where they belong):
+    no other module defines a plot_* function or imports pyplot, except _outputs,
+    which saves and closes the figures (matplotlib.path is geometry, not plotting)."""
+    import ast
+
+    found = []
+    for path in _sources():
+        rel = path.relative_to(PACKAGE)
+        if rel.parts[0] == "visualization":
+            continue
+        tree = ast.parse(path.read_text())
+        found += [f"{rel}: {node.name}" for node in tree.body
+                  if isinstance(node, ast.FunctionDef) and node.name.startswith("plot_")]
+        if str(rel) != "_outputs.py":
+            found += [f"{rel}: {m}" for m in sorted(_imported_modules(path))
+                      if m == "matplotlib.pyplot" or m.startswith("matplotlib.pyplot.")]
+    assert found == []
