@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 from astropy import units as u
 
+from ._doubts import add_doubt, no_doubts
 from ._pairs_table import ARCS, POS_ERR_COLUMNS, arc_xy, flux_col, flux_err_col
 from ._report import format_pairs_table, format_report, knot_report, verdict
 from ._report import parametric_paragraph as parametric_paragraph  # re-exported
@@ -260,9 +261,8 @@ def analyse(images, *, psf=None, estimator=DEFAULT_METHOD, sigma_pos="auto",
         doubt = pairing_doubts(pairs)
         _drop_non_positive(measured, bands, doubt)
         if "measured" in measured.colnames:
-            for k in np.flatnonzero(~np.asarray(measured["measured"], dtype=bool)):
-                if not doubt[k]:
-                    doubt[k] = f"not measured ({measured['photometry_note'][k]})"
+            add_doubt(doubt, ~np.asarray(measured["measured"], dtype=bool),
+                      lambda k: f"not measured ({measured['photometry_note'][k]})")
         if isinstance(sigma_pos, str):
             _doubt_missing_position_errors(measured, doubt)
         measured["doubt"] = np.array([str(d) for d in doubt], dtype=str)
@@ -295,10 +295,8 @@ def _doubt_missing_position_errors(measured, doubt):
     reported untested with the reason."""
     for arc, name in zip(ARCS, POS_ERR_COLUMNS, strict=True):
         err = measured[name].to_value(u.arcsec)
-        for k in np.flatnonzero(~(np.isfinite(err) & (err > 0))):
-            if not doubt[k]:
-                doubt[k] = (f"no position error from the PSF fit on arc L{arc} (is there a "
-                            "point source?)")
+        add_doubt(doubt, ~(np.isfinite(err) & (err > 0)),
+                  f"no position error from the PSF fit on arc L{arc} (is there a point source?)")
 
 
 #: Pairs whose two images are closer than this on the sky are the same image.
@@ -351,8 +349,7 @@ def pairing_doubts(pairs):
     doubt : `~numpy.ndarray` of object
         Per pair, why it is doubtful, or ``""`` when it is not.
     """
-    n = len(pairs)
-    doubt = np.array([""] * n, dtype=object)
+    doubt = no_doubts(len(pairs))
     rms = float(pairs.meta.get("rms_robust", np.nan)) if hasattr(pairs, "meta") else np.nan
     if "residual" in pairs.colnames and np.isfinite(rms) and rms > 0:
         col = pairs["residual"]
@@ -360,16 +357,15 @@ def pairing_doubts(pairs):
                          dtype=float)
         with np.errstate(invalid="ignore"):
             off = res > _DOUBT_RESIDUAL * rms
-        for k in np.flatnonzero(off):
-            doubt[k] = (f"off the arc-to-arc map (residual {1e3 * res[k]:.0f} mas, "
-                        f"{res[k] / rms:.0f} x the pairing's robust rms)")
+        add_doubt(doubt, off, lambda k: (f"off the arc-to-arc map (residual "
+                                         f"{1e3 * res[k]:.0f} mas, {res[k] / rms:.0f} x the "
+                                         "pairing's robust rms)"))
     if "confidence" in pairs.colnames:
         conf = np.asarray(pairs["confidence"], dtype=float)
         with np.errstate(invalid="ignore"):
-            low = (doubt == "") & (conf < _DOUBT_CONFIDENCE)
-        for k in np.flatnonzero(low):
-            doubt[k] = (f"ambiguous pairing (confidence {conf[k]:.1g}: another partner fits "
-                        "about as well)")
+            low = conf < _DOUBT_CONFIDENCE
+        add_doubt(doubt, low, lambda k: (f"ambiguous pairing (confidence {conf[k]:.1g}: "
+                                         "another partner fits about as well)"))
     return doubt
 
 
@@ -408,10 +404,9 @@ def _drop_non_positive(measured, bands, doubt):
             values = np.asarray(getattr(flux, "value", flux), dtype=float)
             with np.errstate(invalid="ignore"):
                 bad = np.isfinite(values) & (values <= 0)
-            for k in np.flatnonzero(bad):
-                if not doubt[k]:
-                    doubt[k] = (f"non-positive flux on L{arc} in {band} ({values[k]:.3g}): "
-                                "blank sky or a spurious detection")
+            add_doubt(doubt, bad, lambda k, arc=arc, band=band, values=values: (
+                f"non-positive flux on L{arc} in {band} ({values[k]:.3g}): blank sky or a "
+                "spurious detection"))
             if bad.any():
                 for col in (flux_col(arc, band), flux_err_col(arc, band)):
                     measured[col][bad] = np.nan * getattr(measured[col], "unit", 1)
