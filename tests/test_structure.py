@@ -1,7 +1,10 @@
-"""The package's structure rules that a linter does not check by itself."""
+"""The package's structure rules that a linter does not check by itself, and the
+linter settings that keep its size gates on."""
 
 import re
 from pathlib import Path
+
+import pytest
 
 import lensdual
 
@@ -165,3 +168,36 @@ def test_plotting_lives_in_visualization():
             found += [f"{rel}: {m}" for m in sorted(_imported_modules(path))
                       if m == "matplotlib.pyplot" or m.startswith("matplotlib.pyplot.")]
     assert found == []
+
+
+def _ruff_lint_settings():
+    import tomllib
+
+    pyproject = PACKAGE.parent / "pyproject.toml"
+    if not pyproject.is_file():
+        pytest.skip("not a source checkout (no pyproject.toml beside the package)")
+    return tomllib.loads(pyproject.read_text())["tool"]["ruff"]["lint"]
+
+
+def test_the_statement_gate_covers_the_package():
+    """ruff's PLR0915 (at most 80 statements a function) is selected, set to 80 and
+    ignored nowhere in lensdual."""
+    lint = _ruff_lint_settings()
+    assert "PLR0915" in lint["select"] and lint["pylint"]["max-statements"] == 80
+    assert not {"PLR", "PLR0915"} & set(lint.get("ignore", []))
+    assert [pattern for pattern, codes in lint.get("per-file-ignores", {}).items()
+            if {"PLR", "PLR0915"} & set(codes)
+            and not pattern.startswith(("tests", "benchmarks"))] == []
+
+
+def test_no_function_has_more_than_80_statements():
+    """ruff's PLR0915 passes on lensdual (where ruff is installed)."""
+    import subprocess
+    import sys
+
+    _ruff_lint_settings()
+    pytest.importorskip("ruff")
+    done = subprocess.run([sys.executable, "-m", "ruff", "check", "--no-cache", "--select",
+                           "PLR0915", "--output-format", "concise", str(PACKAGE)],
+                          cwd=PACKAGE.parent, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stdout + done.stderr
