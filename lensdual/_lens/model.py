@@ -4,6 +4,28 @@ import numpy as np
 
 __all__ = ["LensModelBase"]
 
+# The Parameters section every method of the interface shares; ``{ignored}`` names
+# the lenstronomy arguments the method takes and ignores.
+_PARAMETERS = """Parameters
+        ----------
+        x, y : array_like
+            Image-plane positions, arcsec (any shape).
+        {ignored}
+            Ignored (lenstronomy's ``LensModel`` interface)."""
+
+
+def _interface(returns, ignored="kwargs, k"):
+    """Complete a method's docstring with the shared Parameters and its Returns section."""
+    def complete(method):
+        method.__doc__ = (method.__doc__.rstrip() + "\n\n        "
+                          + _PARAMETERS.format(ignored=ignored)
+                          + "\n\n        Returns\n        -------\n        " + returns + "\n")
+        return method
+    return complete
+
+
+_OF_X = "\n            Of the shape of ``x``."
+
 
 class LensModelBase:
     """Convergence, shear, magnification and ray shooting from a model's deflection and Hessian.
@@ -16,77 +38,62 @@ class LensModelBase:
     closed-form convergence overrides ``_kappa(x, y)``, one that computes
     the Jacobian ``d beta / d theta`` directly (a multi-plane model)
     overrides ``_jacobian(x, y)``, and one that traces rays directly
-    overrides `ray_shooting`.
+    overrides `ray_shooting`. The docstrings here are those of every model's
+    methods (an override without a docstring shows the one here).
     """
 
-    def ray_shooting(self, x, y, kwargs=None, k=None):
-        """Source-plane positions ``beta = theta - alpha(theta)``, arcsec.
+    @_interface("alpha_x, alpha_y : `~numpy.ndarray`\n"
+                "            The deflection, arcsec, of the shape of ``x``.")
+    def alpha(self, x, y, kwargs=None, k=None):
+        """Deflection ``(alpha_x, alpha_y)`` at ``(x, y)``, arcsec.
 
-        Parameters
-        ----------
-        x, y : array_like
-            Image-plane positions, arcsec (any shape).
-        kwargs, k
-            Ignored (lenstronomy's ``LensModel`` interface).
-
-        Returns
-        -------
-        beta_x, beta_y : `~numpy.ndarray`
-            Source-plane positions, arcsec, of the shape of ``x``.
+        For several lens planes, the effective deflection ``theta - beta(theta)``.
         """
+        raise NotImplementedError(f"{type(self).__name__} supplies no deflection")
+
+    @_interface("f_xx, f_xy, f_yx, f_yy : `~numpy.ndarray`" + _OF_X, ignored="kwargs, k, diff")
+    def hessian(self, x, y, kwargs=None, k=None, diff=None):
+        """``(f_xx, f_xy, f_yx, f_yy)``: the second derivatives of the potential.
+
+        For several lens planes, ``I - d beta / d theta`` of the multi-plane
+        Jacobian (``f_xy`` and ``f_yx`` then differ in general).
+        """
+        raise NotImplementedError(f"{type(self).__name__} supplies no Hessian")
+
+    @_interface("alpha_x, alpha_y, f_xx, f_xy, f_yy : `~numpy.ndarray`" + _OF_X,
+                ignored="kwargs")
+    def alpha_hessian(self, x, y, kwargs=None):
+        """Deflection and Hessian in one pass: ``alpha_x, alpha_y, f_xx, f_xy, f_yy``.
+
+        ``f_xy`` is the mean of ``f_xy`` and ``f_yx`` where they differ (use
+        `hessian` for both).
+        """
+        ax, ay = self.alpha(x, y)
+        fxx, fxy, fyx, fyy = self.hessian(x, y)
+        return ax, ay, fxx, 0.5 * (fxy + fyx), fyy
+
+    @_interface("beta_x, beta_y : `~numpy.ndarray`\n"
+                "            Source-plane positions, arcsec, of the shape of ``x``.")
+    def ray_shooting(self, x, y, kwargs=None, k=None):
+        """Source-plane positions ``beta = theta - alpha(theta)``, arcsec."""
         ax, ay = self.alpha(x, y)
         return np.subtract(x, ax), np.subtract(y, ay)
 
+    @_interface("kappa : `~numpy.ndarray`" + _OF_X)
     def kappa(self, x, y, kwargs=None, k=None):
-        """Convergence ``(f_xx + f_yy) / 2`` (the closed form where the model has one).
-
-        Parameters
-        ----------
-        x, y : array_like
-            Image-plane positions, arcsec (any shape).
-        kwargs, k
-            Ignored (lenstronomy's ``LensModel`` interface).
-
-        Returns
-        -------
-        kappa : `~numpy.ndarray`
-            Of the shape of ``x``.
-        """
+        """Convergence ``(f_xx + f_yy) / 2`` (the closed form where the model has one)."""
         return self._kappa(x, y)
 
+    @_interface("gamma_1, gamma_2 : `~numpy.ndarray`" + _OF_X)
     def gamma(self, x, y, kwargs=None, k=None):
-        """Shear ``gamma_1 = (f_xx - f_yy) / 2`` and ``gamma_2 = f_xy``, as lenstronomy's.
-
-        Parameters
-        ----------
-        x, y : array_like
-            Image-plane positions, arcsec (any shape).
-        kwargs, k
-            Ignored (lenstronomy's ``LensModel`` interface).
-
-        Returns
-        -------
-        gamma_1, gamma_2 : `~numpy.ndarray`
-            Of the shape of ``x``.
-        """
+        """Shear ``gamma_1 = (f_xx - f_yy) / 2`` and ``gamma_2 = f_xy``, as lenstronomy's."""
         fxx, fxy, _, fyy = self.hessian(x, y)
         return 0.5 * (fxx - fyy), fxy
 
+    @_interface("mu : `~numpy.ndarray`\n"
+                "            Of the shape of ``x``; infinite where the determinant is zero.")
     def magnification(self, x, y, kwargs=None, k=None):
-        """Signed magnification ``1 / det(d beta / d theta)``.
-
-        Parameters
-        ----------
-        x, y : array_like
-            Image-plane positions, arcsec (any shape).
-        kwargs, k
-            Ignored (lenstronomy's ``LensModel`` interface).
-
-        Returns
-        -------
-        mu : `~numpy.ndarray`
-            Of the shape of ``x``; infinite where the determinant is zero.
-        """
+        """Signed magnification ``1 / det(d beta / d theta)``."""
         a11, a12, a21, a22 = self._jacobian(x, y)
         with np.errstate(divide="ignore"):
             return 1.0 / (a11 * a22 - a12 * a21)

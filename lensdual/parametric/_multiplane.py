@@ -153,63 +153,20 @@ class LenstoolMultiPlaneLensModel(LensModelBase):
                 ax, ay = self.planes[j].alpha(xj, yj)
             alphas.append((ax, ay))
 
-    def ray_shooting(self, x, y, kwargs=None, k=None):  # documented by LensModelBase
+    # the LensModel methods below show LensModelBase's docstrings
+    def ray_shooting(self, x, y, kwargs=None, k=None):
         bx, by, _ = self._trace(x, y, False)
         return bx, by
 
     def alpha(self, x, y, kwargs=None, k=None):
-        """Effective deflection ``theta - beta(theta)``, arcsec.
-
-        Parameters
-        ----------
-        x, y : array_like
-            Image-plane positions, arcsec (any shape).
-        kwargs, k
-            Ignored (lenstronomy's ``LensModel`` interface).
-
-        Returns
-        -------
-        alpha_x, alpha_y : `~numpy.ndarray`
-            The deflection, arcsec, of the shape of ``x``.
-        """
         bx, by, _ = self._trace(x, y, False)
         return np.subtract(x, bx), np.subtract(y, by)
 
     def hessian(self, x, y, kwargs=None, k=None, diff=None):
-        """``(f_xx, f_xy, f_yx, f_yy) = I - d beta / d theta`` (multi-plane Jacobian).
-
-        Parameters
-        ----------
-        x, y : array_like
-            Image-plane positions, arcsec (any shape).
-        kwargs, k, diff
-            Ignored (lenstronomy's ``LensModel`` interface).
-
-        Returns
-        -------
-        f_xx, f_xy, f_yx, f_yy : `~numpy.ndarray`
-            Of the shape of ``x``.
-        """
         _, _, (a11, a12, a21, a22) = self._trace(x, y, True)
         return 1.0 - a11, -a12, -a21, 1.0 - a22
 
     def alpha_hessian(self, x, y, kwargs=None):
-        """Deflection and Hessian in one pass: ``alpha_x, alpha_y, f_xx, f_xy, f_yy``.
-
-        ``f_xy`` is the mean of ``f_xy`` and ``f_yx`` (use `hessian` for both).
-
-        Parameters
-        ----------
-        x, y : array_like
-            Image-plane positions, arcsec (any shape).
-        kwargs
-            Ignored (lenstronomy's ``LensModel`` interface).
-
-        Returns
-        -------
-        alpha_x, alpha_y, f_xx, f_xy, f_yy : `~numpy.ndarray`
-            Of the shape of ``x``.
-        """
         bx, by, (a11, a12, a21, a22) = self._trace(x, y, True)
         return (np.subtract(x, bx), np.subtract(y, by), 1.0 - a11, -0.5 * (a12 + a21),
                 1.0 - a22)

@@ -1312,59 +1312,18 @@ class LenstoolLensModel(LensModelBase):
         res = col.reshape(shape)
         return res[()] if shape == () else res
 
+    # the LensModel methods below show LensModelBase's docstrings
     def alpha(self, x, y, kwargs=None, k=None):
-        """Deflection ``(alpha_x, alpha_y)`` at ``(x, y)``, arcsec.
-
-        Parameters
-        ----------
-        x, y : array_like
-            Image-plane positions, arcsec (any shape).
-        kwargs, k
-            Ignored (lenstronomy's ``LensModel`` interface).
-
-        Returns
-        -------
-        alpha_x, alpha_y : `~numpy.ndarray`
-            The deflection, arcsec, of the shape of ``x``.
-        """
         out, shape = self._run((_kernels.dpie_deflection, _kernels.nfw_deflection, "alpha"),
                                x, y)
         return self._shaped(out[:, 0], shape), self._shaped(out[:, 1], shape)
 
     def hessian(self, x, y, kwargs=None, k=None, diff=None):
-        """Second derivatives of the potential, ``(f_xx, f_xy, f_yx, f_yy)``.
-
-        Parameters
-        ----------
-        x, y : array_like
-            Image-plane positions, arcsec (any shape).
-        kwargs, k, diff
-            Ignored (lenstronomy's ``LensModel`` interface).
-
-        Returns
-        -------
-        f_xx, f_xy, f_yx, f_yy : `~numpy.ndarray`
-            Of the shape of ``x``.
-        """
         out, shape = self._run((_kernels.dpie_hessian, _kernels.nfw_hessian, "hessian"), x, y)
         fxy = self._shaped(out[:, 1], shape)
         return self._shaped(out[:, 0], shape), fxy, fxy, self._shaped(out[:, 2], shape)
 
     def alpha_hessian(self, x, y, kwargs=None):
-        """Deflection and Hessian in one pass: ``alpha_x, alpha_y, f_xx, f_xy, f_yy``.
-
-        Parameters
-        ----------
-        x, y : array_like
-            Image-plane positions, arcsec (any shape).
-        kwargs
-            Ignored (lenstronomy's ``LensModel`` interface).
-
-        Returns
-        -------
-        alpha_x, alpha_y, f_xx, f_xy, f_yy : `~numpy.ndarray`
-            Of the shape of ``x``.
-        """
         out, shape = self._run((_kernels.dpie_deflection_hessian,
                                 _kernels.nfw_deflection_hessian, "both"), x, y)
         return tuple(self._shaped(out[:, i], shape) for i in range(5))
