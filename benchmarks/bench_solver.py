@@ -32,7 +32,7 @@ from lenstronomy.Cosmo.lens_cosmo import LensCosmo
 from lenstronomy.LensModel.lens_model import LensModel
 from lenstronomy.LensModel.Solver.lens_equation_solver import LensEquationSolver
 
-from lensdual.simulation._solver import ImageFinder
+from lensdual._lens._solver import ImageFinder
 
 PRECISION = 1e-10
 SEARCH_WINDOW = 100.0

@@ -23,6 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .exceptions import OutputConflictError
+
 #: The file in an output directory that lists what lensdual wrote there.
 MANIFEST = ".lensdual-outputs"
 #: Files that ``lensdual demo --write-config`` writes for the user to run and
@@ -48,13 +50,6 @@ KNOT_OUTPUTS = ("knot_images.ecsv", "report.txt")
 #: A temporary directory whose process is gone is removed after this long when
 #: its name does not say which process made it.
 _ORPHAN_AGE_S = 3600.0
-
-
-class OutputConflictError(FileExistsError):
-    """A command would replace a file of its output directory that lensdual did not write.
-
-    Nothing is written then; the message names the file.
-    """
 
 
 def _digest(path):
@@ -297,36 +292,23 @@ def write_table(table, path):
     table.write(path, format="ascii.ecsv", overwrite=True)
 
 
-def write_figures(analysis, directory, *, title, images=None):
-    """The pairing map, the duality figure and (with ``images``) the pairs on both arcs."""
-    import matplotlib
-
-    if matplotlib.get_backend().lower() not in ("agg", "pdf", "svg", "cairo"):
-        matplotlib.use("agg")
+def _save_figure(fig, path, dpi):
+    """Write ``fig`` to ``path`` and close it."""
     import matplotlib.pyplot as plt
 
-    from .visualization import plot_duality, plot_pairing_map
-
-    fig, ax = plt.subplots(figsize=(5.5, 5.5))
-    plot_pairing_map(analysis.pairs, analysis.catalogs["L1"], analysis.catalogs["L2"], ax=ax)
-    ax.set_title(f"{title}: pairing (L1 rotated onto L2)", fontsize="medium")
-    fig.tight_layout()
-    fig.savefig(directory / "pairing_map.png", dpi=120)
+    fig.savefig(path, dpi=dpi)
     plt.close(fig)
+
+
+def write_figures(analysis, directory, *, title, images=None):
+    """The pairing map, the duality figure and (with ``images``) the pairs on both arcs."""
+    from .visualization._run import constellation_figure, duality_figure, pairing_map_figure
+
+    _save_figure(pairing_map_figure(analysis, title), directory / "pairing_map.png", 120)
     if images is not None:
-        from .visualization import plot_arc_images
-
-        # two panels: the mapped view is pairing_map.png
-        fig = plot_arc_images(images, analysis.result, mapped=False)
-        fig.suptitle(f"{title}: the pairs on both arcs", fontsize="medium")
-        fig.tight_layout(rect=(0, 0, 1, 0.94))  # room for the title above the panels
-        fig.savefig(directory / "constellation.png", dpi=110)
-        plt.close(fig)
-    fig, ax = plt.subplots(figsize=(5.5, 5.5))
-    plot_duality(analysis.result, ax=ax, title=f"{title}: duality test")
-    fig.tight_layout()
-    fig.savefig(directory / "duality.png", dpi=120)
-    plt.close(fig)
+        _save_figure(constellation_figure(analysis, images, title),
+                     directory / "constellation.png", 110)
+    _save_figure(duality_figure(analysis, title), directory / "duality.png", 120)
 
 
 def write_regions(analysis, directory):
@@ -393,7 +375,6 @@ def parametric_outputs(analysis, directory, *, lenstool=None, fit=False, model=N
                        fit_kwargs=None):
     """The parametric comparison: table and figure into ``directory``."""
     import astropy.units as u
-    import matplotlib.pyplot as plt
 
     from .parametric import parametric_comparison
 
@@ -405,8 +386,7 @@ def parametric_outputs(analysis, directory, *, lenstool=None, fit=False, model=N
         kwargs["model"] = tuple(model)
     table, fig = parametric_comparison(analysis.result, **kwargs)
     write_table(table, directory / "parametric.ecsv")
-    fig.savefig(directory / "parametric.png", dpi=120)
-    plt.close(fig)
+    _save_figure(fig, directory / "parametric.png", 120)
     return table
 
 
@@ -459,19 +439,10 @@ def write_run_inputs(mocks, directory, *, estimator, n_bootstrap, snr_threshold,
 
 def write_knot_figure(table, path):
     """``mu_size`` against the models' ratios of one knot table, as a PNG."""
-    import matplotlib
+    from .visualization._run import knot_figure
 
-    if matplotlib.get_backend().lower() not in ("agg", "pdf", "svg", "cairo"):
-        matplotlib.use("agg")
-    import matplotlib.pyplot as plt
+    _save_figure(knot_figure(table), path, 120)
 
-    from .parametric import plot_size_vs_model
-
-    fig, ax = plt.subplots(figsize=(5.5, 5.5))
-    plot_size_vs_model(table, ax=ax)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
 
 
 def write_knot_outputs(analysis, directory, report_text):

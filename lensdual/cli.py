@@ -40,6 +40,7 @@ from ._outputs import (
     write_run_inputs,
     write_table,
 )
+from ._report import format_report, knot_report, parametric_paragraph
 from .demo import (
     DEMO_SUBHALOES,
     compare_with_truth,
@@ -48,14 +49,8 @@ from .demo import (
     truth_paragraph,
 )
 from .duality import DEFAULT_TEST, TESTS
-from .pipeline import (
-    PipelineError,
-    analyse,
-    analyse_knot_config,
-    format_report,
-    knot_report,
-    parametric_paragraph,
-)
+from .exceptions import PipelineError
+from .pipeline import analyse, analyse_knots
 
 __all__ = ["main", "build_parser"]
 
@@ -261,13 +256,28 @@ def _cmd_run(args):
                    removed=removed)
 
 
+def _analyse_knot_config(config):
+    """`~lensdual.pipeline.analyse_knots` on the ``[knots]`` section of a run configuration."""
+    spec = config.knots
+    macro = spec.centres if spec.centres is not None else list(spec.macro_images)
+    mapping = None
+    if spec.mapping is not None:
+        from astropy.table import Table
+
+        mapping = Table.read(spec.mapping, format="ascii.ecsv")
+    return analyse_knots(spec.catalogue, macro, knots=spec.knot_filter(), assign=spec.assign,
+                         mapping=mapping, models=list(spec.models), z_source=spec.z_source,
+                         sigma_pos=spec.sigma_pos, method=config.estimator,
+                         snr_threshold=config.snr_threshold)
+
+
 def _run_knots(args, config, start):
     """``lensdual run`` on a ``[knots]`` configuration: a catalogue, no images."""
     progress = _Progress(["analyse", "write"], args, desc="lensdual run")
     removed = []
     try:
         with progress.step("knot constellation"):
-            analysis = analyse_knot_config(config)
+            analysis = _analyse_knot_config(config)
         report = knot_report(analysis)
         with atomic_directory(config.outdir, removed) as tmp, progress.step("write outputs"):
             write_knot_outputs(analysis, tmp, report)

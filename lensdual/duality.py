@@ -18,6 +18,7 @@ from scipy import stats
 from scipy.special import chdtrc, erfc
 
 from . import _pairs_table
+from ._doubts import add_doubt, doubts_of
 from ._null_map import spline_map
 from ._pairs_table import band_fluxes as _band_fluxes
 from ._pairs_table import pair_bands
@@ -304,21 +305,14 @@ CHROMATIC_ALPHA = 1e-3
 def _doubts(tab, theta1, theta2, flux, chromatic_alpha):
     """Why each pair is doubtful ("" when it is not): the input's ``doubt`` column,
     then the chromatic check."""
-    n = len(tab)
-    if "doubt" in tab.colnames:
-        doubt = np.array([str(d) if d is not None and str(d) not in ("", "--") else ""
-                          for d in np.asarray(tab["doubt"], dtype=object)], dtype=object)
-    else:
-        doubt = np.array([""] * n, dtype=object)
+    doubt = doubts_of(tab)
     lost = ~(np.isfinite(theta1.value).all(axis=1) & np.isfinite(theta2.value).all(axis=1))
-    for k in np.flatnonzero(lost & (doubt == "")):
-        doubt[k] = "position not measured (NaN)"
+    add_doubt(doubt, lost, "position not measured (NaN)")
     pval = np.asarray(flux["chromatic_pvalue"], dtype=float)
     with np.errstate(invalid="ignore"):
-        chroma = (doubt == "") & (pval < chromatic_alpha)
-    for k in np.flatnonzero(chroma):
-        doubt[k] = (f"colours differ between the images (chromatic p = {pval[k]:.2g}): "
-                    "lensing is achromatic")
+        chroma = pval < chromatic_alpha
+    add_doubt(doubt, chroma, lambda k: (f"colours differ between the images (chromatic p = "
+                                        f"{pval[k]:.2g}): lensing is achromatic"))
     return doubt.astype(str)
 
 

@@ -13,6 +13,8 @@ from astropy.table import QTable
 from lensdual.cli import main
 from lensdual.pipeline import format_pairs_table, verdict
 
+# ------------------------------------------------------------------------------- helpers
+
 
 def no_leftovers(tmp_path, out):
     assert not out.exists()
@@ -24,6 +26,37 @@ def copy_fits(src, dst, fn):
         fn(hdul)
         hdul.writeto(dst, overwrite=True)
     return dst
+
+
+def _product(path, kind, rng, pixar=2.0e-14):
+    """A JWST *_i2d-like (SCI, ERR, WHT in MJy/sr) or HST *_drz-like (SCI, WHT, CTX)
+    file of pure noise with a WCS."""
+    from astropy.wcs import WCS
+
+    w = WCS(naxis=2)
+    w.wcs.ctype = ["RA---TAN", "DEC--TAN"]
+    w.wcs.crval = [110.8, -73.45]
+    w.wcs.crpix = [20.0, 20.0]
+    w.wcs.cdelt = [-1e-5, 1e-5]
+    shape = (40, 40)
+    sigma = 0.3
+    sci = fits.ImageHDU(rng.normal(1.0, sigma, shape), w.to_header(), name="SCI")
+    hdus = [fits.PrimaryHDU(), sci]
+    if kind == "jwst":
+        sci.header["BUNIT"] = "MJy/sr"
+        sci.header["PIXAR_SR"] = pixar
+        hdus += [fits.ImageHDU(np.full(shape, sigma), name="ERR"),
+                 fits.ImageHDU(np.full(shape, 5.0), name="WHT")]
+    else:
+        sci.header["BUNIT"] = "electron/s"
+        hdus[0].header["D001WTSC"] = "exp"
+        hdus += [fits.ImageHDU(np.full(shape, 1000.0), name="WHT"),
+                 fits.ImageHDU(np.ones(shape, dtype=np.int32), name="CTX")]
+    fits.HDUList(hdus).writeto(path)
+    return path, sigma
+
+
+# ----------------------------------------------------------- images, error maps and PSFs
 
 
 def test_error_map_in_other_units_is_refused(demo_dir, tmp_path, capsys):
@@ -59,6 +92,32 @@ def test_error_map_far_below_the_noise_warns(demo_dir, tmp_path, capsys):
     err = capsys.readouterr().err
     assert "times the measured noise" in err and "arc L1" in err
     assert "times the measured noise" in (out / "report.txt").read_text()
+
+
+def test_zero_error_pixels_are_masked_with_a_warning_naming_the_file(demo_dir, tmp_path,
+                                                                      capsys):
+    """A 15 x 15 block of zero errors around the brightest L1 source: the block is
+    masked, and the run says so, naming the error map and the pixel count."""
+    cfg = absolute_config(demo_dir)
+    spec = cfg["arcs"]["L1"]["F150W"]
+    cat = QTable.read(demo_dir / "catalog_L1.ecsv", format="ascii.ecsv")
+    k = int(np.argmax(np.asarray(cat["flux_F150W"])))
+    x, y = int(round(float(cat["x_pix"][k]))), int(round(float(cat["y_pix"][k])))
+    index = 1 if "error_hdu" in spec else 0
+
+    def zero_block(hdul):
+        hdul[index].data[y - 7:y + 8, x - 7:x + 8] = 0.0
+
+    spec["error"] = str(copy_fits(spec.get("error", spec["image"]), tmp_path / "err.fits",
+                                  zero_block))
+    out = tmp_path / "out"
+    assert main(["run", str(write(tmp_path / "c.toml", cfg)), "--outdir", str(out),
+                 "--quiet"]) == 0
+    err = capsys.readouterr().err
+    said = ("arc L1, L1_F150W_sci.fits (error map err.fits): 225 pixel(s) with data have an "
+            "error that is zero")
+    assert said in err
+    assert said in (out / "report.txt").read_text()
 
 
 def test_unit_typo_on_one_band_is_refused(demo_dir, tmp_path, capsys):
@@ -105,122 +164,6 @@ def test_bands_on_different_pixel_grids_are_refused(demo_dir, tmp_path, capsys):
     no_leftovers(tmp_path, out)
 
 
-def test_too_few_pairs(demo_dir, tmp_path, capsys):
-    previous = QTable.read(demo_dir / "pairs.ecsv", format="ascii.ecsv")
-    QTable({"id1": previous["id1"][:4], "id2": previous["id2"][:4]}).write(
-        tmp_path / "pairs.ecsv", format="ascii.ecsv")
-    cfg = absolute_config(demo_dir)
-    cfg["pairing"] = {"method": "manual", "file": str(tmp_path / "pairs.ecsv")}
-    out = tmp_path / "out"
-    # the default estimator refuses: its error bars need 7 pairs
-    assert main(["run", str(write(tmp_path / "c.toml", cfg)), "--outdir", str(out),
-                 "--quiet"]) == 1
-    assert "needs at least 7" in capsys.readouterr().err
-    no_leftovers(tmp_path, out)
-    # the paper's estimators run, with a loud warning in the verdict
-    cfg["analysis"]["estimator"] = "quad"
-    assert main(["run", str(write(tmp_path / "q.toml", cfg)), "--outdir", str(out),
-                 "--quiet"]) == 0
-    assert "WARNING: only 4 pairs" in (out / "report.txt").read_text()
-
-
-def test_nan_mu_size_is_never_a_pass():
-    import astropy.units as u
-
-    from lensdual.duality import check_duality
-
-    rng = np.random.default_rng(0)
-    t2 = rng.uniform(-1, 1, (8, 2))
-    t1 = t2 @ np.array([[1.3, 0.2], [0.1, -0.9]]).T
-    pairs = QTable({"id1": np.arange(8), "id2": np.arange(8),
-                    "x1": t1[:, 0] * u.arcsec, "y1": t1[:, 1] * u.arcsec,
-                    "x2": t2[:, 0] * u.arcsec, "y2": t2[:, 1] * u.arcsec,
-                    "flux1_F150W": np.full(8, 1.17), "flux2_F150W": np.ones(8),
-                    "flux_err1_F150W": np.full(8, 0.01), "flux_err2_F150W": np.full(8, 0.01)})
-    res = check_duality(pairs, "quad", sigma_pos=0.001 * u.arcsec, n_bootstrap=50, seed=0)
-    res["mu_size"][2] = np.nan  # e.g. the 2v estimator on collinear neighbours
-    res["tested"][2] = False
-    res["snr"][2] = np.nan
-    text = verdict(res, 0.001 * u.arcsec)
-    assert "could not be tested and are NOT passes" in text and "no mu_size: pair 3" in text
-    table = format_pairs_table(res)
-    assert "untested (no mu_size)" in table.splitlines()[4]
-    res["tested"][:] = False
-    res["anomalous"][:] = False
-    text = verdict(res, 0.001 * u.arcsec)
-    assert "No pair could be tested" in text and "no conclusion" in text
-
-
-def test_unwritable_output_fails_before_the_analysis(demo_dir, tmp_path, capsys, monkeypatch):
-    import lensdual.cli as cli
-
-    def never(*args, **kwargs):
-        raise AssertionError("the analysis ran")
-
-    monkeypatch.setattr(cli, "analyse", never)
-    blocker = tmp_path / "file"
-    blocker.write_text("")
-    cfg = absolute_config(demo_dir)
-    path = write(tmp_path / "c.toml", cfg)
-    assert main(["run", str(path), "--outdir", str(blocker / "out"), "--quiet"]) == 1
-    assert "cannot write the output directory" in capsys.readouterr().err
-    # an existing file as the output directory is a configuration problem (exit 2)
-    assert main(["run", str(path), "--outdir", str(blocker), "--quiet"]) == 2
-    assert "exists and is not a directory" in capsys.readouterr().err
-
-
-def test_ds9_regions(demo_dir):
-    from regions import Regions
-
-    pairs = QTable.read(demo_dir / "pairs.ecsv", format="ascii.ecsv")
-    reg = Regions.read(str(demo_dir / "pairs.reg"), format="ds9")
-    assert len(reg) == 3 * len(pairs)
-    texts = [str(r.meta.get("text")) for r in reg if "text" in r.meta]
-    assert texts[:2] == [str(pairs["pair_id"][0])] * 2
-    np.testing.assert_allclose(reg[0].center.ra.deg, pairs["sky1"][0].ra.deg, atol=1e-7)
-    np.testing.assert_allclose(reg[1].center.dec.deg, pairs["sky2"][0].dec.deg, atol=1e-7)
-    cat = QTable.read(demo_dir / "catalog_L1.ecsv", format="ascii.ecsv")
-    assert len(Regions.read(str(demo_dir / "sources_L1.reg"), format="ds9")) == len(cat)
-
-
-def test_progress_bars_only_on_a_terminal(demo_dir, tmp_path, capsys, monkeypatch):
-    cfg = absolute_config(demo_dir)
-    path = write(tmp_path / "c.toml", cfg)
-    monkeypatch.setattr(sys.stderr, "isatty", lambda: False, raising=False)
-    assert main(["run", str(path), "--outdir", str(tmp_path / "a")]) == 0
-    assert "lensdual run:" not in capsys.readouterr().err
-    assert main(["run", str(path), "--outdir", str(tmp_path / "b"), "--progress"]) == 0
-    assert "lensdual run:" in capsys.readouterr().err
-
-
-def _product(path, kind, rng, pixar=2.0e-14):
-    """A JWST *_i2d-like (SCI, ERR, WHT in MJy/sr) or HST *_drz-like (SCI, WHT, CTX)
-    file of pure noise with a WCS."""
-    from astropy.wcs import WCS
-
-    w = WCS(naxis=2)
-    w.wcs.ctype = ["RA---TAN", "DEC--TAN"]
-    w.wcs.crval = [110.8, -73.45]
-    w.wcs.crpix = [20.0, 20.0]
-    w.wcs.cdelt = [-1e-5, 1e-5]
-    shape = (40, 40)
-    sigma = 0.3
-    sci = fits.ImageHDU(rng.normal(1.0, sigma, shape), w.to_header(), name="SCI")
-    hdus = [fits.PrimaryHDU(), sci]
-    if kind == "jwst":
-        sci.header["BUNIT"] = "MJy/sr"
-        sci.header["PIXAR_SR"] = pixar
-        hdus += [fits.ImageHDU(np.full(shape, sigma), name="ERR"),
-                 fits.ImageHDU(np.full(shape, 5.0), name="WHT")]
-    else:
-        sci.header["BUNIT"] = "electron/s"
-        hdus[0].header["D001WTSC"] = "exp"
-        hdus += [fits.ImageHDU(np.full(shape, 1000.0), name="WHT"),
-                 fits.ImageHDU(np.ones(shape, dtype=np.int32), name="CTX")]
-    fits.HDUList(hdus).writeto(path)
-    return path, sigma
-
-
 def test_jwst_and_hst_products_are_read_with_their_extensions(tmp_path):
     import astropy.units as u
 
@@ -251,84 +194,6 @@ def test_jwst_and_hst_products_are_read_with_their_extensions(tmp_path):
             np.testing.assert_allclose(np.median(ccd.uncertainty.array), 0.3, rtol=0.1)
 
 
-def test_fig3_on_the_images(demo_dir):
-    import matplotlib
-
-    matplotlib.use("agg")
-    from astropy.nddata import CCDData
-    from astropy.visualization.wcsaxes import WCSAxes
-    from matplotlib.patches import Circle
-
-    from lensdual.visualization import plot_arc_images
-
-    assert (demo_dir / "constellation.png").stat().st_size > 20000
-    result = QTable.read(demo_dir / "pairs.ecsv", format="ascii.ecsv")
-    images = {arc: CCDData.read(demo_dir / "images" / f"{arc}_F150W.fits", hdu=0)
-              for arc in ("L1", "L2")}
-    result["anomalous"][:] = False
-    result["anomalous"][1] = True
-    fig = plot_arc_images(images, result)
-    axes = fig.axes
-    assert len(axes) == 3 and all(isinstance(a, WCSAxes) for a in axes[:2])
-    for ax in axes[:2]:
-        circles = [p for p in ax.patches if isinstance(p, Circle)]
-        assert len(circles) == len(result)
-        colours = [matplotlib.colors.to_hex(c.get_edgecolor()) for c in circles]
-        assert colours[1] == "#ff0000" and colours.count("#ff0000") == 1
-        # north up: the Dec axis is the vertical one
-        assert ax.coords[1].get_axislabel() == "Dec"
-
-
-def test_swapped_manual_ids_are_doubtful_never_anomalous(demo_dir, tmp_path):
-    previous = QTable.read(demo_dir / "pairs.ecsv", format="ascii.ecsv")
-    id1, id2 = list(previous["id1"]), list(previous["id2"])
-    id2[1], id2[4] = id2[4], id2[1]
-    QTable({"id1": id1, "id2": id2}).write(tmp_path / "pairs.ecsv", format="ascii.ecsv")
-    cfg = absolute_config(demo_dir)
-    cfg["pairing"] = {"method": "manual", "file": str(tmp_path / "pairs.ecsv")}
-    out = tmp_path / "out"
-    assert main(["run", str(write(tmp_path / "c.toml", cfg)), "--outdir", str(out),
-                 "--quiet"]) == 0
-    result = QTable.read(out / "pairs.ecsv", format="ascii.ecsv")
-    swapped = np.isin(np.arange(len(result)), [1, 4])
-    assert not result["anomalous"][swapped].any()
-    assert not result["tested"][swapped].any()
-    assert all("pairing" in str(d) for d in result["doubt"][swapped])
-    assert np.all(result["mu_size_status"][swapped] == "excluded")
-    report = (out / "report.txt").read_text()
-    assert "Doubtful pairings are left out" in report
-
-
-def test_spurious_candidates_never_look_like_subhaloes(demo_dir, tmp_path, capsys):
-    from astropy.coordinates import SkyCoord
-
-    rng = np.random.default_rng(2)
-    cfg = absolute_config(demo_dir)
-    paths = {}
-    for arc in ("L1", "L2"):
-        cat = QTable.read(demo_dir / f"catalog_{arc}.ecsv", format="ascii.ecsv")
-        ra, dec = cat["sky"].ra.deg, cat["sky"].dec.deg
-        n = 25
-        sky = SkyCoord(np.concatenate([ra, rng.uniform(ra.min(), ra.max(), n)]),
-                       np.concatenate([dec, rng.uniform(dec.min(), dec.max(), n)]), unit="deg")
-        ids = np.concatenate([np.asarray(cat["id"]), np.arange(1000, 1000 + n)])
-        QTable({"id": ids, "sky": sky}).write(tmp_path / f"{arc}.ecsv", format="ascii.ecsv")
-        paths[arc] = str(tmp_path / f"{arc}.ecsv")
-    cfg["catalogs"] = paths
-    out = tmp_path / "out"
-    code = main(["run", str(write(tmp_path / "c.toml", cfg)), "--outdir", str(out), "--quiet"])
-    if code == 0:
-        result = QTable.read(out / "pairs.ecsv", format="ascii.ecsv")
-        spurious = (np.asarray(result["id1"]) >= 1000) | (np.asarray(result["id2"]) >= 1000)
-        assert not np.any(result["anomalous"] & spurious)
-    else:
-        # too few trustworthy pairs left: a clear refusal naming the doubtful ones
-        assert code == 1
-        err = capsys.readouterr().err
-        assert "doubtful pair(s) left out" in err
-        no_leftovers(tmp_path, out)
-
-
 def test_psf_oversampling_key_and_webbpsf_header(tmp_path):
     from lensdual.config import ConfigError, band_oversampling, load_config
 
@@ -352,6 +217,24 @@ def test_psf_oversampling_key_and_webbpsf_header(tmp_path):
         load_config(write(tmp_path / "d.toml", cfg))
 
 
+def test_single_plane_cube_names_its_shape(tmp_path):
+    from astropy.wcs import WCS
+
+    from lensdual.config import ConfigError, load_config
+
+    w = WCS(naxis=3)
+    w.wcs.ctype = ["RA---TAN", "DEC--TAN", "WAVE"]
+    w.wcs.crval = [110.8, -73.45, 1.5e-6]
+    w.wcs.crpix = [20, 20, 1]
+    w.wcs.cdelt = [-1e-5, 1e-5, 1e-7]
+    fits.PrimaryHDU(np.zeros((1, 40, 40)), w.to_header()).writeto(tmp_path / "cube.fits")
+    cfg = {"bands": {"F150W": {"psf_fwhm": "0.07 arcsec"}},
+           "arcs": {arc: {"F150W": {"image": str(tmp_path / "cube.fits")}}
+                    for arc in ("L1", "L2")}}
+    with pytest.raises(ConfigError, match=r"HDU 0 has shape \(1, 40, 40\): a cube of one plane"):
+        load_config(write(tmp_path / "c.toml", cfg))
+
+
 def test_unsubtracted_sky_is_named(demo_dir, tmp_path, capsys):
     cfg = absolute_config(demo_dir)
     for band, spec in cfg["arcs"]["L1"].items():
@@ -372,80 +255,6 @@ def test_unsubtracted_sky_is_named(demo_dir, tmp_path, capsys):
     err = capsys.readouterr().err
     assert "point source(s) found on arc L1" in err and "not to be subtracted" in err
     no_leftovers(tmp_path, out)
-
-
-def test_figures_and_regions_skip_unmeasured_pairs(demo_dir):
-    import matplotlib
-
-    matplotlib.use("agg")
-    from astropy.coordinates import SkyCoord
-    from astropy.nddata import CCDData
-    from matplotlib.patches import Circle
-
-    from lensdual.visualization import ds9_regions, plot_arc_images
-
-    result = QTable.read(demo_dir / "pairs.ecsv", format="ascii.ecsv")
-    ra, dec = result["sky1"].ra.deg.copy(), result["sky1"].dec.deg.copy()
-    ra[0] = dec[0] = np.nan  # pair 1 not measured on L1
-    result["sky1"] = SkyCoord(ra, dec, unit="deg")
-    images = {arc: CCDData.read(demo_dir / "images" / f"{arc}_F150W.fits", hdu=0)
-              for arc in ("L1", "L2")}
-    fig = plot_arc_images(images, result, mapped=False)
-    assert len([p for p in fig.axes[0].patches if isinstance(p, Circle)]) == len(result) - 1
-    assert len(ds9_regions(result)["pairs"]) == 3 * (len(result) - 1)
-
-
-def test_single_plane_cube_names_its_shape(tmp_path):
-    from astropy.wcs import WCS
-
-    from lensdual.config import ConfigError, load_config
-
-    w = WCS(naxis=3)
-    w.wcs.ctype = ["RA---TAN", "DEC--TAN", "WAVE"]
-    w.wcs.crval = [110.8, -73.45, 1.5e-6]
-    w.wcs.crpix = [20, 20, 1]
-    w.wcs.cdelt = [-1e-5, 1e-5, 1e-7]
-    fits.PrimaryHDU(np.zeros((1, 40, 40)), w.to_header()).writeto(tmp_path / "cube.fits")
-    cfg = {"bands": {"F150W": {"psf_fwhm": "0.07 arcsec"}},
-           "arcs": {arc: {"F150W": {"image": str(tmp_path / "cube.fits")}}
-                    for arc in ("L1", "L2")}}
-    with pytest.raises(ConfigError, match=r"HDU 0 has shape \(1, 40, 40\): a cube of one plane"):
-        load_config(write(tmp_path / "c.toml", cfg))
-
-
-def test_one_bad_candidate_does_not_kill_the_run(demo_dir, tmp_path):
-    """A manual pair whose L2 source lies off the image: NaN and a named note, the run
-    goes on and the other pairs are tested."""
-    from astropy.coordinates import SkyCoord
-
-    cfg = absolute_config(demo_dir)
-    previous = QTable.read(demo_dir / "pairs.ecsv", format="ascii.ecsv")
-    cats = {}
-    for arc in ("L1", "L2"):
-        cat = QTable.read(demo_dir / f"catalog_{arc}.ecsv", format="ascii.ecsv")
-        ra, dec = list(cat["sky"].ra.deg), list(cat["sky"].dec.deg)
-        ids = list(np.asarray(cat["id"]))
-        if arc == "L2":  # a source 1 degree away: off the image
-            ra.append(ra[0])
-            dec.append(dec[0] + 1.0)
-            ids.append(999)
-        QTable({"id": ids, "sky": SkyCoord(ra, dec, unit="deg")}).write(
-            tmp_path / f"{arc}.ecsv", format="ascii.ecsv")
-        cats[arc] = str(tmp_path / f"{arc}.ecsv")
-    id1, id2 = list(previous["id1"]), list(previous["id2"])
-    id2[-1] = 999
-    QTable({"id1": id1, "id2": id2}).write(tmp_path / "pairs.ecsv", format="ascii.ecsv")
-    cfg["catalogs"] = cats
-    cfg["pairing"] = {"method": "manual", "file": str(tmp_path / "pairs.ecsv")}
-    out = tmp_path / "out"
-    assert main(["run", str(write(tmp_path / "c.toml", cfg)), "--outdir", str(out),
-                 "--quiet"]) == 0
-    result = QTable.read(out / "pairs.ecsv", format="ascii.ecsv")
-    bad = result[-1]
-    assert not bad["tested"] and not bad["anomalous"]
-    assert "L2" in str(bad["doubt"]) or "off the arc-to-arc map" in str(bad["doubt"])
-    assert result["tested"][:-1].sum() >= 7
-    assert "could not be tested" in (out / "report.txt").read_text()
 
 
 def test_the_same_image_for_both_arcs_is_refused(demo_dir, tmp_path, capsys):
@@ -483,57 +292,7 @@ def test_copies_of_one_image_for_both_arcs_are_refused(demo_dir, tmp_path, capsy
     no_leftovers(tmp_path, out)
 
 
-def test_a_pair_without_position_errors_is_untested_and_the_rest_analysed(
-        demo_dir, tmp_path, capsys, monkeypatch):
-    """A candidate whose PSF fit gives no position error (empty sky) does not stop the
-    run with "sigma_pos must be finite": it is untested, with the reason."""
-    import astropy.units as u
-
-    import lensdual.photometry as photometry
-
-    real = photometry.measure_pairs
-
-    def blank_pair(*args, **kwargs):
-        table = real(*args, **kwargs)
-        table["pos_err2"][4] = np.nan * u.arcsec
-        return table
-
-    monkeypatch.setattr(photometry, "measure_pairs", blank_pair)
-    out = tmp_path / "out"
-    assert main(["run", str(write(tmp_path / "c.toml", absolute_config(demo_dir))),
-                 "--outdir", str(out), "--quiet"]) == 0
-    pairs = QTable.read(out / "pairs.ecsv", format="ascii.ecsv")
-    assert not pairs["tested"][4]
-    assert "no position error from the PSF fit on arc L2" in pairs["doubt"][4]
-    others = np.arange(len(pairs)) != 4
-    assert np.isfinite(np.asarray(pairs["mu_size"])[others]).all()
-    assert "no position error" in (out / "report.txt").read_text()
-
-
-def test_zero_error_pixels_are_masked_with_a_warning_naming_the_file(demo_dir, tmp_path,
-                                                                      capsys):
-    """A 15 x 15 block of zero errors around the brightest L1 source: the block is
-    masked, and the run says so, naming the error map and the pixel count."""
-    cfg = absolute_config(demo_dir)
-    spec = cfg["arcs"]["L1"]["F150W"]
-    cat = QTable.read(demo_dir / "catalog_L1.ecsv", format="ascii.ecsv")
-    k = int(np.argmax(np.asarray(cat["flux_F150W"])))
-    x, y = int(round(float(cat["x_pix"][k]))), int(round(float(cat["y_pix"][k])))
-    index = 1 if "error_hdu" in spec else 0
-
-    def zero_block(hdul):
-        hdul[index].data[y - 7:y + 8, x - 7:x + 8] = 0.0
-
-    spec["error"] = str(copy_fits(spec.get("error", spec["image"]), tmp_path / "err.fits",
-                                  zero_block))
-    out = tmp_path / "out"
-    assert main(["run", str(write(tmp_path / "c.toml", cfg)), "--outdir", str(out),
-                 "--quiet"]) == 0
-    err = capsys.readouterr().err
-    said = ("arc L1, L1_F150W_sci.fits (error map err.fits): 225 pixel(s) with data have an "
-            "error that is zero")
-    assert said in err
-    assert said in (out / "report.txt").read_text()
+# ------------------------------------------------------------------ catalogues and bands
 
 
 def test_a_catalogue_in_hours_read_as_degrees_is_named():
@@ -588,6 +347,168 @@ def test_bands_swapped_on_one_arc_are_named():
     assert "use 'quad2'" not in str(info.value)
 
 
+# -------------------------------------------- pairs that must never look like sub-haloes
+
+
+def test_too_few_pairs_stop_the_adaptive_estimator_and_warn_with_the_others(demo_dir, tmp_path,
+                                                                           capsys):
+    previous = QTable.read(demo_dir / "pairs.ecsv", format="ascii.ecsv")
+    QTable({"id1": previous["id1"][:4], "id2": previous["id2"][:4]}).write(
+        tmp_path / "pairs.ecsv", format="ascii.ecsv")
+    cfg = absolute_config(demo_dir)
+    cfg["pairing"] = {"method": "manual", "file": str(tmp_path / "pairs.ecsv")}
+    out = tmp_path / "out"
+    # the default estimator refuses: its error bars need 7 pairs
+    assert main(["run", str(write(tmp_path / "c.toml", cfg)), "--outdir", str(out),
+                 "--quiet"]) == 1
+    assert "needs at least 7" in capsys.readouterr().err
+    no_leftovers(tmp_path, out)
+    # the paper's estimators run, with a loud warning in the verdict
+    cfg["analysis"]["estimator"] = "quad"
+    assert main(["run", str(write(tmp_path / "q.toml", cfg)), "--outdir", str(out),
+                 "--quiet"]) == 0
+    assert "WARNING: only 4 pairs" in (out / "report.txt").read_text()
+
+
+def test_nan_mu_size_is_never_a_pass():
+    import astropy.units as u
+
+    from lensdual.duality import check_duality
+
+    rng = np.random.default_rng(0)
+    t2 = rng.uniform(-1, 1, (8, 2))
+    t1 = t2 @ np.array([[1.3, 0.2], [0.1, -0.9]]).T
+    pairs = QTable({"id1": np.arange(8), "id2": np.arange(8),
+                    "x1": t1[:, 0] * u.arcsec, "y1": t1[:, 1] * u.arcsec,
+                    "x2": t2[:, 0] * u.arcsec, "y2": t2[:, 1] * u.arcsec,
+                    "flux1_F150W": np.full(8, 1.17), "flux2_F150W": np.ones(8),
+                    "flux_err1_F150W": np.full(8, 0.01), "flux_err2_F150W": np.full(8, 0.01)})
+    res = check_duality(pairs, "quad", sigma_pos=0.001 * u.arcsec, n_bootstrap=50, seed=0)
+    res["mu_size"][2] = np.nan  # e.g. the 2v estimator on collinear neighbours
+    res["tested"][2] = False
+    res["snr"][2] = np.nan
+    text = verdict(res, 0.001 * u.arcsec)
+    assert "could not be tested and are NOT passes" in text and "no mu_size: pair 3" in text
+    table = format_pairs_table(res)
+    assert "untested (no mu_size)" in table.splitlines()[4]
+    res["tested"][:] = False
+    res["anomalous"][:] = False
+    text = verdict(res, 0.001 * u.arcsec)
+    assert "No pair could be tested" in text and "no conclusion" in text
+
+
+def test_swapped_manual_ids_are_doubtful_never_anomalous(demo_dir, tmp_path):
+    previous = QTable.read(demo_dir / "pairs.ecsv", format="ascii.ecsv")
+    id1, id2 = list(previous["id1"]), list(previous["id2"])
+    id2[1], id2[4] = id2[4], id2[1]
+    QTable({"id1": id1, "id2": id2}).write(tmp_path / "pairs.ecsv", format="ascii.ecsv")
+    cfg = absolute_config(demo_dir)
+    cfg["pairing"] = {"method": "manual", "file": str(tmp_path / "pairs.ecsv")}
+    out = tmp_path / "out"
+    assert main(["run", str(write(tmp_path / "c.toml", cfg)), "--outdir", str(out),
+                 "--quiet"]) == 0
+    result = QTable.read(out / "pairs.ecsv", format="ascii.ecsv")
+    swapped = np.isin(np.arange(len(result)), [1, 4])
+    assert not result["anomalous"][swapped].any()
+    assert not result["tested"][swapped].any()
+    assert all("pairing" in str(d) for d in result["doubt"][swapped])
+    assert np.all(result["mu_size_status"][swapped] == "excluded")
+    report = (out / "report.txt").read_text()
+    assert "Doubtful pairings are left out" in report
+
+
+def test_spurious_candidates_never_look_like_subhaloes(demo_dir, tmp_path, capsys):
+    from astropy.coordinates import SkyCoord
+
+    rng = np.random.default_rng(2)
+    cfg = absolute_config(demo_dir)
+    paths = {}
+    for arc in ("L1", "L2"):
+        cat = QTable.read(demo_dir / f"catalog_{arc}.ecsv", format="ascii.ecsv")
+        ra, dec = cat["sky"].ra.deg, cat["sky"].dec.deg
+        n = 25
+        sky = SkyCoord(np.concatenate([ra, rng.uniform(ra.min(), ra.max(), n)]),
+                       np.concatenate([dec, rng.uniform(dec.min(), dec.max(), n)]), unit="deg")
+        ids = np.concatenate([np.asarray(cat["id"]), np.arange(1000, 1000 + n)])
+        QTable({"id": ids, "sky": sky}).write(tmp_path / f"{arc}.ecsv", format="ascii.ecsv")
+        paths[arc] = str(tmp_path / f"{arc}.ecsv")
+    cfg["catalogs"] = paths
+    out = tmp_path / "out"
+    code = main(["run", str(write(tmp_path / "c.toml", cfg)), "--outdir", str(out), "--quiet"])
+    if code == 0:
+        result = QTable.read(out / "pairs.ecsv", format="ascii.ecsv")
+        spurious = (np.asarray(result["id1"]) >= 1000) | (np.asarray(result["id2"]) >= 1000)
+        assert not np.any(result["anomalous"] & spurious)
+    else:
+        # too few trustworthy pairs left: a clear refusal naming the doubtful ones
+        assert code == 1
+        err = capsys.readouterr().err
+        assert "doubtful pair(s) left out" in err
+        no_leftovers(tmp_path, out)
+
+
+def test_one_bad_candidate_does_not_kill_the_run(demo_dir, tmp_path):
+    """A manual pair whose L2 source lies off the image: NaN and a named note, the run
+    goes on and the other pairs are tested."""
+    from astropy.coordinates import SkyCoord
+
+    cfg = absolute_config(demo_dir)
+    previous = QTable.read(demo_dir / "pairs.ecsv", format="ascii.ecsv")
+    cats = {}
+    for arc in ("L1", "L2"):
+        cat = QTable.read(demo_dir / f"catalog_{arc}.ecsv", format="ascii.ecsv")
+        ra, dec = list(cat["sky"].ra.deg), list(cat["sky"].dec.deg)
+        ids = list(np.asarray(cat["id"]))
+        if arc == "L2":  # a source 1 degree away: off the image
+            ra.append(ra[0])
+            dec.append(dec[0] + 1.0)
+            ids.append(999)
+        QTable({"id": ids, "sky": SkyCoord(ra, dec, unit="deg")}).write(
+            tmp_path / f"{arc}.ecsv", format="ascii.ecsv")
+        cats[arc] = str(tmp_path / f"{arc}.ecsv")
+    id1, id2 = list(previous["id1"]), list(previous["id2"])
+    id2[-1] = 999
+    QTable({"id1": id1, "id2": id2}).write(tmp_path / "pairs.ecsv", format="ascii.ecsv")
+    cfg["catalogs"] = cats
+    cfg["pairing"] = {"method": "manual", "file": str(tmp_path / "pairs.ecsv")}
+    out = tmp_path / "out"
+    assert main(["run", str(write(tmp_path / "c.toml", cfg)), "--outdir", str(out),
+                 "--quiet"]) == 0
+    result = QTable.read(out / "pairs.ecsv", format="ascii.ecsv")
+    bad = result[-1]
+    assert not bad["tested"] and not bad["anomalous"]
+    assert "L2" in str(bad["doubt"]) or "off the arc-to-arc map" in str(bad["doubt"])
+    assert result["tested"][:-1].sum() >= 7
+    assert "could not be tested" in (out / "report.txt").read_text()
+
+
+def test_a_pair_without_position_errors_is_untested_and_the_rest_analysed(
+        demo_dir, tmp_path, capsys, monkeypatch):
+    """A candidate whose PSF fit gives no position error (empty sky) does not stop the
+    run with "sigma_pos must be finite": it is untested, with the reason."""
+    import astropy.units as u
+
+    import lensdual.photometry as photometry
+
+    real = photometry.measure_pairs
+
+    def blank_pair(*args, **kwargs):
+        table = real(*args, **kwargs)
+        table["pos_err2"][4] = np.nan * u.arcsec
+        return table
+
+    monkeypatch.setattr(photometry, "measure_pairs", blank_pair)
+    out = tmp_path / "out"
+    assert main(["run", str(write(tmp_path / "c.toml", absolute_config(demo_dir))),
+                 "--outdir", str(out), "--quiet"]) == 0
+    pairs = QTable.read(out / "pairs.ecsv", format="ascii.ecsv")
+    assert not pairs["tested"][4]
+    assert "no position error from the PSF fit on arc L2" in pairs["doubt"][4]
+    others = np.arange(len(pairs)) != 4
+    assert np.isfinite(np.asarray(pairs["mu_size"])[others]).all()
+    assert "no position error" in (out / "report.txt").read_text()
+
+
 def test_a_saturated_source_makes_its_pair_doubtful_not_anomalous(demo_dir, tmp_path):
     """A clean pair's L2 source clipped at 40 % of its peak in both bands (a saturated,
     flat-topped core) is not reported as a sub-halo: its L2 fluxes are unusable
@@ -623,3 +544,97 @@ def test_a_saturated_source_makes_its_pair_doubtful_not_anomalous(demo_dir, tmp_
                           np.asarray(before["anomalous"])[others])
     assert np.array_equal(np.asarray(after["tested"])[others],
                           np.asarray(before["tested"])[others])
+
+
+# ------------------------------------------------------------------------------- outputs
+
+
+def test_unwritable_output_fails_before_the_analysis(demo_dir, tmp_path, capsys, monkeypatch):
+    import lensdual.cli as cli
+
+    def never(*args, **kwargs):
+        raise AssertionError("the analysis ran")
+
+    monkeypatch.setattr(cli, "analyse", never)
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    cfg = absolute_config(demo_dir)
+    path = write(tmp_path / "c.toml", cfg)
+    assert main(["run", str(path), "--outdir", str(blocker / "out"), "--quiet"]) == 1
+    assert "cannot write the output directory" in capsys.readouterr().err
+    # an existing file as the output directory is a configuration problem (exit 2)
+    assert main(["run", str(path), "--outdir", str(blocker), "--quiet"]) == 2
+    assert "exists and is not a directory" in capsys.readouterr().err
+
+
+def test_progress_bars_only_on_a_terminal(demo_dir, tmp_path, capsys, monkeypatch):
+    cfg = absolute_config(demo_dir)
+    path = write(tmp_path / "c.toml", cfg)
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: False, raising=False)
+    assert main(["run", str(path), "--outdir", str(tmp_path / "a")]) == 0
+    assert "lensdual run:" not in capsys.readouterr().err
+    assert main(["run", str(path), "--outdir", str(tmp_path / "b"), "--progress"]) == 0
+    assert "lensdual run:" in capsys.readouterr().err
+
+
+def test_ds9_regions(demo_dir):
+    from regions import Regions
+
+    pairs = QTable.read(demo_dir / "pairs.ecsv", format="ascii.ecsv")
+    reg = Regions.read(str(demo_dir / "pairs.reg"), format="ds9")
+    assert len(reg) == 3 * len(pairs)
+    texts = [str(r.meta.get("text")) for r in reg if "text" in r.meta]
+    assert texts[:2] == [str(pairs["pair_id"][0])] * 2
+    np.testing.assert_allclose(reg[0].center.ra.deg, pairs["sky1"][0].ra.deg, atol=1e-7)
+    np.testing.assert_allclose(reg[1].center.dec.deg, pairs["sky2"][0].dec.deg, atol=1e-7)
+    cat = QTable.read(demo_dir / "catalog_L1.ecsv", format="ascii.ecsv")
+    assert len(Regions.read(str(demo_dir / "sources_L1.reg"), format="ds9")) == len(cat)
+
+
+def test_constellation_figure_circles_every_pair_on_both_arcs(demo_dir):
+    import matplotlib
+
+    matplotlib.use("agg")
+    from astropy.nddata import CCDData
+    from astropy.visualization.wcsaxes import WCSAxes
+    from matplotlib.patches import Circle
+
+    from lensdual.visualization import plot_arc_images
+
+    assert (demo_dir / "constellation.png").stat().st_size > 20000
+    result = QTable.read(demo_dir / "pairs.ecsv", format="ascii.ecsv")
+    images = {arc: CCDData.read(demo_dir / "images" / f"{arc}_F150W.fits", hdu=0)
+              for arc in ("L1", "L2")}
+    result["anomalous"][:] = False
+    result["anomalous"][1] = True
+    fig = plot_arc_images(images, result)
+    axes = fig.axes
+    assert len(axes) == 3 and all(isinstance(a, WCSAxes) for a in axes[:2])
+    for ax in axes[:2]:
+        circles = [p for p in ax.patches if isinstance(p, Circle)]
+        assert len(circles) == len(result)
+        colours = [matplotlib.colors.to_hex(c.get_edgecolor()) for c in circles]
+        assert colours[1] == "#ff0000" and colours.count("#ff0000") == 1
+        # north up: the Dec axis is the vertical one
+        assert ax.coords[1].get_axislabel() == "Dec"
+
+
+def test_figures_and_regions_skip_unmeasured_pairs(demo_dir):
+    import matplotlib
+
+    matplotlib.use("agg")
+    from astropy.coordinates import SkyCoord
+    from astropy.nddata import CCDData
+    from matplotlib.patches import Circle
+
+    from lensdual.visualization import ds9_regions, plot_arc_images
+
+    result = QTable.read(demo_dir / "pairs.ecsv", format="ascii.ecsv")
+    ra, dec = result["sky1"].ra.deg.copy(), result["sky1"].dec.deg.copy()
+    ra[0] = dec[0] = np.nan  # pair 1 not measured on L1
+    result["sky1"] = SkyCoord(ra, dec, unit="deg")
+    images = {arc: CCDData.read(demo_dir / "images" / f"{arc}_F150W.fits", hdu=0)
+              for arc in ("L1", "L2")}
+    fig = plot_arc_images(images, result, mapped=False)
+    assert len([p for p in fig.axes[0].patches if isinstance(p, Circle)]) == len(result) - 1
+    assert len(ds9_regions(result)["pairs"]) == 3 * (len(result) - 1)

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from _lenstool_text import COSMOLOGY
+from _lenstool_text import par_file
 from astropy import units as u
 from astropy.cosmology import FlatLambdaCDM
 
@@ -23,12 +23,6 @@ DATA = Path(__file__).parents[2] / "shared" / "data"
 HFF = DATA / "hff_cats_lenstool"
 COSMO = FlatLambdaCDM(H0=70.0, Om0=0.3, Tcmb0=0.0)
 
-HEAD = """\
-runmode
-    reference     3 150.000000 -30.000000
-    end
-"""
-COSMO_BLOCK = COSMOLOGY
 
 
 def dpie(name, x, y, v_disp, z, *, e=0.0, angle=0.0, core=0.3, cut=20.0):
@@ -44,12 +38,6 @@ def shear(gamma, angle, z, *, kappa=None, centre=None):
     if centre is not None:
         text += f"    x_centre {centre[0]}\n    y_centre {centre[1]}\n"
     return text + f"    z_lens {z}\n    end\n"
-
-
-def write(tmp_path, body, name="model.par"):
-    path = tmp_path / name
-    path.write_text(HEAD + body + COSMO_BLOCK + "fini\n")
-    return path
 
 
 # --------------------------------------------------------------------------- profile 14
@@ -96,7 +84,7 @@ def test_shear_matches_lenstronomy_shear_and_convergence():
 def test_shear_from_the_reader_is_scaled_by_dls_ds(tmp_path):
     body = dpie("O1", 0.0, 0.0, 800.0, 0.35) + shear(0.1, 30.0, 0.35, kappa=0.02,
                                                       centre=(2.0, -1.0))
-    model = read_lenstool(write(tmp_path, body))
+    model = read_lenstool(par_file(tmp_path, body))
     assert model.z_planes == (0.35,)
     t = model.potentials
     assert list(t["profile"]) == [81, 14]
@@ -118,7 +106,8 @@ def test_shear_from_the_reader_is_scaled_by_dls_ds(tmp_path):
     np.testing.assert_allclose(lm.kappa(x, y), dpie_only.kappa(x, y) + 0.02 * dlsds,
                                rtol=1e-13)
     # 'ellipticite' is Lenstool's other name for the shear of profile 14 (r_potentiel.c)
-    again = read_lenstool(write(tmp_path, body.replace("gamma 0.1", "ellipticite 0.1"), "b.par"))
+    again = read_lenstool(par_file(tmp_path, body.replace("gamma 0.1", "ellipticite 0.1"),
+                                   name="b.par"))
     assert again.potentials["gamma"][1] == 0.1
 
 
@@ -142,7 +131,7 @@ def test_bad_shear_blocks(tmp_path, old, new, match):
     body = dpie("O1", 0.0, 0.0, 800.0, 0.35) + shear(0.1, 30.0, 0.35, kappa=0.02)
     assert body.count(old) == 1
     with pytest.raises(ValueError, match=match) as info:
-        read_lenstool(write(tmp_path, body.replace(old, new), "bad.par"))
+        read_lenstool(par_file(tmp_path, body.replace(old, new), name="bad.par"))
     assert "bad.par" in str(info.value)
 
 
@@ -159,7 +148,7 @@ def two_planes(tmp_path, *, elliptical=False):
             + dpie("B2", 4.0, -9.0, 200.0, Z2, core=0.1, cut=8.0))
     if elliptical:
         body += shear(0.08, 35.0, Z1) + shear(0.03, -10.0, Z2, kappa=0.01, centre=(1.0, 2.0))
-    return read_lenstool(write(tmp_path, body, "two.par"))
+    return read_lenstool(par_file(tmp_path, body, name="two.par"))
 
 
 def lenstronomy_twin(model, zs):
@@ -253,11 +242,11 @@ def test_multi_plane_reduces_to_single_plane(tmp_path):
     zs = 0.9
     lm = model.lens_model(zs)
     assert isinstance(lm, LenstoolLensModel)
-    first = read_lenstool(write(tmp_path, dpie("C1", 0.5, -0.3, 900.0, Z1, e=0.3, angle=20.0,
-                                               core=2.0, cut=300.0)
-                                + dpie("C2", 15.0, 8.0, 250.0, Z1, e=0.3, angle=-40.0,
-                                       core=0.2, cut=30.0)
-                                + shear(0.08, 35.0, Z1), "first.par"))
+    first = read_lenstool(par_file(tmp_path, dpie("C1", 0.5, -0.3, 900.0, Z1, e=0.3, angle=20.0,
+                                                  core=2.0, cut=300.0)
+                                   + dpie("C2", 15.0, 8.0, 250.0, Z1, e=0.3, angle=-40.0,
+                                          core=0.2, cut=30.0)
+                                   + shear(0.08, 35.0, Z1), name="first.par"))
     ref = first.lens_model(zs)
     x = np.linspace(-30, 30, 50)
     y = np.linspace(20, -35, 50)
@@ -281,7 +270,7 @@ def test_multi_plane_kpc_radii_use_their_own_plane(tmp_path):
     body = (dpie("C1", 0.0, 0.0, 900.0, Z1, core=2.0, cut=300.0)
             + dpie("B1", -6.0, 3.0, 300.0, Z2).replace("core_radius 0.3",
                                                        "core_radius_kpc 2.0"))
-    model = read_lenstool(write(tmp_path, body))
+    model = read_lenstool(par_file(tmp_path, body))
     kpc = COSMO.angular_diameter_distance(Z2).to_value(u.kpc) / (180 / np.pi * 3600)
     assert model.potentials["core_radius"][1].to_value(u.arcsec) == pytest.approx(2.0 / kpc)
     assert "planes 0.4, 1.0" in repr(model)
@@ -302,8 +291,7 @@ def test_ignored_keywords_are_recorded_and_unknown_ones_warn(tmp_path):
             "    frobnicate 1\n    frobnicate 2\n    end\n"
             "grille\n    nombre 128\n    nlentille 1\n    nmsgrid 3\n    end\n"
             "cline\n    nplan 1 2.0\n    dmax 40\n    end\n")
-    path = tmp_path / "kw.par"
-    path.write_text(head + dpie("O1", 0, 0, 800.0, 0.35) + COSMO_BLOCK + "fini\n")
+    path = par_file(tmp_path, dpie("O1", 0, 0, 800.0, 0.35), name="kw.par", head=head)
     with pytest.warns(LenstoolKeywordWarning) as record:
         model = read_lenstool(path)
     messages = [str(w.message) for w in record]
@@ -318,7 +306,7 @@ def test_ignored_keywords_are_recorded_and_unknown_ones_warn(tmp_path):
     assert rows[("cline", "nplan")][2].startswith("block not read")
     assert ("runmode", "reference") not in rows and ("grille", "nlentille") not in rows
     bad = head.replace("nlentille 1", "nlentille 0")
-    path.write_text(bad + dpie("O1", 0, 0, 800.0, 0.35) + COSMO_BLOCK + "fini\n")
+    par_file(tmp_path, dpie("O1", 0, 0, 800.0, 0.35), name="kw.par", head=bad)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", LenstoolKeywordWarning)
         with pytest.raises(ValueError, match=r"line 10: nlentille = 0 but the file has 1"):

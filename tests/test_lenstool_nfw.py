@@ -2,7 +2,7 @@
 
 import numpy as np
 import pytest
-from _lenstool_text import COSMOLOGY
+from _lenstool_text import par_file
 from astropy import constants as const
 from astropy import units as u
 from astropy.cosmology import FlatLambdaCDM
@@ -251,11 +251,6 @@ def test_centre_and_major_axis():
 
 # --------------------------------------------------------------------------- reader
 
-RUNMODE = """\
-runmode
-    reference     3 150.000000 -30.000000
-    end
-"""
 MEMBER = """\
 potential G1
     profil        81
@@ -280,12 +275,6 @@ def nfw_block(keys, name="halo", ellipticite=0.2, angle=35.0):
     return "\n".join(lines)
 
 
-def write_par(tmp_path, *blocks, name="nfw.par"):
-    path = tmp_path / name
-    path.write_text(RUNMODE + "".join(blocks) + COSMOLOGY + "fini\n")
-    return path
-
-
 def closed_form(c, m200):
     """r_s (kpc, arcsec), v_disp (km/s), rho_s, b0 (arcsec) of an NFW, from scratch."""
     rho_c = (3 * COSMO.H(ZL) ** 2 / (8 * np.pi * G_LT)).to(u.Msun / u.Mpc**3)
@@ -304,8 +293,8 @@ REF = closed_form(C, M200)
 
 
 def test_read_nfw_concentration_m200(tmp_path):
-    model = read_lenstool(write_par(tmp_path, nfw_block({"concentration": C, "m200": M200}),
-                                    MEMBER))
+    model = read_lenstool(par_file(tmp_path, nfw_block({"concentration": C, "m200": M200}),
+                                   MEMBER))
     t = model.potentials
     assert list(t["profile"]) == [12, 81]
     nfw = t[0]
@@ -333,7 +322,7 @@ def test_conversion_independent_of_lenstronomy_units(tmp_path):
     """Cross-check with lenstronomy's own M200-c conversion (other constants: 1e-3)."""
     from lenstronomy.Cosmo.lens_cosmo import LensCosmo
 
-    model = read_lenstool(write_par(tmp_path, nfw_block({"concentration": C, "m200": M200})))
+    model = read_lenstool(par_file(tmp_path, nfw_block({"concentration": C, "m200": M200})))
     rs_l, alpha_rs_l = LensCosmo(ZL, ZS, COSMO).nfw_physical2angle(M200, C)
     p = model.kernel_parameters(ZS, profile=12)[0]
     assert p[K.NFW_RS] == pytest.approx(rs_l, rel=1e-3)
@@ -343,7 +332,7 @@ def test_conversion_independent_of_lenstronomy_units(tmp_path):
 def test_circular_model_matches_lenstronomy(tmp_path):
     from lenstronomy.LensModel.lens_model import LensModel
 
-    path = write_par(tmp_path, nfw_block({"concentration": C, "m200": M200}, ellipticite=0.0))
+    path = par_file(tmp_path, nfw_block({"concentration": C, "m200": M200}, ellipticite=0.0))
     lm = read_lenstool(path).lens_model(ZS)
     dlsds = (COSMO.angular_diameter_distance(ZL, ZS) / COSMO.angular_diameter_distance(ZS)).value
     kw = [{"Rs": REF["rs"], "alpha_Rs": REF["b0"] * dlsds * (1 + np.log(0.5)),
@@ -361,8 +350,8 @@ def test_circular_model_matches_lenstronomy(tmp_path):
 def test_elliptical_model_matches_lenstronomy(tmp_path):
     from lenstronomy.LensModel.lens_model import LensModel
 
-    path = write_par(tmp_path, nfw_block({"concentration": C, "m200": M200}, ellipticite=0.25,
-                                         angle=35.0))
+    path = par_file(tmp_path, nfw_block({"concentration": C, "m200": M200}, ellipticite=0.25,
+                                        angle=35.0))
     model = read_lenstool(path)
     lm = model.lens_model(ZS)
     dlsds = model.dls_ds(ZS)
@@ -396,7 +385,7 @@ def test_all_definitions_give_the_same_halo(tmp_path):
         "concentration, m200 ": {"c": C, "masse": M200},
     }
     blocks = [nfw_block(keys, name=f"h{i}") for i, keys in enumerate(cases.values())]
-    t = read_lenstool(write_par(tmp_path, *blocks)).potentials
+    t = read_lenstool(par_file(tmp_path, *blocks)).potentials
     assert [d.strip() for d in t["definition"]] == [d.strip() for d in cases]
     np.testing.assert_allclose(t["scale_radius_kpc"].to_value(u.kpc), m["rs_kpc"], rtol=1e-10)
     np.testing.assert_allclose(t["v_disp"].to_value(u.km / u.s), m["v_disp"], rtol=1e-10)
@@ -405,7 +394,7 @@ def test_all_definitions_give_the_same_halo(tmp_path):
 
 
 def test_mass_only_uses_maccio_relation(tmp_path):
-    t = read_lenstool(write_par(tmp_path, nfw_block({"m200": 1e13}))).potentials
+    t = read_lenstool(par_file(tmp_path, nfw_block({"m200": 1e13}))).potentials
     # log10 c = 0.830 - 0.098 (log10 M200 - 12)
     c = 10 ** (0.830 - 0.098)
     assert t["concentration"][0] == pytest.approx(c, rel=1e-12)
@@ -422,11 +411,11 @@ def test_best_par_as_lenstool_writes_it(tmp_path):
             "scale_radius_kpc": f"{m['rs_kpc']:.3f}", "v_disp": f"{m['v_disp']:.3f}",
             "concentration": f"{C:.3f}", "m200": f"{M200:.3e}", "rhos": f"{m['rhos']:.3e}",
             "rc_slope": "0.000", "alpha": "0.000"}
-    t = read_lenstool(write_par(tmp_path, nfw_block(keys))).potentials
+    t = read_lenstool(par_file(tmp_path, nfw_block(keys))).potentials
     assert t["definition"][0] == "concentration, m200"  # Lenstool's precedence
     # a v_disp that does not match the halo is an error, not silently ignored
     keys["v_disp"] = f"{1.05 * m['v_disp']:.3f}"
-    path = write_par(tmp_path, nfw_block(keys), name="bad.par")
+    path = par_file(tmp_path, nfw_block(keys), name="bad.par")
     with pytest.raises(ValueError, match=r"bad.par, line 12, block 'potentiel halo', key "
                        r"'v_disp': .* disagrees by 5.0% with .* implied by concentration, "
                        r"m200"):
@@ -434,16 +423,16 @@ def test_best_par_as_lenstool_writes_it(tmp_path):
     # concentration 0 and m200 0 mean "not given" (Lenstool writes them so)
     keys.update(v_disp=f"{m['v_disp']:.6f}", concentration="0.000", m200="0.000e+00",
                 rhos="0.000e+00")
-    t = read_lenstool(write_par(tmp_path, nfw_block(keys))).potentials
+    t = read_lenstool(par_file(tmp_path, nfw_block(keys))).potentials
     assert t["definition"][0] == "v_disp, scale_radius"
     assert t["concentration"][0] == pytest.approx(C, rel=1e-5)
 
 
 def test_ellipticity_conventions(tmp_path):
     base = {"concentration": C, "m200": M200}
-    a = read_lenstool(write_par(tmp_path, nfw_block(base, ellipticite=0.3)))
+    a = read_lenstool(par_file(tmp_path, nfw_block(base, ellipticite=0.3)))
     text = nfw_block(base, ellipticite=0.3).replace("ellipticite   0.3", "ellip_pot     0.1")
-    b = read_lenstool(write_par(tmp_path, text, name="pot.par"))
+    b = read_lenstool(par_file(tmp_path, text, name="pot.par"))
     # Lenstool: the ellipticity of a profile-12 potential is 3 * ellip_pot
     assert b.potentials["epsilon"][0] == pytest.approx(0.3)
     x, y = np.linspace(-30, 30, 11), np.linspace(20, -25, 11)
@@ -478,7 +467,7 @@ def test_ellipticity_conventions(tmp_path):
      r"number"),
 ])
 def test_bad_nfw_blocks(tmp_path, keys, match):
-    path = write_par(tmp_path, nfw_block(keys), name="bad.par")
+    path = par_file(tmp_path, nfw_block(keys), name="bad.par")
     with pytest.raises(ValueError, match=match) as info:
         read_lenstool(path)
     assert "bad.par" in str(info.value)
@@ -488,15 +477,15 @@ def test_ellip_pot_too_large(tmp_path):
     text = nfw_block({"concentration": C, "m200": M200}).replace(
         "ellipticite   0.2", "ellip_pot     0.4")
     with pytest.raises(ValueError, match=r"line 8, .* key 'ellip_pot': must be in \[0, 1/3\)"):
-        read_lenstool(write_par(tmp_path, text))
+        read_lenstool(par_file(tmp_path, text))
 
 
 # --------------------------------------------------------------------------- mixed model
 
 
 def test_mixed_model_sums_its_components(tmp_path):
-    model = read_lenstool(write_par(tmp_path, nfw_block({"concentration": C, "m200": M200}),
-                                    MEMBER))
+    model = read_lenstool(par_file(tmp_path, nfw_block({"concentration": C, "m200": M200}),
+                                   MEMBER))
     lm = model.lens_model(ZS)
     assert isinstance(lm, LenstoolLensModel)
     assert "1 dPIE + 1 NFW" in repr(lm)

@@ -332,7 +332,7 @@ def test_solve_images_table(analog):
 def test_merge_images_sums_unresolved_micro_images():
     from astropy.table import QTable
 
-    from lensdual.simulation.lens_system import _merge_images
+    from lensdual._lens.system import _merge_images
 
     tab = QTable()
     tab["source"] = [0, 0, 0, 1]

@@ -1,4 +1,4 @@
-"""Tests of the point-source image finder (``lensdual.simulation._solver``).
+"""Tests of the point-source image finder (``lensdual._lens._solver``).
 
 * the Numba kernels against plain-numpy twins on random input;
 * a galaxy lens (SIE + external shear) and a cluster lens (elliptical NFW,
@@ -21,8 +21,8 @@ from lenstronomy.LensModel.lens_model_extensions import LensModelExtensions
 from lenstronomy.LensModel.Solver.lens_equation_solver import LensEquationSolver
 from scipy import ndimage, optimize
 
-from lensdual.simulation import _kernels
-from lensdual.simulation._solver import MAX_GRID_POINTS, ImageFinder
+from lensdual._lens import _kernels
+from lensdual._lens._solver import MAX_GRID_POINTS, ImageFinder
 
 PRECISION = 1e-8
 MATCH = 1e-6  # arcsec: two image positions are "the same image"

@@ -1,7 +1,10 @@
-"""The package's structure rules that a linter does not check by itself."""
+"""The package's structure rules that a linter does not check by itself, and the
+linter settings that keep its size gates on."""
 
 import re
 from pathlib import Path
+
+import pytest
 
 import lensdual
 
@@ -76,3 +79,125 @@ def test_no_private_name_is_imported_from_another_unit():
                 if private and src != (_unit(target) if target else "__init__"):
                     found.append(f"{path.relative_to(PACKAGE)}:{node.lineno} {name}")
     assert found == []
+
+
+def _imported_modules(path):
+    """The lensdual modules that ``path`` imports, at module or function level, as
+    dotted names (``from . import x`` gives the package and ``package.x``)."""
+    import ast
+
+    package = ["lensdual", *path.relative_to(PACKAGE).with_suffix("").parts[:-1]]
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            found.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package[: len(package) - (node.level - 1)]
+                module = ".".join(base + ([node.module] if node.module else []))
+            else:
+                module = node.module
+            found.add(module)
+            found.update(f"{module}.{alias.name}" for alias in node.names)
+    return found
+
+
+def _importers_of(units, target):
+    """``path: module`` for every module of the subpackages ``units`` that imports
+    ``target`` or a module in it."""
+    return [f"{p.relative_to(PACKAGE)}: {m}" for unit in units
+            for p in sorted((PACKAGE / unit).rglob("*.py"))
+            for m in sorted(_imported_modules(p))
+            if m == target or m.startswith(target + ".")]
+
+
+def test_parametric_does_not_import_simulation():
+    """Simulation builds on the parametric models, not the other way round; the
+    lens layer both use (lensdual._lens) imports neither."""
+    assert _importers_of(["parametric", "_lens"], "lensdual.simulation") == []
+    assert _importers_of(["_lens"], "lensdual.parametric") == []
+    # the walk sees function-level imports
+    assert _importers_of(["simulation"], "lensdual.parametric")
+
+
+def test_every_error_and_warning_class_is_defined_in_exceptions():
+    """Errors and warnings live in lensdual.exceptions (their old modules re-export
+    them), each under LensdualError or LensdualWarning, with the builtin base it had."""
+    import ast
+
+    import lensdual.exceptions as exc
+
+    pattern = re.compile(r"(Error|Warning|Exception)$")
+    found = []
+    for path in _sources():
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ClassDef) and path.name != "exceptions.py" and any(
+                    pattern.search(ast.unparse(base)) for base in node.bases):
+                found.append(f"{path.relative_to(PACKAGE)}:{node.lineno} {node.name}")
+    assert found == []
+    for name in exc.__all__:
+        cls = getattr(exc, name)
+        assert issubclass(cls, (exc.LensdualError, exc.LensdualWarning)), name
+    assert issubclass(exc.ConfigError, ValueError) and issubclass(exc.HDUError, ValueError)
+    assert issubclass(exc.OutputConflictError, FileExistsError)
+    assert issubclass(exc.PipelineError, RuntimeError)
+    from lensdual._outputs import OutputConflictError
+    from lensdual.config import ConfigError
+    from lensdual.parametric import LenstoolKeywordWarning
+    from lensdual.pipeline import PipelineError
+
+    assert (ConfigError, OutputConflictError, PipelineError, LenstoolKeywordWarning) == (
+        exc.ConfigError, exc.OutputConflictError, exc.PipelineError, exc.LenstoolKeywordWarning)
+
+
+def test_plotting_lives_in_visualization():
+    """Figures are drawn in lensdual.visualization (re-exported where they belong):
+    no other module defines a plot_* function or imports pyplot, except _outputs,
+    which saves and closes the figures (matplotlib.path is geometry, not plotting)."""
+    import ast
+
+    found = []
+    for path in _sources():
+        rel = path.relative_to(PACKAGE)
+        if rel.parts[0] == "visualization":
+            continue
+        tree = ast.parse(path.read_text())
+        found += [f"{rel}: {node.name}" for node in tree.body
+                  if isinstance(node, ast.FunctionDef) and node.name.startswith("plot_")]
+        if str(rel) != "_outputs.py":
+            found += [f"{rel}: {m}" for m in sorted(_imported_modules(path))
+                      if m == "matplotlib.pyplot" or m.startswith("matplotlib.pyplot.")]
+    assert found == []
+
+
+def _ruff_lint_settings():
+    import tomllib
+
+    pyproject = PACKAGE.parent / "pyproject.toml"
+    if not pyproject.is_file():
+        pytest.skip("not a source checkout (no pyproject.toml beside the package)")
+    return tomllib.loads(pyproject.read_text())["tool"]["ruff"]["lint"]
+
+
+def test_the_statement_gate_covers_the_package():
+    """ruff's PLR0915 (at most 80 statements a function) is selected, set to 80 and
+    ignored nowhere in lensdual."""
+    lint = _ruff_lint_settings()
+    assert "PLR0915" in lint["select"] and lint["pylint"]["max-statements"] == 80
+    assert not {"PLR", "PLR0915"} & set(lint.get("ignore", []))
+    assert [pattern for pattern, codes in lint.get("per-file-ignores", {}).items()
+            if {"PLR", "PLR0915"} & set(codes)
+            and not pattern.startswith(("tests", "benchmarks"))] == []
+
+
+def test_no_function_has_more_than_80_statements():
+    """ruff's PLR0915 passes on lensdual (where ruff is installed)."""
+    import subprocess
+    import sys
+
+    _ruff_lint_settings()
+    pytest.importorskip("ruff")
+    done = subprocess.run([sys.executable, "-m", "ruff", "check", "--no-cache", "--select",
+                           "PLR0915", "--output-format", "concise", str(PACKAGE)],
+                          cwd=PACKAGE.parent, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stdout + done.stderr

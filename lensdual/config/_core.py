@@ -19,11 +19,11 @@ from astropy.nddata.utils import NoOverlapError
 from astropy.table import Table
 
 from .._pairs_table import repeated_pair_ids
+from ..exceptions import ConfigError, HDUError
 from . import _schema
 from ._fits import (
     _cutout,
     _grid_mismatch,
-    _HDUError,
     _ImageInfo,
     _inspect_fits,
     _product_map,
@@ -69,55 +69,8 @@ def _valid(*values):
 
 
 # ---------------------------------------------------------------------------
-# the error and the specification classes
+# the specification classes (ConfigError is in lensdual.exceptions)
 # ---------------------------------------------------------------------------
-
-
-class ConfigError(ValueError):
-    """A configuration file, or a file it refers to, has problems.
-
-    Parameters
-    ----------
-    problems : list of str or str
-        One message per problem.
-    path : path-like, optional
-        The configuration file.
-
-    Attributes
-    ----------
-    problems : list of str
-        One message per problem, each naming the table and key concerned.
-    path : `~pathlib.Path` or None
-        The configuration file.
-
-    Notes
-    -----
-    ``str(err)`` is a single message::
-
-        <path>: 2 problems in the configuration:
-          - [analysis] n_bootstrap: must be >= 10, got 5
-          - [arcs.L2]: missing (arcs L1 and L2 are both required)
-    """
-
-    def __init__(self, problems, path=None):
-        if isinstance(problems, str):
-            problems = [problems]
-        self.problems = list(problems)
-        self.path = None if path is None else Path(path)
-        super().__init__(self._message())
-
-    def _message(self):
-        n = len(self.problems)
-        head = f"{n} problem{'' if n == 1 else 's'} in the configuration:"
-        if self.path is not None:
-            head = f"{self.path}: {head}"
-        return "\n".join([head] + [f"  - {p}" for p in self.problems])
-
-    def __str__(self):
-        return self._message()
-
-    def __reduce__(self):
-        return type(self), (self.problems, self.path)
 
 
 @dataclass(frozen=True)
@@ -577,7 +530,7 @@ class _Validator:
         """Open ``path`` lazily and check the HDU; an `_ImageInfo` or None."""
         try:
             return _inspect_fits(path, hdu, celestial=celestial)
-        except _HDUError as exc:
+        except HDUError as exc:
             self.add(f"[{sec}] {hdu_key if exc.on_hdu_key else file_key}: {exc}")
             return None
 

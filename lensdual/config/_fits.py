@@ -14,7 +14,7 @@ from astropy.nddata import CCDData, Cutout2D, StdDevUncertainty
 from astropy.nddata.utils import NoOverlapError
 from astropy.wcs import WCS, FITSFixedWarning
 
-from ..exceptions import MissingValuesWarning
+from ..exceptions import HDUError, MissingValuesWarning
 from ._values import _suggest
 
 _MIN_PSF_SIZE = 5
@@ -37,29 +37,18 @@ def _is_2d_image(hdu):
     return bool(hdu.is_image) and len(hdu.shape) == 2
 
 
-class _HDUError(ValueError):
-    """A FITS file is unusable, or the HDU asked for does not exist or holds no 2-D image.
-
-    ``on_hdu_key``: the problem is the HDU's key (``hdu``, ``error_hdu``...), not the file's.
-    """
-
-    def __init__(self, message, on_hdu_key):
-        super().__init__(message)
-        self.on_hdu_key = on_hdu_key
-
-
 def _find_hdu(hdul, hdu, path):
     """Index of the requested HDU of ``hdul`` (the first 2-D image for None)."""
     if hdu is None:
         for i, h in enumerate(hdul):
             if _is_2d_image(h):
                 return i
-        raise _HDUError(f"{path} has no HDU with 2-D image data (HDUs: {_hdu_names(hdul)})"
+        raise HDUError(f"{path} has no HDU with 2-D image data (HDUs: {_hdu_names(hdul)})"
                         + _cube_hint(hdul), on_hdu_key=False)
     if isinstance(hdu, int):
         if hdu >= len(hdul):
             n = len(hdul)
-            raise _HDUError(f"{_hdu_label(hdu)} does not exist in {path} "
+            raise HDUError(f"{_hdu_label(hdu)} does not exist in {path} "
                             f"({n} HDU{'' if n == 1 else 's'}: {_hdu_names(hdul)})",
                             on_hdu_key=True)
         index = hdu
@@ -68,7 +57,7 @@ def _find_hdu(hdul, hdu, path):
             index = hdul.index_of(hdu)
         except KeyError:
             hint = _suggest(hdu.upper(), [h.name for h in hdul if h.name])
-            raise _HDUError(f"{_hdu_label(hdu)} does not exist in {path}{hint} "
+            raise HDUError(f"{_hdu_label(hdu)} does not exist in {path}{hint} "
                             f"(HDUs: {_hdu_names(hdul)})", on_hdu_key=True) from None
     h = hdul[index]
     if not _is_2d_image(h):
@@ -76,7 +65,7 @@ def _find_hdu(hdul, hdu, path):
             what = "a table"
         else:
             what = f"{len(h.shape)}-D data" if h.shape else "no data"
-        raise _HDUError(f"{_hdu_label(hdu)} of {path} has no 2-D image data (it has {what})"
+        raise HDUError(f"{_hdu_label(hdu)} of {path} has no 2-D image data (it has {what})"
                         + _cube_hint(hdul), on_hdu_key=True)
     return index
 
@@ -136,23 +125,23 @@ class _ImageInfo:
 
 
 def _inspect_fits(path, hdu, *, celestial=False):
-    """Open ``path`` lazily and check the HDU: an `_ImageInfo`; `_HDUError` if unusable.
+    """Open ``path`` lazily and check the HDU: an `_ImageInfo`; `HDUError` if unusable.
 
     With ``celestial``, the HDU must have a valid celestial WCS (then in ``wcs``).
     """
     try:
         hdul = fits.open(path)
     except Exception as exc:  # any failure means the file is unusable
-        raise _HDUError(f"{path} is not a readable FITS file ({exc})", on_hdu_key=False) from None
+        raise HDUError(f"{path} is not a readable FITS file ({exc})", on_hdu_key=False) from None
     with hdul:
         try:
             index = _find_hdu(hdul, hdu, path)
             header = hdul[index].header
             shape = tuple(hdul[index].shape)
-        except _HDUError:
+        except HDUError:
             raise
         except Exception as exc:
-            raise _HDUError(f"{path} is not a readable FITS file ({exc})",
+            raise HDUError(f"{path} is not a readable FITS file ({exc})",
                             on_hdu_key=False) from None
         wcs = None
         if celestial:
@@ -160,10 +149,10 @@ def _inspect_fits(path, hdu, *, celestial=False):
             try:
                 wcs = _header_wcs(header, hdul)
             except Exception as exc:
-                raise _HDUError(f"the WCS in the header of {where} is invalid ({exc})",
+                raise HDUError(f"the WCS in the header of {where} is invalid ({exc})",
                                 on_hdu_key=False) from None
             if not wcs.has_celestial:
-                raise _HDUError(f"the header of {where} has no celestial WCS (RA/Dec axes), "
+                raise HDUError(f"the header of {where} has no celestial WCS (RA/Dec axes), "
                                 "which is needed to pair the arcs on the sky", on_hdu_key=False)
             wcs = wcs.celestial
         bunit = header.get("BUNIT")

@@ -31,6 +31,7 @@ Python on arrays.
 import numpy as np
 from astropy import units as u
 
+from .._lens.model import LensModelBase
 from .._validation import as_int
 
 __all__ = []
@@ -53,7 +54,7 @@ def plane_distance_ratios(cosmology, z_planes, z_source):
     return r
 
 
-class LenstoolMultiPlaneLensModel:
+class LenstoolMultiPlaneLensModel(LensModelBase):
     """Potentials on several lens planes, with lenstronomy's ``LensModel`` interface.
 
     Made by `LenstoolModel.lens_model` for a source behind two or more of a
@@ -63,7 +64,8 @@ class LenstoolMultiPlaneLensModel:
     ``alpha`` is ``theta - beta``; ``hessian`` returns ``(f_xx, f_xy, f_yx,
     f_yy) = I - A`` of the full multi-plane Jacobian ``A = d beta / d theta``
     (``f_xy = d alpha_x / d y`` and ``f_yx = d alpha_y / d x`` differ in
-    general, as in lenstronomy's ``MultiPlane``).
+    general, as in lenstronomy's ``MultiPlane``); ``kappa`` is ``(f_xx + f_yy)
+    / 2`` and ``magnification`` ``1 / det A`` of that Jacobian.
 
     Parameters
     ----------
@@ -151,114 +153,24 @@ class LenstoolMultiPlaneLensModel:
                 ax, ay = self.planes[j].alpha(xj, yj)
             alphas.append((ax, ay))
 
+    # the LensModel methods below show LensModelBase's docstrings
     def ray_shooting(self, x, y, kwargs=None, k=None):
-        """Source-plane positions ``beta(theta)``, arcsec.
-
-        Parameters
-        ----------
-        x, y : array_like
-            Image-plane positions, arcsec (any shape).
-        kwargs, k
-            Ignored (lenstronomy's ``LensModel`` interface).
-
-        Returns
-        -------
-        beta_x, beta_y : `~numpy.ndarray`
-            Source-plane positions, arcsec, of the shape of ``x``.
-        """
         bx, by, _ = self._trace(x, y, False)
         return bx, by
 
     def alpha(self, x, y, kwargs=None, k=None):
-        """Effective deflection ``theta - beta(theta)``, arcsec.
-
-        Parameters
-        ----------
-        x, y : array_like
-            Image-plane positions, arcsec (any shape).
-        kwargs, k
-            Ignored (lenstronomy's ``LensModel`` interface).
-
-        Returns
-        -------
-        alpha_x, alpha_y : `~numpy.ndarray`
-            The deflection, arcsec, of the shape of ``x``.
-        """
         bx, by, _ = self._trace(x, y, False)
         return np.subtract(x, bx), np.subtract(y, by)
 
     def hessian(self, x, y, kwargs=None, k=None, diff=None):
-        """``(f_xx, f_xy, f_yx, f_yy) = I - d beta / d theta`` (multi-plane Jacobian).
-
-        Parameters
-        ----------
-        x, y : array_like
-            Image-plane positions, arcsec (any shape).
-        kwargs, k, diff
-            Ignored (lenstronomy's ``LensModel`` interface).
-
-        Returns
-        -------
-        f_xx, f_xy, f_yx, f_yy : `~numpy.ndarray`
-            Of the shape of ``x``.
-        """
         _, _, (a11, a12, a21, a22) = self._trace(x, y, True)
         return 1.0 - a11, -a12, -a21, 1.0 - a22
 
     def alpha_hessian(self, x, y, kwargs=None):
-        """Deflection and Hessian in one pass: ``alpha_x, alpha_y, f_xx, f_xy, f_yy``.
-
-        ``f_xy`` is the mean of ``f_xy`` and ``f_yx`` (use `hessian` for both).
-
-        Parameters
-        ----------
-        x, y : array_like
-            Image-plane positions, arcsec (any shape).
-        kwargs
-            Ignored (lenstronomy's ``LensModel`` interface).
-
-        Returns
-        -------
-        alpha_x, alpha_y, f_xx, f_xy, f_yy : `~numpy.ndarray`
-            Of the shape of ``x``.
-        """
         bx, by, (a11, a12, a21, a22) = self._trace(x, y, True)
         return (np.subtract(x, bx), np.subtract(y, by), 1.0 - a11, -0.5 * (a12 + a21),
                 1.0 - a22)
 
-    def kappa(self, x, y, kwargs=None, k=None):
-        """Effective convergence ``(f_xx + f_yy) / 2`` of the multi-plane Jacobian.
-
-        Parameters
-        ----------
-        x, y : array_like
-            Image-plane positions, arcsec (any shape).
-        kwargs, k
-            Ignored (lenstronomy's ``LensModel`` interface).
-
-        Returns
-        -------
-        kappa : `~numpy.ndarray`
-            Of the shape of ``x``.
-        """
-        fxx, _, _, fyy = self.hessian(x, y)
-        return 0.5 * (fxx + fyy)
-
-    def magnification(self, x, y, kwargs=None, k=None):
-        """Signed magnification ``1 / det(d beta / d theta)``.
-
-        Parameters
-        ----------
-        x, y : array_like
-            Image-plane positions, arcsec (any shape).
-        kwargs, k
-            Ignored (lenstronomy's ``LensModel`` interface).
-
-        Returns
-        -------
-        mu : `~numpy.ndarray`
-            Of the shape of ``x``.
-        """
-        _, _, (a11, a12, a21, a22) = self._trace(x, y, True)
-        with np.errstate(divide="ignore"):
-            return 1.0 / (a11 * a22 - a12 * a21)
+    def _jacobian(self, x, y):
+        """``A = d beta / d theta`` of the multi-plane recursion (not ``I - H``)."""
+        return self._trace(x, y, True)[2]

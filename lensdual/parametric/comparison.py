@@ -18,12 +18,8 @@ from .._frames import tangent_to_sky, tangent_xy
 from .._pairs_table import POS_ERR_COLUMNS, POSITION_COLUMNS
 from .._validation import as_real
 from ..duality import DEFAULT_SNR_THRESHOLD
-from .fitting import (
-    DEFAULT_MODEL,
-    compare_with_parametric,
-    fit_parametric_lens,
-    plot_parametric_comparison,
-)
+from ..visualization._parametric import plot_parametric_comparison
+from .fitting import DEFAULT_MODEL, compare_with_parametric, fit_parametric_lens
 from .lenstool import LenstoolModel, read_lenstool
 
 __all__ = ["parametric_comparison"]

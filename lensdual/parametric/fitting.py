@@ -25,6 +25,7 @@ from .._validation import (
     as_redshifts,
 )
 from ..duality import DEFAULT_SNR_THRESHOLD
+from ..visualization._parametric import plot_parametric_comparison
 
 __all__ = [
     "DEFAULT_MODEL",
@@ -1099,58 +1100,3 @@ def compare_with_parametric(duality_table, fit, *, z_source=None,
     out.meta["model"] = (fit.model if isinstance(fit, ParametricFit)
                          else f"Lenstool model {getattr(fit, 'path', '')}")
     return out
-
-
-def plot_parametric_comparison(table, ax=None):
-    """Plot ``mu_flux``, ``mu_size`` and ``mu_model`` per pair, with error bars.
-
-    Parameters
-    ----------
-    table : `~astropy.table.Table`
-        Output of :func:`compare_with_parametric` (or of
-        :func:`~lensdual.parametric.parametric_comparison`, whose
-        ``mu_lenstool`` column, when present, is drawn too).
-    ax : `matplotlib.axes.Axes`, optional
-        Axes to draw on (default: a new figure).
-
-    Returns
-    -------
-    ax : `matplotlib.axes.Axes`
-    """
-    import matplotlib.pyplot as plt
-
-    if not isinstance(table, Table):
-        raise TypeError(f"table must be an astropy Table, got {type(table).__name__}")
-    missing = [c for c in ("pair_id", "mu_flux", "mu_size", "mu_model") if c not in table.colnames]
-    if missing:
-        raise ValueError(f"table lacks the column(s) {missing}: pass compare_with_parametric's "
-                         "output")
-    if ax is None:
-        _, ax = plt.subplots(figsize=(7, 4))
-    x = np.asarray(table["pair_id"], dtype=float)
-    lenstool_only = str(table.meta.get("model", "")).startswith("Lenstool")
-    series = [("mu_flux", r"$\mu_{\rm flux}$ (flux ratio)", "o", -0.2),
-              ("mu_size", r"$\mu_{\rm size}$ (model-independent)", "s", 0.0),
-              ("mu_model", r"$\mu_{\rm model}$ ("
-               + ("Lenstool model" if lenstool_only else "parametric") + ")", "D", 0.2)]
-    if "mu_lenstool" in table.colnames:
-        series.append(("mu_lenstool", r"$\mu_{\rm model}$ (Lenstool model)", "v", 0.3))
-    for name, label, marker, dx in series:
-        err = (np.asarray(table[f"{name}_err"], float) if f"{name}_err" in table.colnames
-               else None)
-        ax.errorbar(x + dx, np.asarray(table[name], float), yerr=err, fmt=marker, ms=4,
-                    capsize=2, label=label)
-    if "mu_true" in table.colnames:
-        ax.scatter(x, np.asarray(table["mu_true"], float), marker="_", s=200, color="k",
-                   label="truth", zorder=3)
-    for flag, col in (("anomalous_size", "C1"), ("anomalous_model", "C2"),
-                      ("anomalous_lenstool", "C3")):
-        if flag in table.colnames:
-            sel = np.asarray(table[flag], bool)
-            ax.scatter(x[sel], np.asarray(table["mu_flux"], float)[sel], s=120,
-                       facecolors="none", edgecolors=col, label=f"{flag.replace('_', ' ')}")
-    ax.set_yscale("log")
-    ax.set_xlabel("pair id")
-    ax.set_ylabel(r"$|\mu(L1)/\mu(L2)|$")
-    ax.legend(fontsize="small")
-    return ax

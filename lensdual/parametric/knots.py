@@ -26,6 +26,7 @@ from astropy.table import QTable, Table
 from .._pairs_table import arc_xy
 from .._validation import as_angle_scalar, as_real
 from ..duality import DEFAULT_SNR_THRESHOLD
+from ..visualization._parametric import plot_size_vs_model
 
 __all__ = ["compare_size_with_models", "plot_size_vs_model"]
 
@@ -213,77 +214,3 @@ def compare_size_with_models(pairs, models, *, sigma_pos, z_source=None, method=
         if key in tab.meta:
             out.meta[key] = tab.meta[key]
     return out
-
-
-def plot_size_vs_model(table, model=None, ax=None, *, label_pairs=True):
-    """Plot ``mu_size`` against a model's ratio per pair, with both error bars.
-
-    Parameters
-    ----------
-    table : `~astropy.table.Table`
-        Output of :func:`compare_size_with_models`.
-    model : str, optional
-        Which model (default: the first of ``table.meta['models']``).
-    ax : `matplotlib.axes.Axes`, optional
-        Axes to draw on (default: a new figure).
-    label_pairs : bool
-        Write the knot (or pair id) beside each point.
-
-    Returns
-    -------
-    ax : `matplotlib.axes.Axes`
-    """
-    import matplotlib.pyplot as plt
-
-    if not isinstance(table, Table) or "mu_size" not in table.colnames:
-        raise TypeError("table must be the output of compare_size_with_models")
-    names = list(table.meta.get("models", []))
-    model = names[0] if model is None and names else model
-    if f"mu_{model}" not in table.colnames:
-        raise ValueError(f"no model {model!r} in the table (models: {names})")
-    if ax is None:
-        _, ax = plt.subplots(figsize=(5.5, 5))
-    mu_s = np.asarray(table["mu_size"], float)
-    mu_m = np.asarray(table[f"mu_{model}"], float)
-    ln_s = np.asarray(table["ln_mu_size_err"], float)
-    ln_m = np.asarray(table[f"ln_mu_{model}_err"], float)
-    testable = np.isin(np.asarray(table["mu_size_status"]), ("ok", "misfit"))
-    bad = np.asarray(table[f"disagree_{model}"], bool)
-    for sel, style, lab in ((testable & ~bad, dict(fmt="o", color="C0"), "agree"),
-                            (bad, dict(fmt="o", color="C3"), "disagree (> threshold)"),
-                            (~testable, dict(fmt="x", color="0.5"), "untestable")):
-        if sel.any():
-            # an error of ln mu beyond ~709 is an unbounded bar (inf), not a warning
-            with np.errstate(over="ignore"):
-                xerr = [mu_m[sel] * (1 - np.exp(-ln_m[sel])),
-                        mu_m[sel] * (np.exp(ln_m[sel]) - 1)]
-                yerr = [mu_s[sel] * (1 - np.exp(-ln_s[sel])),
-                        mu_s[sel] * (np.exp(ln_s[sel]) - 1)]
-            ax.errorbar(mu_m[sel], mu_s[sel], xerr=xerr, yerr=yerr, ms=4, capsize=2,
-                        linestyle="none", label=lab, **style)
-    finite = np.isfinite(mu_s) & np.isfinite(mu_m) & (mu_s > 0) & (mu_m > 0)
-    if finite.any():
-        lo = 0.7 * min(mu_s[finite].min(), mu_m[finite].min())
-        hi = 1.4 * max(mu_s[finite].max(), mu_m[finite].max())
-        ax.plot([lo, hi], [lo, hi], "k--", lw=0.8, label="duality (1:1)")
-        ax.set_xlim(lo, hi)
-        ax.set_ylim(lo, hi)
-    if label_pairs:
-        labels = table["knot"] if "knot" in table.colnames else table["pair_id"]
-        for xm, ys, lab in zip(mu_m, mu_s, labels, strict=True):
-            if np.isfinite(xm) and np.isfinite(ys):
-                ax.annotate(str(lab), (xm, ys), fontsize=6, xytext=(3, 3),
-                            textcoords="offset points")
-    from matplotlib.ticker import LogLocator, StrMethodFormatter
-
-    ax.set_xscale("log")
-    ax.set_yscale("log")
-    for axis in (ax.xaxis, ax.yaxis):
-        axis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
-        axis.set_major_formatter(StrMethodFormatter("{x:g}"))
-        axis.set_minor_formatter(StrMethodFormatter(""))
-    m1, m2 = table.meta.get("macro1", "L1"), table.meta.get("macro2", "L2")
-    ax.set_xlabel(rf"model $|\mu({m1}) / \mu({m2})|$ ({model})")
-    ax.set_ylabel(r"$\mu_{\rm size}$ (model-independent)")
-    ax.legend(fontsize="small")
-    return ax

@@ -68,7 +68,9 @@ from astropy.cosmology import FlatLambdaCDM, LambdaCDM, w0waCDM
 from astropy.table import QTable
 
 from .._frames import ARCSEC_PER_RAD as _ARCSEC_PER_RAD
+from .._lens.model import LensModelBase
 from .._validation import DEFAULT_COSMOLOGY, as_cosmology, as_int, as_positions, as_real
+from ..exceptions import LenstoolKeywordWarning
 from . import _kernels
 from ._multiplane import LenstoolMultiPlaneLensModel
 
@@ -318,10 +320,6 @@ def _cosmology(path, blocks):
             return FlatLambdaCDM(H0=h0, Om0=om, Tcmb0=0.0)
         return LambdaCDM(H0=h0, Om0=om, Ode0=ox, Tcmb0=0.0)
     return w0waCDM(H0=h0, Om0=om, Ode0=ox, w0=w0, wa=wa, Tcmb0=0.0)
-
-
-class LenstoolKeywordWarning(UserWarning):
-    """A keyword of a Lenstool file that lensdual does not interpret and does not know."""
 
 
 # Keywords of the blocks lensdual reads (runmode, grille) that it knowingly ignores,
@@ -1191,7 +1189,7 @@ class LenstoolModel:
         -------
         system : `~lensdual.simulation.LensSystem`
         """
-        from ..simulation.lens_system import LensSystem
+        from .._lens.system import LensSystem
 
         model = self.lens_model(z_source, n_threads=n_threads)
         kwargs = [{"center_x": float(x), "center_y": float(y)} for x, y in model.centres]
@@ -1200,13 +1198,15 @@ class LenstoolModel:
                                      label=f"Lenstool model {self.path.name}")
 
 
-class LenstoolLensModel:
+class LenstoolLensModel(LensModelBase):
     """Sum of dPIE, NFW and external-shear potentials, lenstronomy ``LensModel``-like.
 
     Positions are plain float arrays (any shape, broadcast together) in
     arcsec in the model frame; every method takes lenstronomy's ``kwargs``
     argument and ignores it. Evaluated by the Numba kernels of
-    ``lensdual.parametric._kernels``. Made by `LenstoolModel.lens_model`.
+    ``lensdual.parametric._kernels``: `alpha`, `hessian` and ``kappa`` (a
+    closed form); ``ray_shooting``, ``gamma`` and ``magnification`` follow
+    from the first two. Made by `LenstoolModel.lens_model`.
 
     Parameters
     ----------
@@ -1312,119 +1312,27 @@ class LenstoolLensModel:
         res = col.reshape(shape)
         return res[()] if shape == () else res
 
+    # the LensModel methods below show LensModelBase's docstrings
     def alpha(self, x, y, kwargs=None, k=None):
-        """Deflection ``(alpha_x, alpha_y)`` at ``(x, y)``, arcsec.
-
-        Parameters
-        ----------
-        x, y : array_like
-            Image-plane positions, arcsec (any shape).
-        kwargs, k
-            Ignored (lenstronomy's ``LensModel`` interface).
-
-        Returns
-        -------
-        alpha_x, alpha_y : `~numpy.ndarray`
-            The deflection, arcsec, of the shape of ``x``.
-        """
         out, shape = self._run((_kernels.dpie_deflection, _kernels.nfw_deflection, "alpha"),
                                x, y)
         return self._shaped(out[:, 0], shape), self._shaped(out[:, 1], shape)
 
-    def ray_shooting(self, x, y, kwargs=None, k=None):
-        """Source-plane positions ``(x - alpha_x, y - alpha_y)``, arcsec.
-
-        Parameters
-        ----------
-        x, y : array_like
-            Image-plane positions, arcsec (any shape).
-        kwargs, k
-            Ignored (lenstronomy's ``LensModel`` interface).
-
-        Returns
-        -------
-        beta_x, beta_y : `~numpy.ndarray`
-            Source-plane positions, arcsec, of the shape of ``x``.
-        """
-        ax, ay = self.alpha(x, y)
-        return np.subtract(x, ax), np.subtract(y, ay)
-
     def hessian(self, x, y, kwargs=None, k=None, diff=None):
-        """Second derivatives of the potential, ``(f_xx, f_xy, f_yx, f_yy)``.
-
-        Parameters
-        ----------
-        x, y : array_like
-            Image-plane positions, arcsec (any shape).
-        kwargs, k, diff
-            Ignored (lenstronomy's ``LensModel`` interface).
-
-        Returns
-        -------
-        f_xx, f_xy, f_yx, f_yy : `~numpy.ndarray`
-            Of the shape of ``x``.
-        """
         out, shape = self._run((_kernels.dpie_hessian, _kernels.nfw_hessian, "hessian"), x, y)
         fxy = self._shaped(out[:, 1], shape)
         return self._shaped(out[:, 0], shape), fxy, fxy, self._shaped(out[:, 2], shape)
 
     def alpha_hessian(self, x, y, kwargs=None):
-        """Deflection and Hessian in one pass: ``alpha_x, alpha_y, f_xx, f_xy, f_yy``.
-
-        Parameters
-        ----------
-        x, y : array_like
-            Image-plane positions, arcsec (any shape).
-        kwargs
-            Ignored (lenstronomy's ``LensModel`` interface).
-
-        Returns
-        -------
-        alpha_x, alpha_y, f_xx, f_xy, f_yy : `~numpy.ndarray`
-            Of the shape of ``x``.
-        """
         out, shape = self._run((_kernels.dpie_deflection_hessian,
                                 _kernels.nfw_deflection_hessian, "both"), x, y)
         return tuple(self._shaped(out[:, i], shape) for i in range(5))
 
-    def kappa(self, x, y, kwargs=None, k=None):
-        """Convergence at ``(x, y)`` (closed form).
-
-        Parameters
-        ----------
-        x, y : array_like
-            Image-plane positions, arcsec (any shape).
-        kwargs, k
-            Ignored (lenstronomy's ``LensModel`` interface).
-
-        Returns
-        -------
-        kappa : `~numpy.ndarray`
-            Of the shape of ``x``.
-        """
+    def _kappa(self, x, y):
+        """The convergence in closed form (the kernels' own, not from the Hessian)."""
         out, shape = self._run((_kernels.dpie_convergence, _kernels.nfw_convergence, "kappa"),
                                x, y)
         return self._shaped(out, shape)
-
-    def magnification(self, x, y, kwargs=None, k=None):
-        """Signed magnification ``1 / det(d beta / d theta)``.
-
-        Parameters
-        ----------
-        x, y : array_like
-            Image-plane positions, arcsec (any shape).
-        kwargs, k
-            Ignored (lenstronomy's ``LensModel`` interface).
-
-        Returns
-        -------
-        mu : `~numpy.ndarray`
-            Of the shape of ``x``.
-        """
-        fxx, fxy, _, fyy = self.hessian(x, y)
-        det = (1.0 - fxx) * (1.0 - fyy) - fxy * fxy
-        with np.errstate(divide="ignore"):
-            return 1.0 / det
 
 
 def _shear(x, y, shear, kind):

@@ -41,15 +41,16 @@ Detection SNR
     ``|ln f|`` and ``|1 / f - 1|`` (see :func:`detection_snr_map`).
 """
 
+from ..visualization._sensitivity import plot_detection_snr_map, plot_flux_excess_violin
 from ._images import flux_excess, flux_excess_distribution, micro_images, subhalo_einstein_radius
-from ._plotting import plot_detection_snr_map, plot_flux_excess_violin
 from ._radius import effective_radius, effective_radius_ellipse, offsets_on_ellipse
 from ._reference import smacs0723_reference
 from ._snr import detection_snr_map
 
 # Modules: _inputs (checks), _radius (r_eff), _images (micro-images, flux
 # excess), _reference (the SMACS0723 analogue), _snr (detection-SNR maps and
-# their tasks), _plotting (Figs. 8 and 9), _kernels (Numba).
+# their tasks), _kernels (Numba); the figures (Figs. 8 and 9) are
+# lensdual.visualization's, re-exported here.
 __all__ = [
     "effective_radius_ellipse",
     "effective_radius",

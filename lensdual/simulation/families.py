@@ -133,11 +133,12 @@ from pathlib import Path
 import numpy as np
 from astropy import units as u
 
+from .._lens.system import reference_arcs
 from .._pairs_table import arc_xy
 from .._validation import as_angle_scalar, as_int
 from ..exceptions import LensdualWarning
-from .halos import elliptical_nfw_halo, tnfw_halo
-from .lens_system import LensComponent, LensSystem, _reference_arcs
+from .halos import LensComponent, elliptical_nfw_halo, tnfw_halo
+from .lens_system import LensSystem
 from .scenarios import smacs0723_analog
 
 __all__ = [
@@ -549,7 +550,7 @@ def _arc_images(system, info, beta, link):
     """
     images = system.solve_images(beta * u.arcsec, link_length=link * u.arcsec,
                                  **_solve_kwargs(info))
-    arc1, arc2 = _reference_arcs(images, info["reference"])
+    arc1, arc2 = reference_arcs(images, info["reference"])
     src = np.asarray(images["source"])
     arc = np.asarray(images["arc"])
     xy = np.column_stack([images["x"].to_value(u.arcsec), images["y"].to_value(u.arcsec)])
@@ -800,7 +801,7 @@ def _final_table(system, info, beta, x1, x2, link, rng, bands, flux_rel_err):
     ref = np.vstack([x1[0], x2[0]]) * u.arcsec
     images = system.solve_images(beta * u.arcsec, link_length=link * u.arcsec,
                                  **_solve_kwargs(info))
-    arc1, arc2 = _reference_arcs(images, ref)
+    arc1, arc2 = reference_arcs(images, ref)
     src = np.asarray(images["source"])
     arc = np.asarray(images["arc"])
     one = np.ones(n)

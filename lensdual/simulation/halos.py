@@ -5,11 +5,10 @@ its keyword arguments (angles in arcsec), built from masses and
 concentrations with units for a given lens and source redshift.
 """
 
-from dataclasses import dataclass, field
-
 import numpy as np
 from astropy import units as u
 
+from .._lens.component import LensComponent
 from .._validation import DEFAULT_COSMOLOGY, as_cosmology, as_mass, as_real, as_redshifts
 
 __all__ = [
@@ -31,28 +30,6 @@ TRUNCATION_FACTOR = 30.0
 _MCR_LOG10_C0 = 1.020
 _MCR_SLOPE = -0.109
 _MCR_PIVOT = 1e12
-
-
-@dataclass(frozen=True)
-class LensComponent:
-    """One lens profile: a lenstronomy profile name and its keyword arguments.
-
-    Parameters
-    ----------
-    profile : str
-        lenstronomy profile name (e.g. ``"TNFW"``).
-    kwargs : dict
-        Its keyword arguments, angles in arcsec.
-    label : str
-        A name for the component (``"main halo"``, ``"member 1"``, ...).
-    meta : dict
-        The physical parameters it was built from (mass, concentration, ...).
-    """
-
-    profile: str
-    kwargs: dict
-    label: str = ""
-    meta: dict = field(default_factory=dict)
 
 
 def _as_position(position, name="position"):

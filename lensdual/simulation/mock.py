@@ -24,6 +24,7 @@ from astropy.wcs import WCS
 from scipy.special import erf
 
 from .._frames import tangent_to_sky
+from .._lens.model import LensModelBase
 from .._pairs_table import POSITION_COLUMNS, arc_xy, flux_col
 from .._validation import as_angle_scalar, as_int, as_positions, as_real
 from .lens_system import LensSystem
@@ -393,10 +394,11 @@ def _host_params(host, bands):
     return out
 
 
-class _LensAdapter:
+class _LensAdapter(LensModelBase):
     """lenstronomy's LensModel interface over any ``LensSystem.lens_model``.
 
-    Caches the last ray-shooting (the bands of a cutout share the grid).
+    Caches the last ray-shooting (the bands of a cutout share the grid); the
+    magnification comes from the model's Hessian.
     """
 
     multi_plane = False
@@ -425,10 +427,6 @@ class _LensAdapter:
 
     def hessian(self, x, y, kwargs=None, **_):
         return self._model.hessian(x, y, self._kwargs)
-
-    def magnification(self, x, y, kwargs=None, **_):
-        fxx, fxy, fyx, fyy = self.hessian(x, y)
-        return 1.0 / ((1 - fxx) * (1 - fyy) - fxy * fyx)
 
 
 # ---------------------------------------------------------------------------

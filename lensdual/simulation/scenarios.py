@@ -5,8 +5,8 @@ from astropy import units as u
 
 from .._pairs_table import arc_xy
 from .._validation import as_int
-from .halos import elliptical_nfw_halo, tnfw_halo
-from .lens_system import LensComponent, LensSystem
+from .halos import LensComponent, elliptical_nfw_halo, tnfw_halo
+from .lens_system import LensSystem
 
 __all__ = ["SMACS0723", "SUBHALOES", "smacs0723_analog"]
 

@@ -12,7 +12,7 @@ def plot_flux_excess_violin(table, ax=None, mu_size_band=None):
     Parameters
     ----------
     table : `~astropy.table.QTable`
-        From :func:`flux_excess_distribution`.
+        From :func:`~lensdual.sensitivity.flux_excess_distribution`.
     ax : `matplotlib.axes.Axes`, optional
     mu_size_band : (float, float), optional
         Lower and upper edge of a hatched reference band (e.g. the 16-84 %
@@ -76,7 +76,7 @@ def plot_detection_snr_map(table, *, columns=None, axes=None, vmin=0.3, vmax=100
     Parameters
     ----------
     table : `~astropy.table.QTable`
-        From :func:`detection_snr_map` (one concentration model).
+        From :func:`~lensdual.sensitivity.detection_snr_map` (one concentration model).
     columns : sequence of str, optional
         SNR columns to show; default every ``snr_p*`` column.
     axes : sequence of `matplotlib.axes.Axes`, optional

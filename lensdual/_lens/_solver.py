@@ -21,7 +21,7 @@ The method (App. A of the paper):
    the largest deviation of a vertex Jacobian from the piecewise-linear one, an
    upper estimate of the interpolation error): a source within ``tol`` of the
    mapped triangle is a candidate too. The search goes through a source-plane
-   bucket grid built once (:mod:`lensdual.simulation._kernels`).
+   bucket grid built once (:mod:`lensdual._lens._kernels`).
 4. Triangles that straddle a critical curve (mixed signs of ``det A``, or a
    mapped orientation that disagrees with the vertex signs) or that are very
    non-linear (``tol`` larger than half the mapped triangle) are searched with

@@ -2,7 +2,7 @@
 
 Everything here is unit-free: positions are plain ``float64`` arrays in one
 angular unit (the solver uses arcsec), indices are ``int64``. No input
-validation happens here; :mod:`lensdual.simulation._solver` does it.
+validation happens here; :mod:`lensdual._lens._solver` does it.
 
 The image plane is covered by triangles whose vertices were traced to the
 source plane ("nodes": ``bx``, ``by``; ``tri`` is an ``(N, 3)`` array of node
