@@ -1,4 +1,4 @@
-"""Pixels-to-pairs acceptance on mocks of the SMACS0723 analogue (issue 4).
+"""Pixels-to-pairs acceptance on mocks of the SMACS0723 analogue.
 
 For each seed: the SMACS0723 analogue (main halo), a resolvable
 constellation of 12 point sources (a jittered 3 x 4 source-plane grid around

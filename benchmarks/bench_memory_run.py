@@ -1,4 +1,4 @@
-"""Peak memory and time of a full-frame two-arc, two-band run (issue 15, item 14).
+"""Peak memory and time of a full-frame two-arc, two-band run.
 
 Run on demand (not part of the test suite)::
 

@@ -12,7 +12,7 @@ from lensdual.exceptions import LensdualWarning
 
 
 # These tests exercise the bootstrap path with the paper's Quad estimator
-# (their historical default); the adaptive default is tested in
+# (the default of these tests); the adaptive default is tested in
 # test_calibration.py.
 def check_duality(pairs, method="quad", **kwargs):
     return _check_duality(pairs, method, **kwargs)

@@ -16,7 +16,7 @@ METHODS = {"2v": 3, "quad": 3, "quad2": 3}
 
 
 def size_magnification(theta1, theta2, method="quad", **kwargs):
-    """The estimators' bootstrap path, with the tests' historical default "quad"."""
+    """The estimators' bootstrap path, with "quad" as these tests' default."""
     return _size_magnification(theta1, theta2, method, **kwargs)
 
 ALL_METHODS = sorted(METHODS)

@@ -237,7 +237,7 @@ def test_multi_plane_jacobian_is_the_derivative_of_the_ray_shooting(tmp_path):
 
 def test_multi_plane_reduces_to_single_plane(tmp_path):
     """A source in front of the second plane sees the first plane only, bit for bit; a
-    single-plane model gives the same numbers as before (one plane, D_ls / D_s)."""
+    single-plane model gives the numbers of one plane with D_ls / D_s."""
     model = two_planes(tmp_path, elliptical=True)
     zs = 0.9
     lm = model.lens_model(zs)

@@ -1060,7 +1060,7 @@ def test_cutout_box_and_fallback(small_image, monkeypatch):
     assert box == (slice(1, 13), slice(6, 36))
     assert phot._cutout_box(np.array([5.0]), np.array([5.0]), (10, 10), 4) is None  # > half
     assert phot._cutout_box(np.array([]), np.array([]), (100, 200), 4) is None
-    # a cut-out without any valid pixel: the whole image decides (as before)
+    # a cut-out without any valid pixel: the whole image decides
     monkeypatch.setattr(phot, "_CUTOUT_MAX_FRACTION", 1.0)
     data = np.array(small_image.data, dtype=float)
     data[:, :20] = np.nan
@@ -1143,7 +1143,7 @@ def test_arc_psf_photometry_checks_its_settings_at_init():
     phot = ArcPSFPhotometry(0.07 * u.arcsec)
     with pytest.raises(ValueError, match="needs an image with a celestial WCS"):
         phot(np.zeros((20, 20)), [(10.0, 10.0)])
-    # local_radii is used (and checked) only by the "local" strategy, as before
+    # local_radii is used (and checked) only by the "local" strategy
     ArcPSFPhotometry(FWHM, local_radii="ignored")
     ArcPSFPhotometry(FWHM, background=LocalBackground(4, 8), local_radii="ignored")
     assert repr(ArcPSFPhotometry(FWHM, background="plane")).startswith(
