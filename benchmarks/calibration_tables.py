@@ -6,7 +6,7 @@ Run on demand::
     python benchmarks/calibration_tables.py calibration.txt
 
 With ``--targets``, prints instead the cells of the adaptive estimator that
-miss a target of issue 12 (:func:`missed_targets`). Otherwise prints the
+miss a calibration target (:func:`missed_targets`). Otherwise prints the
 main table (reStructuredText list-table rows of every family but
 the untuned ones) and one table per untuned family present (MACS J1149,
 Abell 2744, Abell 370, Abell S1063: false flags with noisy fluxes / pull width
@@ -85,7 +85,7 @@ def untuned_rows(cells, family):
 
 
 def missed_targets(cells, method="adaptive"):
-    """The cells of ``method`` that miss a target of issue 12, with the reasons.
+    """The cells of ``method`` that miss a calibration target, with the reasons.
 
     Targets: at most 0.5 % false flags (noisy fluxes), a Gaussian-equivalent
     pull width within 0.8-1.2, an absolute median bias at most max(1 %,
@@ -126,7 +126,7 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("output", help="the output of benchmarks/calibration.py")
     parser.add_argument("--targets", action="store_true",
-                        help="list the cells that miss a target of issue 12 instead")
+                        help="list the cells that miss a calibration target instead")
     args = parser.parse_args(argv)
     cells = read(args.output)
     if args.targets:

@@ -17,7 +17,7 @@ from astropy.table import QTable, Table
 from scipy import stats
 from scipy.special import chdtrc, erfc
 
-from . import _pairs_table
+from . import _pairs_table, _profile_kernels
 from ._doubts import add_doubt, doubts_of
 from ._null_map import spline_map
 from ._pairs_table import band_fluxes as _band_fluxes
@@ -27,7 +27,7 @@ from ._parallel import available_threads as _available_threads
 from ._parallel import check_client, run_tasks
 from ._validation import as_int, as_real
 from .estimators import DEFAULT_METHOD, DEFAULT_N_BOOTSTRAP, TESTABLE_STATUS, size_magnification
-from .estimators.core import FEW_PAIRS_HINT
+from .estimators.core import FEW_PAIRS_HINT, determined_parity
 from .exceptions import LensdualWarning
 
 __all__ = ["POSITION_COLUMNS", "SNR_DEFINITIONS", "TESTS", "check_duality", "pair_bands",
@@ -42,7 +42,7 @@ POSITION_COLUMNS = _pairs_table.POSITION_COLUMNS
 DEFAULT_SNR_THRESHOLD = 3.0
 
 #: Definitions of the duality signal-to-noise ratio, see :func:`check_duality`.
-SNR_DEFINITIONS = ("log", "paper")
+SNR_DEFINITIONS = ("log", "paper", "profile")
 
 #: The tests of :func:`check_duality`: ``"geometric"`` (the flux ratio against
 #: ``mu_size``) and ``"joint"`` (against ``mu_size`` and the neighbours' flux
@@ -405,7 +405,7 @@ def check_duality(
         for every pair.
     seed : int, `numpy.random.Generator` or None
         Seed of the bootstrap.
-    snr_definition : {"log", "paper"}
+    snr_definition : {"log", "paper", "profile"}
         Which SNR sets ``anomalous``. ``"log"`` (default):
         :math:`|\ln R| / \sqrt{\sigma_{\ln F}^2 + \sigma_{\ln S}^2}` with
         :math:`R` = ``duality_ratio``, :math:`\sigma_{\ln F}` the error of
@@ -415,6 +415,13 @@ def check_duality(
         L1 and a brighter L2 image. ``"paper"``: the paper's Sect. 5.2.3
         definition, :math:`|R - 1| / (R\,\sigma_{\mu_{\rm size}}/\mu_{\rm size})`,
         size error only. Both are always returned (``snr`` and ``snr_paper``).
+        ``"profile"`` (method ``"adaptive"`` only): the profile-likelihood
+        SNR of the hypothesis ``|det J| = mu_flux``, the distance from the
+        estimated Jacobian (with its covariance ``jacobian_cov``) and the
+        flux ratio to that hypothesis, in the column ``snr_profile``; it
+        equals ``"log"`` where the error of ``ln mu_size`` is small and does
+        not assume ``mu_size`` log-normal where it is large (see
+        :ref:`profile-snr`). Its degrees of freedom are those of ``"log"``.
     weight_power, min_angle
         Estimator settings, see :func:`~lensdual.estimators.relative_jacobian`.
     chromatic_alpha : float
@@ -438,7 +445,10 @@ def check_duality(
     -------
     result : `~astropy.table.QTable`
         A copy of ``pairs`` with these columns appended (replaced if present):
-        ``jacobian``, ``parity``, ``mu_size``, ``mu_size_err``,
+        ``jacobian``, ``parity`` (the sign of ``det J`` where it is
+        determined, 0 where ``parity_snr``, its significance ``1 /
+        ln_mu_size_err``, is below ``snr_threshold`` or the pair is
+        untestable), ``parity_snr``, ``mu_size``, ``mu_size_err``,
         ``mu_size_p16``, ``mu_size_p84``, ``mu_flux_<band>``,
         ``mu_flux_err_<band>``, ``mu_flux``, ``mu_flux_err``,
         ``chromatic_chi2``, ``chromatic_dof``, ``chromatic_pvalue``,
@@ -552,6 +562,9 @@ def check_duality(
     bands = pair_bands(tab)
     if test == "joint":
         _check_joint_input(bands, snr_definition, method)
+    if snr_definition == "profile" and method != "adaptive":
+        raise ValueError("snr_definition='profile' needs method 'adaptive' (the covariance of "
+                         f"its Jacobian), got method {method!r}")
     theta1, theta2 = _positions(tab)
     flux = flux_ratios(tab)  # validates the flux columns before the bootstrap runs
     doubt = _doubts(tab, theta1, theta2, flux, chromatic_alpha)
@@ -581,6 +594,9 @@ def check_duality(
     for name in ("jacobian", "parity", "mu_size", "mu_size_err", "ln_mu_size_err",
                  "mu_size_p16", "mu_size_p84", "mu_size_status"):
         tab[name] = size[name]
+    tab["parity_snr"], tab["parity"] = determined_parity(
+        size["parity"], size["ln_mu_size_err"],
+        np.isin(np.asarray(size["mu_size_status"]), TESTABLE_STATUS), snr_threshold)
     for name in flux.colnames:
         if name != "ln_mu_flux_err":
             tab[name] = flux[name]
@@ -595,13 +611,18 @@ def check_duality(
         rel_size_err = np.asarray(size["mu_size_err"]) / mu_size
         snr_paper = np.abs(ratio - 1.0) / (ratio * rel_size_err)
         size_dof = np.asarray(size["ln_mu_size_err_dof"], dtype=float)
-        dof = _snr_dof(ln_total, ln_size_err, size_dof) if snr_definition == "log" else size_dof
+        dof = (size_dof if snr_definition == "paper"
+               else _snr_dof(ln_total, ln_size_err, size_dof))
     tab["ln_mu_size_err_dof"] = size_dof
     tab["duality_ratio"] = ratio
     tab["duality_ratio_err"] = ratio * ln_total
     tab["snr"] = snr
     tab["snr_paper"] = snr_paper
     chosen = snr if snr_definition == "log" else snr_paper
+    if snr_definition == "profile":
+        chosen = tab["snr_profile"] = profile_snr(size, np.log(np.asarray(flux["mu_flux"],
+                                                                          dtype=float)),
+                                                  ln_flux_err)
     tested = (np.isfinite(chosen) & np.isin(np.asarray(size["mu_size_status"]), TESTABLE_STATUS)
               & (dof > 0))
     dof = np.where(tested, dof, np.nan)
@@ -638,6 +659,34 @@ def check_duality(
     meta.update(_family_summary(np.asarray(tab["p_value"], dtype=float), snr_threshold))
     tab.meta["duality"] = meta
     return tab
+
+
+def profile_snr(size, ln_mu_flux, ln_flux_err):
+    """The profile-likelihood duality SNR of each pair of a
+    :func:`~lensdual.estimators.size_magnification` table (method
+    ``"adaptive"``): the Jacobian's covariance ``jacobian_cov`` carries the
+    part ``g^T C g`` of the variance of ``ln mu_size`` (``g`` the gradient of
+    ``ln|det J|``), the rest of it and the flux ratio's variance enter in
+    ``ln|det J|`` (:mod:`lensdual._profile_kernels`). NaN where the pair has
+    no estimate."""
+    jac = np.ascontiguousarray(np.asarray(size["jacobian"], dtype=float).reshape(-1, 4))
+    cov = np.ascontiguousarray(np.asarray(size["jacobian_cov"], dtype=float))
+    ln_sd = np.asarray(size["ln_mu_size_err"], dtype=float)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        det = jac[:, 0] * jac[:, 3] - jac[:, 1] * jac[:, 2]
+        grad = np.column_stack([jac[:, 3], -jac[:, 2], -jac[:, 1], jac[:, 0]]) / det[:, None]
+        var_jac = np.einsum("ni,nij,nj->n", grad, cov, grad)
+        # the model and centre terms: what the Jacobian's covariance does not carry
+        var_rest = np.maximum(ln_sd * ln_sd - var_jac, 0.0) + np.asarray(ln_flux_err) ** 2
+    out = np.full(len(det), np.nan)
+    ok = np.isfinite(var_rest) & np.isfinite(ln_mu_flux) & np.isfinite(det)
+    res = np.empty(int(ok.sum()))
+    _profile_kernels.profile_snr(np.ascontiguousarray(jac[ok]), np.ascontiguousarray(cov[ok]),
+                                 np.ascontiguousarray(var_rest[ok]),
+                                 np.ascontiguousarray(np.asarray(ln_mu_flux, dtype=float)[ok]),
+                                 res)
+    out[ok] = res
+    return out
 
 
 def _check_joint_input(bands, snr_definition, method):

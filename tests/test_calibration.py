@@ -55,7 +55,8 @@ def _kernel_one_pass(t1, t2, s1, s2):
     st = np.empty(n, dtype=np.int64)
     dof = np.empty(n)
     _adaptive.adaptive_jacobians(t1, t2, s1, s2, crit, n, 2.0,
-                                 _adaptive.SETTINGS._replace(n_pass=1), jac, sd, st, dof)
+                                 _adaptive.SETTINGS._replace(n_pass=1), jac,
+                                 np.empty((n, 4, 4)), sd, st, dof)
     return (jac, sd, st, dof), ref.adaptive(t1, t2, s1, s2, pilot, crit)
 
 
@@ -500,8 +501,8 @@ def test_reverse_map_where_the_forward_fit_is_untestable(monkeypatch):
     o1 = t1 + s * rng.standard_normal(t1.shape)
     o2 = t2 + s * rng.standard_normal(t2.shape)
     ok_codes = (_adaptive.ADAPTIVE_OK, _adaptive.ADAPTIVE_MISFIT)
-    _, _, st_fwd, _ = core._adaptive_forward(o1, o2, sig, 2.0)
-    jr, sd_r, st_r, dof_r = core._adaptive_forward(o2, o1, sig[::-1].copy(), 2.0)
+    _, _, _, st_fwd, _ = core._adaptive_forward(o1, o2, sig, 2.0)
+    jr, _, sd_r, st_r, dof_r = core._adaptive_forward(o2, o1, sig[::-1].copy(), 2.0)
     # the square root is no polynomial at 0.5 mas: most forward fits are untestable
     assert (st_fwd == _adaptive.ADAPTIVE_UNTESTABLE).sum() >= 8
     expect = ~np.isin(st_fwd, ok_codes) & np.isin(st_r, ok_codes)
@@ -509,14 +510,14 @@ def test_reverse_map_where_the_forward_fit_is_untestable(monkeypatch):
     # pairs gets the estimates of a run on all of them, bit for bit
     sub = np.flatnonzero(~np.isin(st_fwd, ok_codes))
     assert 0 < sub.size < len(t1)
-    js, sd_s, st_s, dof_s = core._adaptive_forward(o2, o1, sig[::-1].copy(), 2.0, rows=sub)
+    js, _, sd_s, st_s, dof_s = core._adaptive_forward(o2, o1, sig[::-1].copy(), 2.0, rows=sub)
     np.testing.assert_array_equal(js[sub], jr[sub])
     np.testing.assert_array_equal(sd_s[sub], sd_r[sub])
     np.testing.assert_array_equal(st_s[sub], st_r[sub])
     np.testing.assert_array_equal(dof_s[sub], dof_r[sub])
     rest = np.setdiff1d(np.arange(len(t1)), sub)
     assert np.isnan(sd_s[rest]).all() and (st_s[rest] == _adaptive.ADAPTIVE_FAILED).all()
-    jac, sd, st, dof, rev = core._adaptive(o1, o2, sig, 2.0)
+    jac, _, sd, st, dof, rev = core._adaptive(o1, o2, sig, 2.0)
     np.testing.assert_array_equal(rev, expect)
     # those pairs take the inverse of the L1 -> L2 fit, with its error and status
     np.testing.assert_allclose(jac[rev], np.linalg.inv(jr[rev]), rtol=1e-12)
@@ -526,7 +527,7 @@ def test_reverse_map_where_the_forward_fit_is_untestable(monkeypatch):
     pull = (np.log(np.abs(np.linalg.det(jac[rev]))) - np.log(mu_true[rev])) / sd[rev]
     assert np.all(np.abs(pull) < 4), pull
     # the others are the forward fit's, unchanged
-    jf, sd_f, _, _ = core._adaptive_forward(o1, o2, sig, 2.0)
+    jf, _, sd_f, _, _ = core._adaptive_forward(o1, o2, sig, 2.0)
     np.testing.assert_array_equal(jac[~rev], jf[~rev])
     np.testing.assert_array_equal(sd[~rev], sd_f[~rev])
     tab = size_magnification(o1 * u.arcsec, o2 * u.arcsec, sigma_pos=s * u.arcsec)
@@ -555,14 +556,14 @@ def test_reverse_map_where_the_forward_fit_is_untestable(monkeypatch):
     noise2 = s * rng.standard_normal((3, len(t1), 2))
     det_b, sd_b, ok_b, dof_b = core.adaptive_batch(t1, t2, noise1, noise2, sig)
     for k in range(3):
-        jk, sdk, stk, dofk, _ = core._adaptive(t1 + noise1[k], t2 + noise2[k], sig, 2.0)
+        jk, _, sdk, stk, dofk, _ = core._adaptive(t1 + noise1[k], t2 + noise2[k], sig, 2.0)
         np.testing.assert_allclose(det_b[k], np.abs(np.linalg.det(jk)), rtol=1e-10)
         np.testing.assert_array_equal(ok_b[k], np.isin(stk, ok_codes))
         np.testing.assert_array_equal(sd_b[k][ok_b[k]], sdk[ok_b[k]])
         np.testing.assert_array_equal(dof_b[k][ok_b[k]], dofk[ok_b[k]])
     # without the reverse map those pairs stay untestable
     monkeypatch.setattr(_adaptive, "SETTINGS", _adaptive.SETTINGS._replace(reverse=False))
-    _, _, st_off, _, rev_off = core._adaptive(o1, o2, sig, 2.0)
+    _, _, _, st_off, _, rev_off = core._adaptive(o1, o2, sig, 2.0)
     assert not rev_off.any()
     np.testing.assert_array_equal(st_off, st_fwd)
 

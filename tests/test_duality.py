@@ -1,5 +1,7 @@
 """Tests of lensdual.duality.check_duality."""
 
+import warnings
+
 import numpy as np
 import pytest
 from astropy import units as u
@@ -319,3 +321,25 @@ def test_verdict_says_which_flags_the_null_calibration_confirms():
     assert "interpolates the pairs" not in verdict(res, sigma)
     res.meta["duality"]["null_calibration"]["map_interpolates"] = True
     assert "interpolates the pairs: the constellation does not sample" in verdict(res, sigma)
+
+
+def test_parity_reported_only_where_its_sign_is_determined():
+    """A map of det J near 0 with noisy positions: parity is sign(det J) where
+    1 / ln_mu_size_err reaches snr_threshold, and 0 (undetermined) elsewhere."""
+    pairs = make_pairs(n=20, det=-0.08, seed=3)
+    rng = np.random.default_rng(5)
+    for c in ("x1", "y1", "x2", "y2"):
+        pairs[c] = pairs[c] + rng.normal(0.0, 0.03, len(pairs)) * u.arcsec
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = _check_duality(pairs, "adaptive", sigma_pos=0.03 * u.arcsec)
+        res0 = _check_duality(pairs, "adaptive", sigma_pos=0.03 * u.arcsec, snr_threshold=0.0)
+    testable = np.isin(np.asarray(res["mu_size_status"]), ("ok", "misfit"))
+    ln_err = np.asarray(res["ln_mu_size_err"], dtype=float)
+    np.testing.assert_allclose(res["parity_snr"][testable], 1.0 / ln_err[testable])
+    assert np.isnan(res["parity_snr"][~testable]).all()
+    sign = np.sign(np.linalg.det(np.asarray(res["jacobian"], dtype=float))).astype(int)
+    determined = testable & (1.0 / ln_err >= 3.0)
+    assert determined.any() and (testable & ~determined).any()
+    np.testing.assert_array_equal(res["parity"], np.where(determined, sign, 0))
+    np.testing.assert_array_equal(res0["parity"], np.where(testable, sign, 0))

@@ -60,8 +60,8 @@ _INLINE = {**JIT_OPTIONS, "inline": "always"}
 class AdaptiveSettings(NamedTuple):
     """The tuning constants of the adaptive estimator, each with its default.
 
-    The measurements behind each default are in the calibration page of the
-    documentation (its table of choices). ``nest_crit6`` and
+    The measurements behind each default are in the record of design
+    decisions of the documentation. ``nest_crit6`` and
     ``two_nest_crit8`` are the chi-square quantiles of ``nest_alpha`` and
     ``two_nest_alpha`` (the tests check them against scipy).
     """
@@ -152,6 +152,25 @@ def _rotate_back(c, s, jr00, jr01, jr10, jr11, out):
     out[0, 1] = c * jr01 - s * jr11
     out[1, 0] = s * jr00 + c * jr10
     out[1, 1] = s * jr01 + c * jr11
+
+
+@njit(**JIT_OPTIONS)
+def _rotate_cov(c, s, cv, hmax, out):
+    """The covariance of ``vec J = (J00, J01, J10, J11)`` in the original frame
+    into ``out`` (4, 4), from the rotated slopes' covariance entries
+    ``cv[comp] = (11, 12, 22)`` (independent components, ``J' = slopes /
+    hmax``, ``J = R J'``): ``cov(J_ij, J_kl) = sum_m R_im R_km C_m[j, l]``."""
+    r = ((c, -s), (s, c))
+    h2 = hmax * hmax
+    for i in range(2):
+        for j in range(2):
+            for k in range(2):
+                for m in range(2):
+                    v = 0.0
+                    for comp in range(2):
+                        e = j + m  # (0, 0) -> 0, (0, 1) and (1, 0) -> 1, (1, 1) -> 2
+                        v += r[i][comp] * r[k][comp] * cv[comp, e]
+                    out[2 * i + j, 2 * k + m] = v / h2
 
 
 @njit(**JIT_OPTIONS)
@@ -343,13 +362,14 @@ def _two_scale_slopes(sl_h, al_h, cv_h, beta, s13, s33, sl, cv):
 
 @njit(**JIT_OPTIONS)
 def _two_scale(L, scale, work, beta, U, kk, hmax, h_k, h_sl, h_al, h_cv, n_h, c, s, pilot_ranks,
-               q, best_rank, s13, s33, cov_o, grad_o, jb, st):
+               q, best_rank, s13, s33, cov_o, grad_o, jb, cb, st):
     """Two-scale estimates at the ``kk`` points whose quadratic fit (``beta``,
     factor ``L``) passed its test: each stored linear fit of ``h < kk``
     points, less the alias of this quadratic's second-order terms (robust
     bias correction whose bias estimate comes from the larger
     neighbourhood). Returns ``(rank, sd, g2)`` of the best-ranked one below
-    ``best_rank`` (its Jacobian in ``jb``; ``g2`` from
+    ``best_rank`` (its Jacobian in ``jb``, its slopes' covariance in ``cb``;
+    ``g2`` from
     :func:`_centre_gradient2` of the quadratic), or ``(best_rank, -1, 0)``.
 
     The covariance of ``slopes_h - A_h gamma_b`` is exact: with ``S`` the
@@ -401,6 +421,7 @@ def _two_scale(L, scale, work, beta, U, kk, hmax, h_k, h_sl, h_al, h_cv, n_h, c,
             best_g2 = _centre_gradient2(L, 6, scale, work, beta, g00, g01, g10, g11, hmax,
                                         cov_o)
             _rotate_back(c, s, jr00, jr01, jr10, jr11, jb)
+            cb[:, :] = cv
     return best_rank, best_sd, best_g2
 
 
@@ -662,7 +683,9 @@ def _pair_state(n):
     degree; ``jfb``: Jacobians; slot 0 the best self-consistent fit, slot 1
     the least-bad other one), the stored linear fits of the two-scale
     estimates (``h_k``, ``h_sl``, ``h_al``, ``h_cv``), the best estimate's
-    Jacobian and cubic alias (``jb``, ``v3``), and scratch.
+    Jacobian and cubic alias (``jb``, ``v3``), scratch, and the slopes'
+    covariances of the best estimate (``cb``) and of the fallback slots
+    (``cfb``, scaled as their errors).
     """
     fb_f = np.zeros((5, 2))
     fb_f[0, :] = np.inf
@@ -672,7 +695,8 @@ def _pair_state(n):
             np.empty((n, 2, 2, 3)), np.empty((n, 2, 3)), np.empty((2, 2)), np.empty((2, 4)),
             np.empty((2, 3)), np.empty(4), np.zeros(2), np.empty((2, 4, 4)), np.empty(4),
             np.empty((2, NCOEF_MAX)), np.empty(3), np.empty(3), np.empty((2, 2, 3)),
-            np.empty((2, 3, 3)), np.empty(6), np.empty(6), np.zeros(4))
+            np.empty((2, 3, 3)), np.empty(6), np.empty(6), np.zeros(4), np.empty((2, 3)),
+            np.empty((2, 2, 3)))
 
 
 @njit(**_INLINE)
@@ -768,15 +792,21 @@ def _add_candidate(cand_f, cand_i, cand_ok, n_cand, ln, var_ln, kk, dr, consiste
 
 
 @njit(**_INLINE)
-def _keep_fallback(fb_f, fb_i, jfb, slot, sdf, ln, kk, dr, dof_r, L, scale, work, beta, U,
-                   cov_o, grad_o, c, s, jr, g, hmax, pr, st):
+def _keep_fallback(fb_f, fb_i, jfb, cfb, slot, sdf, ln, kk, dr, dof_r, L, scale, work, beta, U,
+                   cov, var_ln, cov_o, grad_o, c, s, jr, g, hmax, pr, st):
     """Keep a fit in its fallback ``slot`` when its PRESS-scaled error ``sdf``
     is the smallest there, with its centre gradient and its curvature: the
     largest change of ``ln|det J|`` over the neighbourhood that its
     second-order terms predict, less ``st.curv_nsig`` times its noise (a
-    noisy fit's second-order terms would otherwise pass for curvature)."""
+    noisy fit's second-order terms would otherwise pass for curvature). Its slopes'
+    covariance ``cov`` goes into ``cfb[slot]``, scaled as its error (by
+    ``sdf^2 / var_ln``)."""
     if not sdf < fb_f[0, slot]:
         return
+    f = sdf * sdf / var_ln
+    for comp in range(2):
+        for e in range(3):
+            cfb[slot, comp, e] = cov[comp, e] * f
     fb_f[0, slot] = sdf
     fb_f[1, slot] = ln
     fb_i[0, slot] = kk
@@ -790,16 +820,18 @@ def _keep_fallback(fb_f, fb_i, jfb, slot, sdf, ln, kk, dr, dof_r, L, scale, work
 
 
 @njit(**_INLINE)
-def _fallback_error(fb_f, fb_i, jfb, cand_f, cand_i, cand_ok, n_cand, n_consistent, v_centre,
-                    st, jac_out):
+def _fallback_error(fb_f, fb_i, jfb, cfb, cand_f, cand_i, cand_ok, n_cand, n_consistent,
+                    v_centre, st, c, s, hmax, jac_out, jcov_out):
     """``(ln_sd, status, dof)`` without a passing fit: the self-consistent
     fallback fit, or else the least-bad one, widened by its model error
     (:func:`_model_error`) and the pair's own L2 noise; "misfit" with at
     least ``st.min_candidates`` self-consistent fits, "untestable"
-    otherwise, "failed" without any."""
+    otherwise, "failed" without any. The fit's Jacobian goes into ``jac_out``
+    and its covariance, scaled as its error, into ``jcov_out``."""
     for slot in range(2):
         if fb_f[0, slot] < np.inf:
             _copy_jacobian(jfb[slot], jac_out)
+            _rotate_cov(c, s, cfb[slot], hmax, jcov_out)
             model = _model_error(cand_f[0], cand_f[1], cand_i[0], cand_i[1], cand_ok, n_cand,
                                  fb_f[1, slot], fb_i[0, slot], fb_i[1, slot], st.lookahead,
                                  fb_f[3, slot], st.curv_coef)
@@ -807,17 +839,20 @@ def _fallback_error(fb_f, fb_i, jfb, cand_f, cand_i, cand_ok, n_cand, n_consiste
             tested = slot == 0 and n_consistent >= st.min_candidates
             return sd, ADAPTIVE_MISFIT if tested else ADAPTIVE_UNTESTABLE, fb_f[2, slot]
     jac_out[:, :] = np.nan
+    jcov_out[:, :] = np.nan
     return np.nan, ADAPTIVE_FAILED, 0.0
 
 
 @njit(**_INLINE)
-def _winner_error(jb, best_sd, best_g2, best_lin, v3, A, L, scale, rhs, beta, work, cov_o, n,
-                  v_centre, st, jac_out):
+def _winner_error(jb, cb, best_sd, best_g2, best_lin, v3, A, L, scale, rhs, beta, work, cov_o,
+                  n, v_centre, st, c, s, hmax, jac_out, jcov_out):
     """The error of the winning estimate: its own, the pair's own L2 noise
     (``v_centre`` times its squared centre gradient) and, for a quadratic
     licensed by a linear test, the cubic alias bias of the whole row
-    (:func:`_cubic_alias_bias2`)."""
+    (:func:`_cubic_alias_bias2`). Its Jacobian goes into ``jac_out`` and the
+    covariance of the Jacobian's own estimate into ``jcov_out``."""
     _copy_jacobian(jb, jac_out)
+    _rotate_cov(c, s, cb, hmax, jcov_out)
     bias2 = 0.0
     if best_lin and n >= _ncoef(3) + st.min_extra:
         bias2 = _cubic_alias_bias2(A, L, scale, rhs, beta, work, cov_o, v3, st.cubic_nsig)
@@ -826,7 +861,7 @@ def _winner_error(jb, best_sd, best_g2, best_lin, v3, A, L, scale, rhs, beta, wo
 
 @njit(**JIT_OPTIONS)
 def adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, k_dense, st, order, dsort, U, Yr,
-                  W, A, rhs, L, scale, beta, work, jac_out):
+                  W, A, rhs, L, scale, beta, work, jac_out, jcov_out):
     """Adaptive local-polynomial Jacobian at pair ``a``; returns (ln_sd, status, dof).
 
     The points are those of the neighbour ``row`` of ``a`` (``a`` included),
@@ -940,9 +975,11 @@ def adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, k_dense, st, order, 
     hmax = _ranked_design(t1, t2, s1, s2, a, row, c, s, ev0, ev1, order, dsort, U, Yr, W, A, rhs)
     if not hmax > 0.0:
         jac_out[:, :] = np.nan
+        jcov_out[:, :] = np.nan
         return np.nan, ADAPTIVE_FAILED, 0.0
     (cand_f, cand_i, cand_ok, fb_f, fb_i, jfb, h_k, h_sl, h_al, h_cv, jb, v3, cov, spow, ywy,
-     cov_o, grad_o, beta_n, rhs_al, sol_al, s13, s33, rhs_al6, sol_al6, qv) = _pair_state(n)
+     cov_o, grad_o, beta_n, rhs_al, sol_al, s13, s33, rhs_al6, sol_al6, qv, cb,
+     cfb) = _pair_state(n)
     pilot_ranks = _pilot_gradient(pilot, c, s, qv)
     best_rank = best_sd = np.inf
     best_g2 = 0.0
@@ -982,7 +1019,7 @@ def adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, k_dense, st, order, 
             if two_passed and bias_fit:
                 rank2, sd2, g2 = _two_scale(L, scale, work, beta, U, kk, hmax, h_k, h_sl, h_al,
                                             h_cv, n_h, c, s, pilot_ranks, qv, best_rank, s13, s33,
-                                            cov_o, grad_o, jb, st)
+                                            cov_o, grad_o, jb, cb, st)
                 # (the rank comes back unchanged unless a two-scale estimate won)
                 won = sd2 > 0.0
                 best_rank = rank2
@@ -1006,6 +1043,7 @@ def adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, k_dense, st, order, 
                     best_rank, best_sd, found = rank, np.sqrt(var_ln), True
                     best_g2, best_lin = _accept(L, scale, work, beta, A, cov_o, rhs_al6, sol_al6,
                                                 v3, jb, c, s, jr, g, hmax, dt, pr)
+                    cb[:, :] = cov
             if not found:
                 dr = dt + st.report_extra
                 sdf, consistent, dof_r = _fallback_fit(U, W, Yr, L, scale, beta, work,
@@ -1014,17 +1052,18 @@ def adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, k_dense, st, order, 
                 n_cand = _add_candidate(cand_f, cand_i, cand_ok, n_cand, ln_det, var_ln, kk, dr,
                                         consistent)
                 n_consistent += consistent
-                _keep_fallback(fb_f, fb_i, jfb, 0 if consistent else 1, sdf, ln_det, kk, dr,
-                               dof_r, L, scale, work, beta, U, cov_o, grad_o, c, s, jr, g, hmax,
-                               pr, st)
+                _keep_fallback(fb_f, fb_i, jfb, cfb, 0 if consistent else 1, sdf, ln_det, kk,
+                               dr, dof_r, L, scale, work, beta, U, cov, var_ln, cov_o, grad_o, c,
+                               s, jr, g, hmax, pr, st)
     # the pair's own L2 noise moves the point where the fits take the Jacobian
     # (every offset is measured from it): s2^2 |grad ln|det J||^2
     v_centre = s2[a] * s2[a]
     if found:
-        return _winner_error(jb, best_sd, best_g2, best_lin, v3, A, L, scale, rhs, beta, work,
-                             cov_o, n, v_centre, st, jac_out), ADAPTIVE_OK, np.inf
-    return _fallback_error(fb_f, fb_i, jfb, cand_f, cand_i, cand_ok, n_cand, n_consistent,
-                           v_centre, st, jac_out)
+        return _winner_error(jb, cb, best_sd, best_g2, best_lin, v3, A, L, scale, rhs, beta,
+                             work, cov_o, n, v_centre, st, c, s, hmax, jac_out,
+                             jcov_out), ADAPTIVE_OK, np.inf
+    return _fallback_error(fb_f, fb_i, jfb, cfb, cand_f, cand_i, cand_ok, n_cand, n_consistent,
+                           v_centre, st, c, s, hmax, jac_out, jcov_out)
 
 
 # ---------------------------------------------------------------------------
@@ -1087,8 +1126,8 @@ def lstsq_pilots(t1, t2, nbr, rows, weight_power, cond_max, pilot):
 
 
 @njit(**_INLINE)
-def _rows_passes(t1, t2, nbr, s1, s2, chi2_crit, k_dense, st, rows, pilot0, scratch, jac, ln_sd,
-                 status, dof):
+def _rows_passes(t1, t2, nbr, s1, s2, chi2_crit, k_dense, st, rows, pilot0, scratch, jac, jcov,
+                 ln_sd, status, dof):
     """The adaptive Jacobian (:func:`adaptive_pair`) of the pairs ``rows`` of one
     copy, from their neighbour rows ``nbr`` and first pilots ``pilot0`` (N, 2, 2)
     (see :func:`adaptive_knn`); ``scratch`` holds the work arrays of
@@ -1110,7 +1149,7 @@ def _rows_passes(t1, t2, nbr, s1, s2, chi2_crit, k_dense, st, rows, pilot0, scra
             a = rows[r]
             ln_sd[a], status[a], dof[a] = adaptive_pair(
                 t1, t2, s1, s2, a, _row(nbr, a)[:k_row], pilot[r], chi2_crit, k_dense, st, order,
-                dsort, U, Yr, W, A, rhs, L, scale, beta, work, jac[a])
+                dsort, U, Yr, W, A, rhs, L, scale, beta, work, jac[a], jcov[a])
         if p + 1 < n_pass:
             for r in range(m):
                 a = rows[r]
@@ -1122,7 +1161,7 @@ def _rows_passes(t1, t2, nbr, s1, s2, chi2_crit, k_dense, st, rows, pilot0, scra
 
 @njit(**JIT_OPTIONS)
 def adaptive_knn(t1, t2, nbr, noise1, noise2, s1, s2, chi2_crit, k_dense, st, need, pilot, jac,
-                 ln_sd, status, dof):
+                 jcov, ln_sd, status, dof):
     """The adaptive Jacobian (:func:`adaptive_pair`) of the pairs where ``need``
     (C, N) is true, on ``C`` copies of the constellation, from their neighbour
     rows ``nbr``; the other entries of the outputs are left as they are.
@@ -1130,7 +1169,10 @@ def adaptive_knn(t1, t2, nbr, noise1, noise2, s1, s2, chi2_crit, k_dense, st, ne
     Copy ``c`` has the positions ``t1 + noise1[c]``, ``t2 + noise2[c]``
     (``noise1``, ``noise2`` of shape (C, N, 2)); with noise arrays of shape
     (0, N, 2) there is one copy, ``t1``, ``t2`` themselves. ``jac`` (C, N, 2, 2)
-    receives the Jacobians, ``ln_sd`` (C, N) the standard errors of
+    receives the Jacobians, ``jcov`` (C, N, 4, 4) the covariances of their
+    entries ``(J00, J01, J10, J11)`` (of the chosen fit, scaled as its error:
+    the part of the error of ``ln|det J|`` that the Jacobian carries, the
+    model and centre terms aside), ``ln_sd`` (C, N) the standard errors of
     ``ln|det J|``, ``status`` (C, N) the status codes and ``dof`` (C, N) the
     degrees of freedom the errors were estimated with. ``chi2_crit`` must
     cover ``2 K`` degrees of freedom.
@@ -1157,11 +1199,11 @@ def adaptive_knn(t1, t2, nbr, noise1, noise2, s1, s2, chi2_crit, k_dense, st, ne
     for c in range(need.shape[0]):
         _rows_passes(_copy_positions(t1, noise1, c, p1), _copy_positions(t2, noise2, c, p2),
                      nbr, s1, s2, chi2_crit, k_dense, st, np.flatnonzero(need[c]), pilot[c],
-                     scratch, jac[c], ln_sd[c], status[c], dof[c])
+                     scratch, jac[c], jcov[c], ln_sd[c], status[c], dof[c])
 
 
 def run_adaptive(t1, t2, nbr, noise1, noise2, s1, s2, chi2_crit, k_dense, weight_power, st, need,
-                 jac, ln_sd, status, dof):
+                 jac, jcov, ln_sd, status, dof):
     """:func:`adaptive_knn` with its first pilots: :func:`normal_pilots`, and
     :func:`lstsq_pilots` for the copies where some normal equations failed
     (arguments as :func:`adaptive_knn`'s, with ``weight_power`` for the pilots)."""
@@ -1174,15 +1216,16 @@ def run_adaptive(t1, t2, nbr, noise1, noise2, s1, s2, chi2_crit, k_dense, weight
         lstsq_pilots(p1, p2, nbr, np.flatnonzero(failed[c]), weight_power, st.pilot_cond_max,
                      pilot[c])
     adaptive_knn(t1, t2, nbr, noise1, noise2, s1, s2, chi2_crit, k_dense, st, need, pilot, jac,
-                 ln_sd, status, dof)
+                 jcov, ln_sd, status, dof)
 
 
-def adaptive_jacobians(t1, t2, s1, s2, chi2_crit, k_dense, weight_power, st, jac, ln_sd, status,
-                       dof):
+def adaptive_jacobians(t1, t2, s1, s2, chi2_crit, k_dense, weight_power, st, jac, jcov, ln_sd,
+                       status, dof):
     """:func:`run_adaptive` of every pair with every point in its row (no cap),
-    outputs of one copy (``jac`` (N, 2, 2); ``ln_sd``, ``status``, ``dof`` (N,))."""
+    outputs of one copy (``jac`` (N, 2, 2); ``jcov`` (N, 4, 4); ``ln_sd``,
+    ``status``, ``dof`` (N,))."""
     n = t1.shape[0]
     no_noise = np.empty((0, n, 2))
     run_adaptive(t1, t2, all_rows(n), no_noise, no_noise, s1, s2, chi2_crit, k_dense,
-                 weight_power, st, np.ones((1, n), dtype=np.bool_), jac[None], ln_sd[None],
-                 status[None], dof[None])
+                 weight_power, st, np.ones((1, n), dtype=np.bool_), jac[None], jcov[None],
+                 ln_sd[None], status[None], dof[None])

@@ -267,7 +267,7 @@ def relative_jacobian(theta1, theta2, method="quad", *, weight_power=2, min_angl
             raise ValueError("method 'adaptive' needs sigma_pos (the position errors its "
                              "local fits are tested against)")
         sigma = as_sigma(sigma_pos, t1.shape[0], positive=True)
-        jac, _, status, _, _ = _adaptive(t1, t2, sigma, wp, cap)
+        jac, _, _, status, _, _ = _adaptive(t1, t2, sigma, wp, cap)
         _warn_adaptive(status)
         return jac
     jac, status = _jacobians(t1, t2, _neighbour_rows(t2, cap), code, wp, min_sin)
@@ -307,28 +307,38 @@ def _reverse_wins(status, status_rev, det_rev):
 
 
 def _adaptive(t1, t2, sigma, wp, max_neighbours=DEFAULT_MAX_NEIGHBOURS):
-    """The adaptive estimator: Jacobians, errors of ln|det J|, status codes, the
-    errors' degrees of freedom, and which pairs took the reverse map.
+    """The adaptive estimator: Jacobians, their covariances (N, 4, 4), errors of
+    ln|det J|, status codes, the errors' degrees of freedom, and which pairs
+    took the reverse map.
 
     Where the L2-to-L1 fit is not testable ("untestable" or "failed"), the
     L1-to-L2 map is fitted the same way (:func:`_adaptive_forward` on the
     swapped arcs) and, where that fit is testable, its Jacobian ``K`` gives
-    ``J = K^-1`` (``ln|det J| = -ln|det K|``, same error).
+    ``J = K^-1`` (``ln|det J| = -ln|det K|``, same error; the covariance
+    propagated by ``dJ = -J dK J``).
     """
-    jac, ln_sd, status, dof = _adaptive_forward(t1, t2, sigma, wp, max_neighbours)
+    jac, jcov, ln_sd, status, dof = _adaptive_forward(t1, t2, sigma, wp, max_neighbours)
     reverse = np.zeros(t1.shape[0], dtype=bool)
     need = np.flatnonzero(~_testable_codes(status))
     if _adaptive_kernels.SETTINGS.reverse and need.size:
         # the reverse fit of the pairs that need it only (the others: "failed")
-        jr, sr, str_, dr = _adaptive_forward(t2, t1, np.ascontiguousarray(sigma[::-1]), wp,
-                                             max_neighbours, rows=need)
+        jr, cr, sr, str_, dr = _adaptive_forward(t2, t1, np.ascontiguousarray(sigma[::-1]),
+                                                 wp, max_neighbours, rows=need)
         with np.errstate(invalid="ignore"):
             reverse = _reverse_wins(status, str_, np.linalg.det(jr))
         jac[reverse] = np.linalg.inv(jr[reverse])
+        jcov[reverse] = inverse_covariance(jac[reverse], cr[reverse])
         ln_sd[reverse] = sr[reverse]
         status[reverse] = str_[reverse]
         dof[reverse] = dr[reverse]
-    return jac, ln_sd, status, dof, reverse
+    return jac, jcov, ln_sd, status, dof, reverse
+
+
+def inverse_covariance(jac, cov_k):
+    """The covariance (M, 4, 4) of ``vec J`` for ``J = K^-1`` (``jac`` (M, 2, 2))
+    from that of ``vec K`` (``cov_k``), to first order: ``dJ = -J dK J``."""
+    t = -np.einsum("mik,mlj->mijkl", jac, jac).reshape(-1, 4, 4)
+    return t @ cov_k @ np.swapaxes(t, 1, 2)
 
 
 def _adaptive_forward(t1, t2, sigma, wp, max_neighbours=DEFAULT_MAX_NEIGHBOURS, rows=None):
@@ -362,9 +372,10 @@ def _adaptive_forward(t1, t2, sigma, wp, max_neighbours=DEFAULT_MAX_NEIGHBOURS, 
 
 def _adaptive_outputs(copies, n):
     """The adaptive kernel's outputs for ``copies`` copies of ``n`` pairs, as
-    for pairs it does not estimate: NaN Jacobians and errors, "failed", 0
-    degrees of freedom."""
-    return (np.full((copies, n, 2, 2), np.nan), np.full((copies, n), np.nan),
+    for pairs it does not estimate: NaN Jacobians, covariances and errors,
+    "failed", 0 degrees of freedom."""
+    return (np.full((copies, n, 2, 2), np.nan), np.full((copies, n, 4, 4), np.nan),
+            np.full((copies, n), np.nan),
             np.full((copies, n), _adaptive_kernels.ADAPTIVE_FAILED, dtype=np.int64),
             np.zeros((copies, n)))
 
@@ -422,7 +433,7 @@ def _adaptive_batch_forward(t1, t2, noise1, noise2, sigma, wp, max_neighbours, n
     b, n = noise1.shape[:2]
     nbr = _neighbour_rows(t2, max_neighbours)
     need = np.ones((b, n), dtype=bool) if need is None else np.ascontiguousarray(need)
-    jac, ln_sd, status, dof = outputs = _adaptive_outputs(b, n)
+    jac, _, ln_sd, status, dof = outputs = _adaptive_outputs(b, n)
     _adaptive_kernels.run_adaptive(*_kernel_arrays(t1, t2, nbr, noise1, noise2, sigma),
                                    *_adaptive_settings(nbr, n, wp), need, *outputs)
     det = jac[..., 0, 0] * jac[..., 1, 1] - jac[..., 0, 1] * jac[..., 1, 0]
@@ -595,7 +606,7 @@ def size_magnification(
     error, status and degrees of freedom): next to a critical curve of arc
     L1 the L2-to-L1 map expands without bound while the reverse map stays
     smooth. ``meta["reverse_map_rows"]`` lists those pairs. See the
-    calibration page of the docs for the measurements behind these choices.
+    design-decisions page of the docs for the measurements behind these choices.
 
     ``"2v"``, ``"quad"`` and ``"quad2"`` are the paper's estimators and
     their second-order variant; their errors come from a bootstrap over
@@ -657,7 +668,15 @@ def size_magnification(
           ``"failed"`` (``"adaptive"``, see above; the other methods give
           ``"ok"`` or, for a NaN Jacobian, ``"failed"``);
         - ``parity``: sign of ``det J`` (-1 for a fold pair, 0 when undefined);
-        - ``jacobian``: the (2, 2) relative Jacobian.
+        - ``jacobian``: the (2, 2) relative Jacobian;
+        - ``jacobian_cov`` (``"adaptive"`` only): the (4, 4) covariance of
+          its entries ``(J00, J01, J10, J11)``, from the chosen fit, scaled
+          as its error (a "misfit" fit's by its PRESS misfit): the part of
+          the error of ``ln mu_size`` that the Jacobian carries
+          (``g^T C g``, ``g`` the gradient of ``ln|det J|``); the rest is
+          the model error and the pair's own position noise. NaN where the
+          status is "failed". :func:`~lensdual.duality.check_duality`
+          reads it for ``snr_definition="profile"``.
 
         ``meta`` records the method and the bootstrap settings.
 
@@ -735,6 +754,23 @@ def size_magnification(
     return table
 
 
+def determined_parity(parity, ln_mu_size_err, testable, snr_threshold):
+    """The significance of the sign of ``det J`` and the parity where it is
+    determined.
+
+    Under the linear propagation the errors use, the sign of ``det J`` is
+    known to ``|det J| / sigma(det J) = 1 / sigma(ln|det J|)`` standard
+    deviations. Returns ``(parity_snr, parity)``: that significance (NaN
+    where ``testable`` is False) and ``parity`` where it reaches
+    ``snr_threshold``, 0 elsewhere (undetermined).
+    """
+    ln_err = np.asarray(ln_mu_size_err, dtype=float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        parity_snr = np.where(testable, 1.0 / ln_err, np.nan)
+    determined = np.asarray(testable, dtype=bool) & (np.nan_to_num(parity_snr) >= snr_threshold)
+    return parity_snr, np.where(determined, np.asarray(parity), 0).astype(int)
+
+
 def _sigma_meta(sigma_pos):
     return sigma_pos if sigma_pos.isscalar else "per-pair (see sigma_pos argument)"
 
@@ -758,7 +794,7 @@ def _size_table(det, jac, pct, ln_err, n_valid, status, ln_err_dof=None):
 
 def _adaptive_table(t1, t2, sigma, wp, sigma_pos, max_neighbours=DEFAULT_MAX_NEIGHBOURS):
     """size_magnification for method 'adaptive' (analytic errors, no bootstrap)."""
-    jac, ln_sd, status, dof, reverse = _adaptive(t1, t2, sigma, wp, max_neighbours)
+    jac, jcov, ln_sd, status, dof, reverse = _adaptive(t1, t2, sigma, wp, max_neighbours)
     _warn_adaptive(status)
     det = jac[:, 0, 0] * jac[:, 1, 1] - jac[:, 0, 1] * jac[:, 1, 0]
     mu = np.abs(det)
@@ -769,6 +805,7 @@ def _adaptive_table(t1, t2, sigma, wp, sigma_pos, max_neighbours=DEFAULT_MAX_NEI
     names = np.array([ADAPTIVE_STATUS[int(c)] for c in status])
     dof = np.where(status == _adaptive_kernels.ADAPTIVE_FAILED, np.nan, dof)
     table = _size_table(det, jac, pct, ln_sd, np.zeros(len(mu), dtype=int), names, dof)
+    table["jacobian_cov"] = jcov
     table.meta["method"] = "adaptive"
     table.meta["error_model"] = (
         "linear propagation of sigma_pos through the accepted local fit (chi-square test "

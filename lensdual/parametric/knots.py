@@ -162,6 +162,7 @@ def compare_size_with_models(pairs, models, *, sigma_pos, z_source=None, method=
     """
     from .._pairs_table import positions as _positions
     from ..estimators import TESTABLE_STATUS, size_magnification
+    from ..estimators.core import determined_parity
 
     if not isinstance(pairs, Table):
         raise TypeError(f"pairs must be an astropy Table, got {type(pairs).__name__}")
@@ -193,11 +194,9 @@ def compare_size_with_models(pairs, models, *, sigma_pos, z_source=None, method=
               else np.where(np.isfinite(out["mu_size"]), "ok", "failed"))
     out["mu_size_status"] = status
     testable = np.isin(status, TESTABLE_STATUS)
-    # the sign of det J is known to |det J| / sigma(det J) = 1 / sigma(ln|det J|)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        out["parity_snr"] = np.where(testable, 1.0 / ln_size, np.nan)
-    determined = testable & (np.nan_to_num(out["parity_snr"]) >= snr_threshold)
-    out["parity"] = np.where(determined, np.asarray(size["parity"]), 0)
+    out["parity_snr"], out["parity"] = determined_parity(size["parity"], ln_size, testable,
+                                                         snr_threshold)
+    determined = out["parity"] != 0
     for name, model in items:
         mu1, mu2, ratio, ln_model = _model_ratio(model, tab, z_source, sigma)
         out[f"mu_{name}"] = ratio

@@ -1,0 +1,188 @@
+"""Numba kernels of the profile-likelihood duality SNR (private module).
+
+The estimated Jacobian ``J`` of a pair is Gaussian around the true one with
+the covariance ``C`` of its fit, and the rest of the error of ``ln mu_size``
+(the model error, the pair's own position noise) and the flux ratio's error
+are Gaussian in ``ln|det J|`` with total variance ``v``. The duality
+hypothesis ``|det J_true| = R`` (``R`` the flux ratio) is then tested by its
+profile likelihood:
+
+    T^2 = min_J  (J - J_hat)^T C^-1 (J - J_hat) + (ln R - ln|det J|)^2 / v,
+
+the squared distance from the data to the hypothesis, which follows
+``chi^2_1`` as long as the hypothesis surface is nearly flat over the
+noise. Linearising ``ln|det J|`` at ``J_hat`` (``(ln R - ln|det J_hat|)^2 /
+(g^T C g + v)``) is the same statistic where the error of ``ln|det J|`` is
+small; where it is not, ``|det J|`` is not log-normal: an over-estimate of
+``|det J|`` comes with an under-estimated error, and the linearised SNR
+flags it. Both signs of ``det J`` are tried (the flux ratio does not give
+the parity).
+
+For a hypothesis ``det J = D`` the constrained minimum is the closest
+point on a quadric: in the whitened coordinates ``y = V^T L^-1 vec J``
+(``C = L L^T``, ``V`` the eigenvectors of ``Q = L^T M L / 2``, ``det J = vec
+J^T M vec J / 2``) the constraint is ``sum_i q_i y_i^2 = D`` and the
+minimum is at ``y_i = y_hat_i / (1 - 2 lambda q_i)``, the root of the
+secular equation in the interval of ``lambda`` where every ``1 - 2 lambda
+q_i`` is positive (where it is monotonic).
+"""
+
+import numpy as np
+from numba import njit
+
+from ._numba import JIT_OPTIONS_NUMPY_ERRORS as JIT_OPTIONS
+
+__all__ = []
+
+_N_BISECT = 100
+_N_GRID = 24
+_N_GOLDEN = 40
+
+
+@njit(**JIT_OPTIONS)
+def _whiten(jac, cov, q, yh):
+    """The eigenvalues ``q`` of the whitened determinant form and the data's
+    whitened coordinates ``yh``; False when ``cov`` is not positive definite."""
+    m = np.zeros((4, 4))
+    m[0, 3] = m[3, 0] = 0.5
+    m[1, 2] = m[2, 1] = -0.5
+    for i in range(4):
+        if not cov[i, i] > 0.0:
+            return False
+    # scale to unit diagonal before the factorisation (entries differ by orders)
+    d = np.sqrt(np.diag(cov))
+    cs = cov / np.outer(d, d)
+    w, u = np.linalg.eigh(cs)
+    if not w[0] > 1e-12 * w[3]:
+        return False
+    # symmetric square root: L = D U W^1/2 U^T, det J = (L z)^T M (L z)
+    lsq = (u * np.sqrt(w)) @ u.T
+    lmat = d[:, None] * lsq
+    qm = lmat.T @ m @ lmat
+    qv, v = np.linalg.eigh(0.5 * (qm + qm.T))  # ascending: two negative, two positive
+    z = np.linalg.solve(lmat, jac)
+    y = v.T @ z
+    for i in range(4):
+        q[i] = qv[i]
+        yh[i] = y[i]
+    return True
+
+
+@njit(**JIT_OPTIONS)
+def _secular(q, yh, lam):
+    f = 0.0
+    for i in range(4):
+        r = 1.0 - 2.0 * lam * q[i]
+        f += q[i] * yh[i] * yh[i] / (r * r)
+    return f
+
+
+@njit(**JIT_OPTIONS)
+def _quadric_d2(q, yh, target):
+    """The squared whitened distance from ``yh`` to ``sum q y^2 = target``
+    (``q`` sorted, two negative and two positive: the form of ``det``): the
+    root of the secular equation by bisection between 0 and the pole on the
+    side of the target, where it is monotonic."""
+    f0 = _secular(q, yh, 0.0)
+    if f0 == target:
+        return 0.0
+    if target > f0:
+        a, b = 0.0, 0.5 / q[3]
+    else:
+        a, b = 0.5 / q[0], 0.0
+    for _ in range(_N_BISECT):
+        mid = 0.5 * (a + b)
+        if mid == a or mid == b:
+            break
+        if _secular(q, yh, mid) > target:
+            b = mid
+        else:
+            a = mid
+    lam = 0.5 * (a + b)
+    d2 = 0.0
+    for i in range(4):
+        r = 1.0 - 2.0 * lam * q[i]
+        dy = yh[i] / r - yh[i]
+        d2 += dy * dy
+    return d2
+
+
+@njit(**JIT_OPTIONS)
+def _objective(q, yh, sign, u, ln_r, v):
+    d2 = _quadric_d2(q, yh, sign * np.exp(u))
+    if v > 0.0:
+        d2 += (ln_r - u) ** 2 / v
+    return d2
+
+
+@njit(**JIT_OPTIONS)
+def _min_over_u(q, yh, sign, lo, hi, ln_r, v):
+    """The smallest objective over ``u = ln|D|`` in ``[lo, hi]``: a grid, then
+    golden-section steps around its best point."""
+    best = np.inf
+    ib = 0
+    us = np.linspace(lo, hi, _N_GRID)
+    vals = np.empty(_N_GRID)
+    for i in range(_N_GRID):
+        vals[i] = _objective(q, yh, sign, us[i], ln_r, v)
+        if vals[i] < best:
+            best = vals[i]
+            ib = i
+    a = us[max(ib - 1, 0)]
+    b = us[min(ib + 1, _N_GRID - 1)]
+    g = 0.5 * (np.sqrt(5.0) - 1.0)
+    x1 = b - g * (b - a)
+    x2 = a + g * (b - a)
+    f1 = _objective(q, yh, sign, x1, ln_r, v)
+    f2 = _objective(q, yh, sign, x2, ln_r, v)
+    for _ in range(_N_GOLDEN):
+        if f1 < f2:
+            b, x2, f2 = x2, x1, f1
+            x1 = b - g * (b - a)
+            f1 = _objective(q, yh, sign, x1, ln_r, v)
+        else:
+            a, x1, f1 = x1, x2, f2
+            x2 = a + g * (b - a)
+            f2 = _objective(q, yh, sign, x2, ln_r, v)
+    return min(best, f1, f2)
+
+
+@njit(**JIT_OPTIONS)
+def profile_snr(jac, cov, var_rest, ln_r, out):
+    """The profile-likelihood SNR ``T`` (module docstring) of each pair into
+    ``out`` (N,): ``jac`` (N, 4) the estimated Jacobians ``(J00, J01, J10,
+    J11)``, ``cov`` (N, 4, 4) their covariances, ``var_rest`` (N,) the rest
+    of the variance of ``ln|det J|`` and the flux ratio's, ``ln_r`` (N,) the
+    log flux ratios. NaN where an input is not finite or ``cov`` is not
+    positive definite."""
+    q = np.empty(4)
+    yh = np.empty(4)
+    for a in range(jac.shape[0]):
+        out[a] = np.nan
+        v = var_rest[a]
+        lr = ln_r[a]
+        if not (np.isfinite(lr) and v >= 0.0 and np.isfinite(v)):
+            continue
+        if not _whiten(jac[a], cov[a], q, yh):
+            continue
+        det = jac[a, 0] * jac[a, 3] - jac[a, 1] * jac[a, 2]
+        if not (np.isfinite(det) and det != 0.0):
+            continue
+        best = np.inf
+        for sign in (1.0, -1.0):
+            if v == 0.0:
+                best = min(best, _quadric_d2(q, yh, sign * np.exp(lr)))
+                continue
+            if sign * det > 0.0:
+                # between the estimate and the hypothesis, with a margin of the rest's noise
+                u0 = np.log(abs(det))
+                lo = min(u0, lr) - 2.0 * np.sqrt(v)
+                hi = max(u0, lr) + 2.0 * np.sqrt(v)
+            else:
+                # the other parity: |D| below R (the distance grows with |D|)
+                if _quadric_d2(q, yh, 0.0) >= best:
+                    continue
+                lo = lr - 8.0 * np.sqrt(v)
+                hi = lr
+            best = min(best, _min_over_u(q, yh, sign, lo, hi, lr, v))
+        out[a] = np.sqrt(best)
