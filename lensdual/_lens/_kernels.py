@@ -127,6 +127,20 @@ def _bucket_range(lo, hi, origin, cell, n):
 
 
 @njit(**JIT_OPTIONS)
+def _triangle_buckets(bx, by, tri, tol, i, x0, y0, cell, nbx, nby):
+    """The bucket ranges ``(i0, i1, j0, j1)`` that triangle ``i``'s bounding
+    box expanded by ``tol`` overlaps, clipped to the grid; ``i0 = -1`` where
+    the box lies entirely outside the grid."""
+    x_lo, x_hi, y_lo, y_hi = _expanded_bbox(bx, by, tri, tol, i)
+    if not (x_hi >= x0 and x_lo <= x0 + nbx * cell and y_hi >= y0
+            and y_lo <= y0 + nby * cell):
+        return np.int64(-1), np.int64(-1), np.int64(-1), np.int64(-1)
+    i0, i1 = _bucket_range(x_lo, x_hi, x0, cell, nbx)
+    j0, j1 = _bucket_range(y_lo, y_hi, y0, cell, nby)
+    return i0, i1, j0, j1
+
+
+@njit(**JIT_OPTIONS)
 def bucket_triangles(bx, by, tri, tol, x0, y0, cell, nbx, nby, max_cover):
     """Register the triangles in the buckets of a regular source-plane grid.
 
@@ -143,14 +157,10 @@ def bucket_triangles(bx, by, tri, tol, x0, y0, cell, nbx, nby, max_cover):
     nb = nbx * nby
     counts = np.zeros(nb + 1, dtype=np.int64)
     n_global = 0
-    x_end = x0 + nbx * cell
-    y_end = y0 + nby * cell
     for i in range(nt):
-        x_lo, x_hi, y_lo, y_hi = _expanded_bbox(bx, by, tri, tol, i)
-        if not (x_hi >= x0 and x_lo <= x_end and y_hi >= y0 and y_lo <= y_end):
+        i0, i1, j0, j1 = _triangle_buckets(bx, by, tri, tol, i, x0, y0, cell, nbx, nby)
+        if i0 < 0:
             continue
-        i0, i1 = _bucket_range(x_lo, x_hi, x0, cell, nbx)
-        j0, j1 = _bucket_range(y_lo, y_hi, y0, cell, nby)
         if (i1 - i0 + 1) * (j1 - j0 + 1) > max_cover:
             n_global += 1
             continue
@@ -163,11 +173,9 @@ def bucket_triangles(bx, by, tri, tol, x0, y0, cell, nbx, nby, max_cover):
     fill = start[:nb].copy()
     g = 0
     for i in range(nt):
-        x_lo, x_hi, y_lo, y_hi = _expanded_bbox(bx, by, tri, tol, i)
-        if not (x_hi >= x0 and x_lo <= x_end and y_hi >= y0 and y_lo <= y_end):
+        i0, i1, j0, j1 = _triangle_buckets(bx, by, tri, tol, i, x0, y0, cell, nbx, nby)
+        if i0 < 0:
             continue
-        i0, i1 = _bucket_range(x_lo, x_hi, x0, cell, nbx)
-        j0, j1 = _bucket_range(y_lo, y_hi, y0, cell, nby)
         if (i1 - i0 + 1) * (j1 - j0 + 1) > max_cover:
             global_tris[g] = i
             g += 1
