@@ -9,6 +9,7 @@ read again.
 
 import importlib.util
 import os
+import re
 from pathlib import Path
 
 import pytest
@@ -34,6 +35,11 @@ def assert_files_match(written, folder, script):
             f"and check the page that includes it")
 
 
+def substitutions_used(text, prefix):
+    """The names ``<prefix>_...`` of the reST substitutions ``text`` uses or defines."""
+    return set(re.findall(rf"\|({prefix}_\w+)\|", text))
+
+
 @pytest.fixture(scope="module")
 def macs1149_knots():
     hff = os.environ.get("LENSDUAL_HFF_DIR")
@@ -56,8 +62,40 @@ def test_knots_page_includes_the_numbers():
     defined = (STATIC / "knots" / "numbers.inc").read_text()
     for name in ("numbers.inc", "table.inc", "summary.txt", "comparison.txt"):
         assert f"_static/knots/{name}" in page
-    import re
-
-    used = set(re.findall(r"\|(knots_\w+)\|", page))
+    used = substitutions_used(page, "knots")
     assert used
-    assert not used - set(re.findall(r"\|(knots_\w+)\|", defined))
+    assert not used - substitutions_used(defined, "knots")
+
+
+@pytest.mark.slow
+def test_tutorial_listings_are_the_demos(tmp_path):
+    """The tutorial's report, run configuration and broken-configuration message
+    are what ``lensdual demo`` prints and writes now (one demo run, ~30 s)."""
+    module = load_script("tutorial_figures")
+    files, _, _ = module.listings(tmp_path)
+    assert_files_match(files, STATIC / "tutorial", "docs/scripts/tutorial_figures.py")
+
+
+@pytest.mark.slow
+def test_sensitivity_reference_errors_are_the_codes():
+    """The reference errors docs/sensitivity.rst quotes (``reference.inc``) are
+    what smacs0723_reference gives now; the map statistics (``numbers.inc``,
+    ``settings.txt``) take minutes and are the committed output of
+    docs/scripts/sensitivity_maps.py."""
+    module = load_script("sensitivity_maps")
+    text = module.substitutions(module.reference_numbers(module.reference_errors()))
+    assert_files_match({"reference.inc": text}, STATIC / "sensitivity",
+                       "docs/scripts/sensitivity_maps.py")
+
+
+def test_sensitivity_page_includes_the_numbers():
+    page = (ROOT / "docs" / "sensitivity.rst").read_text()
+    folder = STATIC / "sensitivity"
+    for name in ("numbers.inc", "reference.inc", "settings.txt"):
+        assert f"_static/sensitivity/{name}" in page
+    defined = set()
+    for name in ("numbers.inc", "reference.inc"):
+        defined |= substitutions_used((folder / name).read_text(), "sens")
+    used = substitutions_used(page, "sens")
+    assert used
+    assert not used - defined
