@@ -4,9 +4,13 @@ Writes docs/_static/sensitivity_fig7.png (source-plane flux excess of the
 paper's over-concentrated sub-halo on the SMACS0723 analogue's L2 image,
 with the unit ellipses) and docs/_static/sensitivity_fig9.png (detection SNR
 over mass and r_eff, 50/68/95th percentiles over 36 angles, mass-concentration
-relation and 5 times over-concentrated), then prints the statistics that
-docs/sensitivity.rst compares with the paper's text, for the reproduction
-settings and for one change at a time. Takes about two minutes on one core;
+relation and 5 times over-concentrated), then writes into
+docs/_static/sensitivity/ the statistics that docs/sensitivity.rst compares
+with the paper's text, for the reproduction settings and for one change at a
+time: ``settings.txt`` (the table), ``numbers.inc`` (reST substitutions of the
+numbers the page quotes from the maps) and ``reference.inc`` (the reference
+errors of :func:`~lensdual.sensitivity.smacs0723_reference`, which
+tests/test_docs_numbers.py recomputes). Takes about two minutes on one core;
 run from the repository root::
 
     python docs/scripts/sensitivity_maps.py
@@ -35,6 +39,7 @@ from lensdual.simulation.halos import tnfw_halo  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 STATIC = ROOT / "docs" / "_static"
+INCLUDES = STATIC / "sensitivity"
 
 MASSES = np.geomspace(1e7, 1e10, 20) * u.Msun
 R_EFF = np.arange(1, 25) * 0.125
@@ -78,6 +83,7 @@ def fig7(a_l2):
     r_in_c = effective_radius(d[inside] * u.arcsec, a_l2, te, definition="caustic")
     print(f"Fig. 7: 3+ images up to r_eff = {r_in.max():.2f} (paper), "
           f"{r_in_c.max():.2f} (caustic definition)")
+    return {"fig7_reach": f"{r_in.max():.2f}", "fig7_reach_caustic": f"{r_in_c.max():.2f}"}
 
 
 def snr_maps(**kw):
@@ -108,7 +114,8 @@ def _reach(z, level):
     return float(np.median(out))
 
 
-def stats(maps, scale=1.0):
+def parts(maps, scale=1.0):
+    """The statistics of one setting, ``{name: text}``."""
     mcr, over = maps
     mean = _grid(over, "snr_mean") * scale
     p50 = _grid(over, "snr_p50") * scale
@@ -118,24 +125,57 @@ def stats(maps, scale=1.0):
     ring_max = p95[:, ring].max(axis=1)
     mp50 = _grid(mcr, "snr_p50") * scale
     mp95 = _grid(mcr, "snr_p95") * scale
-    return [
-        f"{np.median(mean[:, inside]):.1f} ({100 * (mean[:, inside] > 10).mean():.0f} %)",
-        f"{np.median(ring_max):.0f} ({ring_max.min():.0f}-{ring_max.max():.0f})",
-        f"{_reach(p95, 5):.2f} / {_reach(p50, 5):.2f}",
-        f"{mp50.max():.1f}",
-        f"{100 * (mp95 > 5).mean():.0f} % / {_reach(mp95, 5):.2f}",
-    ]
+    return {"mean": f"{np.median(mean[:, inside]):.1f}",
+            "cells10": f"{100 * (mean[:, inside] > 10).mean():.0f} %",
+            "ring": f"{np.median(ring_max):.0f}",
+            "ring_range": f"{ring_max.min():.0f}-{ring_max.max():.0f}",
+            "reach95": f"{_reach(p95, 5):.2f}", "reach50": f"{_reach(p50, 5):.2f}",
+            "mcr_p50": f"{mp50.max():.1f}", "mcr_cells": f"{100 * (mp95 > 5).mean():.0f} %",
+            "mcr_reach": f"{_reach(mp95, 5):.2f}"}
+
+
+def stats(p):
+    """The table's cells of one setting from :func:`parts`."""
+    return [f"{p['mean']} ({p['cells10']})", f"{p['ring']} ({p['ring_range']})",
+            f"{p['reach95']} / {p['reach50']}", p["mcr_p50"],
+            f"{p['mcr_cells']} / {p['mcr_reach']}"]
+
+
+def reference_errors():
+    """``sigma_rel`` of :func:`smacs0723_reference` (calibrated and Quad) per ``sigma_pos``."""
+    out = {}
+    for sp in (0.06, 0.005, 0.002):
+        for method in ("adaptive", "quad"):
+            ref = smacs0723_reference(sigma_pos=sp * u.arcsec, method=method)
+            out[(sp, method)] = ref["sigma_rel"]
+    return out
+
+
+def _mas(sp):
+    return f"{sp * 1000:g}"
+
+
+def reference_numbers(errors):
+    """``{name: text}`` of the reference errors (two or three significant digits)."""
+    return {f"{'cal' if m == 'adaptive' else 'quad'}_{_mas(sp)}mas":
+            f"{v:.2f}" if v >= 0.5 else f"{v:.3f}" for (sp, m), v in errors.items()}
+
+
+def substitutions(values):
+    """reST substitution definitions, ``|sens_<name>|``, one a line."""
+    return "".join(f".. |sens_{k}| replace:: {v}\n" for k, v in values.items())
 
 
 def main():
     ref = smacs0723_reference()
     a_l2 = ref["jacobian"]
-    fig7(a_l2)
+    numbers = fig7(a_l2)
     base = snr_maps(jacobian=a_l2, **BASE)
     fig9(base)
+    numbers.update({f"base_{k}": v for k, v in parts(base).items()})
     rows = [("paper (text of Sect. 5.2.3)", ["often > 10", "~50", "~2 (percentile?)",
                                              "modest", "'a handful of locations'"]),
-            ("reproduction (L2 saddle, paper r_eff, |f - 1|, 0.10)", stats(base))]
+            ("reproduction (L2 saddle, paper r_eff, |f - 1|, 0.10)", stats(parts(base)))]
     lam, vec = np.linalg.eigh(a_l2)
     a_min = vec @ np.diag(np.abs(lam)) @ vec.T
     a_l1 = smacs0723_reference(image=1)["jacobian"]
@@ -148,31 +188,44 @@ def main():
         ("a minimum, |lambda_i| of L2", BASE, a_min, 1.0),
     ]
     for name, kw, a, scale in variants:
-        rows.append((name, stats(snr_maps(jacobian=a, **kw), scale)))
-    rows.append(("sigma_rel = 0.05 (App. B's 5 %)", stats(base, 0.10 / 0.05)))
+        rows.append((name, stats(parts(snr_maps(jacobian=a, **kw), scale))))
+    p = parts(base, 0.10 / 0.05)
+    numbers.update({f"s005_{k}": v for k, v in p.items()})
+    rows.append(("sigma_rel = 0.05 (App. B's 5 %)", stats(p)))
     quad = smacs0723_reference(method="quad")
     rows.append((f"sigma_rel = {quad['sigma_rel']:.2f} (Quad bootstrap, 0.06 arcsec)",
-                 stats(base, 0.10 / quad["sigma_rel"])))
+                 stats(parts(base, 0.10 / quad["sigma_rel"]))))
     # the default of detection_snr_map: the calibrated (adaptive) error
+    p = parts(base, 0.10 / ref["sigma_rel"])
+    numbers.update({f"cal60_{k}": v for k, v in p.items()})
     rows.append((f"sigma_rel = {ref['sigma_rel']:.2f} (calibrated, 0.06 arcsec; default)",
-                 stats(base, 0.10 / ref["sigma_rel"])))
+                 stats(p)))
     for sp in (0.005, 0.002):
         cal = smacs0723_reference(sigma_pos=sp * u.arcsec)
         qd = smacs0723_reference(sigma_pos=sp * u.arcsec, method="quad")
+        p = parts(base, 0.10 / cal["sigma_rel"])
+        numbers.update({f"cal{_mas(sp)}_{k}": v for k, v in p.items()})
         rows.append((f"sigma_rel = {cal['sigma_rel']:.3f} (calibrated, {sp:g} arcsec; "
-                     f"Quad {qd['sigma_rel']:.3f})", stats(base, 0.10 / cal["sigma_rel"])))
+                     f"Quad {qd['sigma_rel']:.3f})", stats(p)))
     head = ["setting", "mean SNR, r_eff < 1 (cells > 10)", "max p95, r_eff 0.75-1.25",
             "reach p95 / p50 > 5", "MCR: max p50",
             "MCR: cells p95 > 5 / reach"]
     table = [head] + [[name] + vals for name, vals in rows]
     widths = [max(len(r[i]) for r in table) for i in range(len(head))]
     line = "  ".join("=" * w for w in widths)
-    print(line)
+    lines = [line]
     for i, r in enumerate(table):
-        print("  ".join(v.ljust(w) for v, w in zip(r, widths, strict=True)).rstrip())
+        lines.append("  ".join(v.ljust(w) for v, w in zip(r, widths, strict=True)).rstrip())
         if i == 0:
-            print(line)
-    print(line)
+            lines.append(line)
+    lines.append(line)
+    text = "\n".join(lines) + "\n"
+    print(text, end="")
+    INCLUDES.mkdir(parents=True, exist_ok=True)
+    (INCLUDES / "settings.txt").write_text(text)
+    (INCLUDES / "numbers.inc").write_text(substitutions(numbers))
+    (INCLUDES / "reference.inc").write_text(substitutions(reference_numbers(reference_errors())))
+    print(f"wrote {INCLUDES}")
 
 
 if __name__ == "__main__":

@@ -1,0 +1,101 @@
+"""The numbers the docs pages quote are the ones their scripts write now.
+
+Every docs page that quotes a script's numbers includes them from a file the
+script wrote (``docs/_static/<topic>/``). Where the script is cheap enough,
+this module reruns it and compares with the committed files: a change of the
+code that moves a number fails here until the script is rerun and the page
+read again.
+"""
+
+import importlib.util
+import os
+import re
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+SCRIPTS = ROOT / "docs" / "scripts"
+STATIC = ROOT / "docs" / "_static"
+
+
+def load_script(name):
+    """The module of ``docs/scripts/<name>.py`` (its ``main`` is not run)."""
+    spec = importlib.util.spec_from_file_location(f"docs_script_{name}", SCRIPTS / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def assert_files_match(written, folder, script):
+    for name, text in written.items():
+        committed = (folder / name).read_text()
+        assert committed == text, (
+            f"{folder.relative_to(ROOT) / name} is not what {script} writes now: rerun it "
+            f"and check the page that includes it")
+
+
+def substitutions_used(text, prefix):
+    """The names ``<prefix>_...`` of the reST substitutions ``text`` uses or defines."""
+    return set(re.findall(rf"\|({prefix}_\w+)\|", text))
+
+
+@pytest.fixture(scope="module")
+def macs1149_knots():
+    hff = os.environ.get("LENSDUAL_HFF_DIR")
+    if not hff or not (Path(hff) / "macs1149_v4").is_dir():
+        pytest.skip("needs the CATS v4 MACS J1149 model (LENSDUAL_HFF_DIR)")
+    module = load_script("macs1149_knots")
+    return module, module.compute(Path(hff) / "macs1149_v4")
+
+
+def test_knots_page_numbers_are_the_scripts(macs1149_knots):
+    module, result = macs1149_knots
+    assert_files_match(module.include_files(result), STATIC / "knots",
+                       "docs/scripts/macs1149_knots.py")
+
+
+def test_knots_page_includes_the_numbers():
+    """Every substitution the page uses is defined by the script's file, and the
+    page includes its files (no hand-typed copy of the table)."""
+    page = (ROOT / "docs" / "knots.rst").read_text()
+    defined = (STATIC / "knots" / "numbers.inc").read_text()
+    for name in ("numbers.inc", "table.inc", "summary.txt", "comparison.txt"):
+        assert f"_static/knots/{name}" in page
+    used = substitutions_used(page, "knots")
+    assert used
+    assert not used - substitutions_used(defined, "knots")
+
+
+@pytest.mark.slow
+def test_tutorial_listings_are_the_demos(tmp_path):
+    """The tutorial's report, run configuration and broken-configuration message
+    are what ``lensdual demo`` prints and writes now (one demo run, ~30 s)."""
+    module = load_script("tutorial_figures")
+    files, _, _ = module.listings(tmp_path)
+    assert_files_match(files, STATIC / "tutorial", "docs/scripts/tutorial_figures.py")
+
+
+@pytest.mark.slow
+def test_sensitivity_reference_errors_are_the_codes():
+    """The reference errors docs/sensitivity.rst quotes (``reference.inc``) are
+    what smacs0723_reference gives now; the map statistics (``numbers.inc``,
+    ``settings.txt``) take minutes and are the committed output of
+    docs/scripts/sensitivity_maps.py."""
+    module = load_script("sensitivity_maps")
+    text = module.substitutions(module.reference_numbers(module.reference_errors()))
+    assert_files_match({"reference.inc": text}, STATIC / "sensitivity",
+                       "docs/scripts/sensitivity_maps.py")
+
+
+def test_sensitivity_page_includes_the_numbers():
+    page = (ROOT / "docs" / "sensitivity.rst").read_text()
+    folder = STATIC / "sensitivity"
+    for name in ("numbers.inc", "reference.inc", "settings.txt"):
+        assert f"_static/sensitivity/{name}" in page
+    defined = set()
+    for name in ("numbers.inc", "reference.inc"):
+        defined |= substitutions_used((folder / name).read_text(), "sens")
+    used = substitutions_used(page, "sens")
+    assert used
+    assert not used - defined
