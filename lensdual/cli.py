@@ -139,6 +139,10 @@ def _cmd_demo(args):
     from .simulation import write_mock_images
 
     start = time.perf_counter()
+    if args.cluster_radii[0] > args.cluster_radii[1]:
+        print(f"lensdual demo: --cluster-radii: LOW must not exceed HIGH, got "
+              f"{args.cluster_radii[0]:g} {args.cluster_radii[1]:g}", file=sys.stderr)
+        return EXIT_USAGE
     names = ANALYSIS_OUTPUTS + ("truth_comparison.ecsv",)
     names += ("run.toml",) if args.write_config else ()
     names += PARAMETRIC_OUTPUTS if args.parametric else ()

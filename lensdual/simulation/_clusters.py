@@ -67,6 +67,7 @@ def draw_cluster_radii(n, *, low=CLUSTER_RADIUS_RANGE[0], high=CLUSTER_RADIUS_RA
 
     Examples
     --------
+    >>> import astropy.units as u
     >>> from lensdual.simulation import draw_cluster_radii
     >>> r = draw_cluster_radii(1000, seed=1)
     >>> bool(r.min() >= 1 * u.pc and r.max() <= 50 * u.pc), r.unit
