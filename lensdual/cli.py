@@ -42,6 +42,7 @@ from ._outputs import (
 )
 from ._report import format_report, knot_report, parametric_paragraph
 from .demo import (
+    DEMO_SCENES,
     DEMO_SUBHALOES,
     compare_with_truth,
     render_demo,
@@ -133,9 +134,15 @@ def _finish(args, command, progress, start, *, report=None, outdir=None, error=N
 
 
 def _cmd_demo(args):
+    import astropy.units as u
+
     from .simulation import write_mock_images
 
     start = time.perf_counter()
+    if args.cluster_radii[0] > args.cluster_radii[1]:
+        print(f"lensdual demo: --cluster-radii: LOW must not exceed HIGH, got "
+              f"{args.cluster_radii[0]:g} {args.cluster_radii[1]:g}", file=sys.stderr)
+        return EXIT_USAGE
     names = ANALYSIS_OUTPUTS + ("truth_comparison.ecsv",)
     names += ("run.toml",) if args.write_config else ()
     names += PARAMETRIC_OUTPUTS if args.parametric else ()
@@ -153,7 +160,8 @@ def _cmd_demo(args):
             system, truth = simulate_demo(subhalo=args.subhalo, n_sources=args.n_sources,
                                           seed=args.seed)
         with progress.step("render mock images"):
-            demo = render_demo(system, truth, seed=args.seed)
+            demo = render_demo(system, truth, seed=args.seed, scene=args.scene,
+                               cluster_radii=tuple(r * u.pc for r in args.cluster_radii))
         mocks, images, centre = demo.mocks, demo.images, demo.centre
         # the null calibration is the adaptive estimator's
         null_realisations = args.null_realisations if args.estimator == "adaptive" else 0
@@ -381,6 +389,13 @@ def build_parser():
                       help="the injected sub-halo: 1e8 Msun with c = 100 "
                            "(overconcentrated), 1e9 Msun (massive) or 1e8 Msun (small) on the "
                            "mass-concentration relation, or none")
+    demo.add_argument("--scene", choices=DEMO_SCENES, default="point",
+                      help="the mock scene: every star cluster a point (point), or star "
+                           "clusters of finite size (realistic), their half-light radii "
+                           "drawn log-uniformly in --cluster-radii")
+    demo.add_argument("--cluster-radii", type=_positive_float, nargs=2, default=(1.0, 50.0),
+                      metavar=("LOW", "HIGH"),
+                      help="range of the half-light radii (pc) of --scene realistic")
     demo.add_argument("--seed", type=_int_range(0), default=0,
                       help="seed of the simulation, noise, pairing and bootstrap")
     demo.add_argument("--n-sources", type=_int_range(3, 18), default=12,

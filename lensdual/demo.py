@@ -27,6 +27,7 @@ import numpy as np
 
 __all__ = [
     "DEMO_BANDS",
+    "DEMO_SCENES",
     "DEMO_SUBHALOES",
     "DemoImages",
     "compare_with_truth",
@@ -40,6 +41,11 @@ DEMO_SUBHALOES = ("none", "massive", "small", "overconcentrated")
 
 #: The bands of the demo's mock images.
 DEMO_BANDS = ("F150W", "F200W")
+
+#: Scene choices of ``lensdual demo --scene``: "point" (every star cluster a
+#: point, the default) or "realistic" (star clusters of finite size, their
+#: half-light radii drawn log-uniformly in a range, default 1-50 pc).
+DEMO_SCENES = ("point", "realistic")
 
 
 def _demo_sources(n_sources, rng):
@@ -152,7 +158,7 @@ class DemoImages:
     centre: object
 
 
-def render_demo(system, truth, *, seed=0):
+def render_demo(system, truth, *, seed=0, scene="point", cluster_radii=None):
     """The demo's two-band mock images of both arcs.
 
     Parameters
@@ -162,7 +168,16 @@ def render_demo(system, truth, *, seed=0):
     truth : `~astropy.table.QTable`
         The true pairs (output of :func:`simulate_demo`).
     seed : int
-        Seed of the noise.
+        Seed of the noise (and of the cluster radii of the realistic scene).
+    scene : {"point", "realistic"}
+        "point": every source is a point. "realistic": every source is a
+        star cluster of finite size (``render_mock_images(r_eff=...)``),
+        its half-light radius drawn by
+        :func:`~lensdual.simulation.draw_cluster_radii` in
+        ``cluster_radii``; the noise is the point scene's.
+    cluster_radii : tuple of two `~astropy.units.Quantity`, optional
+        The range ``(low, high)`` of the realistic scene's radii; default
+        `~lensdual.simulation.CLUSTER_RADIUS_RANGE` (1-50 pc).
 
     Returns
     -------
@@ -173,9 +188,17 @@ def render_demo(system, truth, *, seed=0):
     import astropy.units as u
     from astropy.coordinates import SkyCoord
 
-    from .simulation import render_mock_images
+    from .simulation import CLUSTER_RADIUS_RANGE, draw_cluster_radii, render_mock_images
 
-    mocks = render_mock_images(system, bands=DEMO_BANDS, pairs=truth, seed=seed)
+    if scene not in DEMO_SCENES:
+        raise ValueError(f"scene must be one of {DEMO_SCENES}, got {scene!r}")
+    r_eff = None
+    if scene == "realistic":
+        low, high = CLUSTER_RADIUS_RANGE if cluster_radii is None else cluster_radii
+        # a generator of its own: the noise draws are the point scene's
+        r_eff = draw_cluster_radii(len(truth), low=low, high=high,
+                                   seed=np.random.default_rng([seed, 1]))
+    mocks = render_mock_images(system, bands=DEMO_BANDS, pairs=truth, seed=seed, r_eff=r_eff)
     images = {arc: dict(mocks.arc(arc)) for arc in ("L1", "L2")}
     psf = {band: np.asarray(mocks[("L1", band)].psf) for band in DEMO_BANDS}
     meta = mocks[("L1", DEMO_BANDS[0])].meta

@@ -109,7 +109,7 @@ def test_help_explains_every_option(command, capsys):
     text = capsys.readouterr().out
     options = {"demo": ["--outdir", "--subhalo", "--seed", "--n-sources", "--n-bootstrap",
                         "--estimator", "--snr-threshold", "--write-config", "--parametric",
-                        "--quiet"],
+                        "--scene", "--cluster-radii", "--quiet"],
                "run": ["config", "--outdir", "--quiet"]}[command]
     for option in options:
         assert option in text
@@ -125,6 +125,11 @@ def test_bad_arguments_exit_2(tmp_path, capsys):
     assert "invalid choice" in capsys.readouterr().err
     assert main(["demo", "--n-sources", "2", "--outdir", str(tmp_path / "x")]) == 2
     assert "between 3 and 18" in capsys.readouterr().err
+    assert main(["demo", "--scene", "messy", "--outdir", str(tmp_path / "x")]) == 2
+    assert "invalid choice" in capsys.readouterr().err
+    assert main(["demo", "--scene", "realistic", "--cluster-radii", "50", "1",
+                 "--outdir", str(tmp_path / "x")]) == 2
+    assert "LOW must not exceed HIGH" in capsys.readouterr().err
     assert main([]) == 2
     assert not (tmp_path / "x").exists()
 

@@ -27,13 +27,17 @@ from .._frames import tangent_to_sky
 from .._lens.model import LensModelBase
 from .._pairs_table import POSITION_COLUMNS, arc_xy, flux_col
 from .._validation import as_angle_scalar, as_int, as_positions, as_real
+from . import _clusters
+from ._clusters import CLUSTER_RADIUS_RANGE, draw_cluster_radii
 from .lens_system import LensSystem
 
 __all__ = [
+    "CLUSTER_RADIUS_RANGE",
     "DEFAULT_SKY_CENTER",
     "MOCK_HOST",
     "PSF_FWHM",
     "MockImages",
+    "draw_cluster_radii",
     "lens_to_sky",
     "read_mock_images",
     "render_mock_images",
@@ -479,6 +483,7 @@ class _Scene:
     all_xy: np.ndarray  # the positions of both arcs, stacked
     kwargs_host: dict | None  # lenstronomy Sérsic parameters without "amp"; None: no host
     host_amp: dict  # per band, the host's lenstronomy amplitude
+    cov: np.ndarray | None = None  # (2N, 2, 2) image covariances of all_xy [arcsec^2]; None: points
 
 
 def _check_bands(bands):
@@ -584,8 +589,12 @@ def _host_kwargs(host_p, truth, system, xy_l1):
             "center_x": float(centre[0]), "center_y": float(centre[1])}
 
 
-def _make_scene(system, truth, bands, host_p):
-    """The `_Scene` of the truth table and the host parameters (None: no host)."""
+def _make_scene(system, truth, bands, host_p, r_eff=None):
+    """The `_Scene` of the truth table and the host parameters (None: no host).
+
+    With ``r_eff`` (not None) the point sources are finite-size clusters: the
+    truth gains ``r_eff``, ``r_eff_angle`` and ``stretch1``, ``stretch2``.
+    """
     from lenstronomy.LightModel.light_model import LightModel
 
     pos = {arc: arc_xy(truth, arc) for arc in _ARCS}
@@ -597,10 +606,25 @@ def _make_scene(system, truth, bands, host_p):
         kwargs_host = _host_kwargs(host_p, truth, system, pos["L1"])
         unit_flux = source_model.total_flux([{**kwargs_host, "amp": 1.0}])[0]
         host_amp = {b: host_p["flux"][b] / unit_flux for b in bands}
-    return _Scene(system=system, lens=_LensAdapter(system.lens_model, system.kwargs_lens),
-                  source_model=source_model, pos=pos, flux=flux,
-                  all_xy=np.vstack([pos[a] for a in _ARCS]), kwargs_host=kwargs_host,
-                  host_amp=host_amp)
+    lens = _LensAdapter(system.lens_model, system.kwargs_lens)
+    all_xy = np.vstack([pos[a] for a in _ARCS])
+    cov = None
+    if r_eff is not None:
+        cov = _cluster_covariances(system, lens, truth, all_xy, r_eff)
+    return _Scene(system=system, lens=lens, source_model=source_model, pos=pos, flux=flux,
+                  all_xy=all_xy, kwargs_host=kwargs_host, host_amp=host_amp, cov=cov)
+
+
+def _cluster_covariances(system, lens, truth, all_xy, r_eff):
+    """The image covariances of finite-size clusters; adds their columns to ``truth``."""
+    n_rows = len(truth)
+    angle, sigma = _clusters.source_sigmas(r_eff, n_rows, system)
+    cov, stretch = _clusters.image_covariances(lens, all_xy, np.concatenate([sigma, sigma]))
+    truth["r_eff"] = u.Quantity(np.broadcast_to(r_eff.value, (n_rows,)), r_eff.unit, copy=True)
+    truth["r_eff_angle"] = (angle * u.arcsec).to(u.mas)
+    truth["stretch1"] = stretch[:n_rows]
+    truth["stretch2"] = stretch[n_rows:]
+    return cov
 
 
 def _arc_grid(settings, xy):
@@ -715,14 +739,43 @@ def _cutout_header(settings, arc, band, cen):
     return meta
 
 
+def _cluster_images(scene, settings, band, cen):
+    """Per row of ``scene.all_xy``, the image of its finite-size cluster on one cutout."""
+    band_psf = settings.psfs[band]
+    fl = np.concatenate([scene.flux[(a, band)] for a in _ARCS])
+    return _clusters.cluster_images(
+        scene.all_xy, fl, scene.cov, kernel=band_psf.kernel,
+        kernel_supersampling=band_psf.supersampling, origin=cen - settings.half * settings.scale,
+        scale=settings.scale, n=settings.n)
+
+
+def _cluster_snr(images, scene, settings, arc, band, cen, sigma):
+    """The optimal SNR of each of the arc's clusters on its cutout (NaN when outside)."""
+    snr = np.full(len(scene.pos[arc]), np.nan)
+    pos, fcol = scene.pos[arc], scene.flux[(arc, band)]
+    first = 0 if arc == _ARCS[0] else len(scene.pos[_ARCS[0]])
+    inside = (np.abs(pos - cen) <= settings.half * settings.scale).all(axis=1) & (fcol > 0)
+    for r in np.flatnonzero(inside):
+        one = images.get(first + int(r))
+        snr[r] = 0.0 if one is None else math.sqrt(float(np.sum((one / sigma) ** 2)))
+    return snr
+
+
 def _render_cutout(settings, scene, arc, band, grid, cen, wcs, rng):
     """One arc's cutout in one band: ``(CCDData, host model, point-source model, SNRs)``."""
     model = _image_model(grid, settings.psfs[band], scene, settings.supersampling)
     host_img = _host_image(model, scene, band, settings.n)
-    ps_img = _point_source_image(model, scene, settings, band, cen)
+    if scene.cov is None:
+        ps_img = _point_source_image(model, scene, settings, band, cen)
+    else:
+        clusters = _cluster_images(scene, settings, band, cen)
+        ps_img = sum(clusters.values(), np.zeros((settings.n, settings.n)))
     clean = np.clip(host_img + ps_img, 0.0, None)
     data, sigma = _add_noise(clean, settings, band, rng)
-    snr = _optimal_snr(model, scene, settings, arc, band, cen, sigma)
+    if scene.cov is None:
+        snr = _optimal_snr(model, scene, settings, arc, band, cen, sigma)
+    else:
+        snr = _cluster_snr(clusters, scene, settings, arc, band, cen, sigma)
     image = CCDData(data, unit=_IMAGE_UNIT, uncertainty=StdDevUncertainty(sigma),
                     wcs=wcs.deepcopy(), meta=_cutout_header(settings, arc, band, cen),
                     psf=settings.psfs[band].pixel_kernel.copy())
@@ -734,7 +787,7 @@ def render_mock_images(system, *, bands=("F150W", "F200W"), pixel_scale=0.04 * u
                        exposure_time=10.0 * u.ks, sky_background=0.2 * u.MJy / u.sr,
                        read_noise=10.0 * u.electron, zero_point=28.0, noise=True,
                        pairs=None, intrinsic_flux=None, supersampling=5,
-                       sky_center=DEFAULT_SKY_CENTER, seed=None):
+                       sky_center=DEFAULT_SKY_CENTER, seed=None, r_eff=None):
     r"""Mock images of the fold pair of arcs: one cutout per arc and band.
 
     Each cutout is centred on one arc of the constellation's fold pair (the
@@ -748,7 +801,8 @@ def render_mock_images(system, *, bands=("F150W", "F200W"), pixel_scale=0.04 * u
     * the point sources of the pairs table at their image positions on both
       arcs with their lensed fluxes ``|mu| x intrinsic`` (columns
       ``flux1_<band>``, ``flux2_<band>``; lenstronomy ``LENSED_POSITION``
-      with free amplitudes);
+      with free amplitudes), or, with ``r_eff``, as finite-size star
+      clusters (below);
     * sky, Poisson and read noise (below).
 
     Parameters
@@ -811,6 +865,17 @@ def render_mock_images(system, *, bands=("F150W", "F200W"), pixel_scale=0.04 * u
         (default :data:`DEFAULT_SKY_CENTER`, SMACS0723).
     seed : int, `numpy.random.Generator` or None
         Seed of the constellation's fluxes (when drawn) and of the noise.
+    r_eff : `~astropy.units.Quantity`, optional
+        None (default): the point sources are points. Otherwise they are
+        star clusters of these intrinsic half-light radii, a scalar or one
+        per row of the pairs table (e.g. from :func:`draw_cluster_radii`),
+        as lengths (e.g. pc; converted to angles with the angular-diameter
+        distance of ``system.z_source`` in ``system.cosmology``) or angles;
+        0 is a point (see Notes). The truth table then has the columns
+        ``r_eff`` (as given), ``r_eff_angle`` (mas) and ``stretch1``,
+        ``stretch2`` (the largest singular value of the inverse lens
+        Jacobian at each image: how much the cluster is stretched along
+        its arc).
 
     Returns
     -------
@@ -832,11 +897,11 @@ def render_mock_images(system, *, bands=("F150W", "F200W"), pixel_scale=0.04 * u
     ------
     TypeError
         Wrong type of ``system``, ``pairs``, ``psf``, ``host`` or of a
-        Quantity argument.
+        Quantity argument (also ``r_eff`` neither a length nor an angle).
     ValueError
         A band without PSF, a bad PSF (not 2-D, not square and odd-sized,
         negative or non-finite), bad ``pairs`` columns or out-of-range
-        values.
+        values (also a negative ``r_eff``, or one of the wrong length).
 
     Notes
     -----
@@ -863,6 +928,20 @@ def render_mock_images(system, *, bands=("F150W", "F200W"), pixel_scale=0.04 * u
     after magnification) have PSF-weighted SNRs of about 20-120 (median
     about 50); see the ``snr`` columns of ``images.pairs``.
 
+    **Finite-size clusters.** With ``r_eff`` each cluster is a circular
+    Gaussian in the source plane of standard deviation
+    ``s = r_eff / sqrt(2 ln 2)``; its image is the Gaussian of covariance
+    ``s**2 A^-1 A^-T`` through the lens Jacobian ``A = d beta / d theta``
+    at the image position (the local, first-order lens map, exact in the
+    small-source limit; the lenses' Hessian), with the point's flux,
+    convolved with the PSF on the PSF's (super)sampled grid in Fourier
+    space and summed onto the pixels. Its second moments are the PSF's
+    plus ``s**2 A^-1 A^-T``. At z = 2.2 in the default cosmology 1 pc is
+    0.12 mas: the clusters are far below the sub-pixels, which is why
+    they are not ray-traced (see ``lensdual/simulation/_clusters.py``).
+    Where the Jacobian changes across an image (a sub-halo a few mas
+    away, a critical curve) the first-order map is an approximation.
+
     Only the point-source images on the fold pair of arcs are painted
     (other images of the constellation, e.g. near the tangential critical
     curve, are far outside the cutouts) and there is no lens light.
@@ -876,7 +955,7 @@ def render_mock_images(system, *, bands=("F150W", "F200W"), pixel_scale=0.04 * u
     rng = np.random.default_rng(seed)
     host_p = _host_params(host, settings.bands)
     truth = _truth_table(system, settings.bands, pairs, intrinsic_flux, rng)
-    scene = _make_scene(system, truth, settings.bands, host_p)
+    scene = _make_scene(system, truth, settings.bands, host_p, r_eff)
 
     images, host_models, ps_models, snr = {}, {}, {}, {}
     for arc in _ARCS:
