@@ -139,6 +139,9 @@ def _jspace(args):
         for n in map(int, args.n_sources.split(",")):
             for s in map(float, args.noise.split(",")):
                 r, *eig = jspace_cell(fam, n, s, args.n_const, args.n_noise, args.seed)
+                if r.size == 0:
+                    print(f"{fam} {n} {s:g} 0 (no pair is 'ok' in every draw)", flush=True)
+                    continue
                 q = [f"{np.median(e):.2f}/{np.percentile(e, p):.2f}"
                      for e, p in zip(eig, (10, 90, 10, 90), strict=True)]
                 print(f"{fam} {n} {s:g} {r.size} {np.median(r):.2f} {q[0]} {q[1]} "
