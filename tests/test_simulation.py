@@ -311,7 +311,12 @@ def test_constellation_passes_duality_and_estimators(analog):
     res = check_duality(pairs, method="quad2", sigma_pos=0.005 * u.arcsec, n_bootstrap=100,
                         seed=0)
     assert not res["anomalous"].any()
-    assert (res["parity"] == -1).all()
+    # a fold: every estimated det J is negative; the table reports the parity
+    # where 1 / ln_mu_size_err reaches the threshold (0 elsewhere)
+    assert (np.linalg.det(np.asarray(res["jacobian"], dtype=float)) < 0).all()
+    determined = np.asarray(res["parity_snr"]) >= 3.0
+    assert determined.sum() >= 10
+    np.testing.assert_array_equal(res["parity"], np.where(determined, -1, 0))
     err = np.abs(res["mu_size"] / pairs["mu_true"] - 1)
     assert np.median(err) < 0.01
 
