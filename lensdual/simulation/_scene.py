@@ -43,7 +43,7 @@ __all__ = ["MOCK_CLUMPS", "MOCK_ICL", "MOCK_MEMBER", "MOCK_PATCH"]
 #: every band).
 MOCK_CLUMPS = {
     "n": 40,
-    "flux": (0.01 * u.nJy, 0.04 * u.nJy),
+    "flux": (0.03 * u.nJy, 0.12 * u.nJy),
     "sigma": (0.015 * u.arcsec, 0.04 * u.arcsec),
     "spread": 0.3 * u.arcsec,
 }

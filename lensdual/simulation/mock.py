@@ -801,7 +801,8 @@ def _cutout_header(settings, arc, band, cen):
     meta["ARC"] = (arc, "arc of the fold pair")
     meta["PIXSCALE"] = (settings.scale, "pixel scale [arcsec]")
     meta["PSFFWHM"] = (band_psf.fwhm, "PSF FWHM (Gaussian-equivalent) [arcsec]")
-    meta["PSFTYPE"] = (band_psf.kind, "GAUSSIAN (band default), USER or POPPY")
+    meta["PSFTYPE"] = (band_psf.kind, "hexagonal pupil, by poppy" if band_psf.kind == "POPPY"
+                       else "GAUSSIAN (band default) or USER")
     meta["EXPTIME"] = (settings.exposure_time, "exposure time [s]")
     meta["SKYBKG"] = (settings.sky_background[band], "sky background [MJy/sr], subtracted")
     meta["RDNOISE"] = (settings.read_noise[band], "read noise per pixel [electron]")
