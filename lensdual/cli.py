@@ -392,7 +392,10 @@ def build_parser():
     demo.add_argument("--scene", choices=DEMO_SCENES, default="point",
                       help="the mock scene: every star cluster a point (point), or star "
                            "clusters of finite size (realistic), their half-light radii "
-                           "drawn log-uniformly in --cluster-radii")
+                           "drawn log-uniformly in --cluster-radii, with a clumpy host, a "
+                           "cluster member, intracluster light, a diffuse patch under one "
+                           "image and a JWST-like PSF with diffraction spikes (needs poppy: "
+                           "pip install 'lensdual[psf]')")
     demo.add_argument("--cluster-radii", type=_positive_float, nargs=2, default=(1.0, 50.0),
                       metavar=("LOW", "HIGH"),
                       help="range of the half-light radii (pc) of --scene realistic")

@@ -44,7 +44,9 @@ DEMO_BANDS = ("F150W", "F200W")
 
 #: Scene choices of ``lensdual demo --scene``: "point" (every star cluster a
 #: point, the default) or "realistic" (star clusters of finite size, their
-#: half-light radii drawn log-uniformly in a range, default 1-50 pc).
+#: half-light radii drawn log-uniformly in a range, default 1-50 pc, a clumpy
+#: host, a cluster member, intracluster light, a diffuse patch under one
+#: image and poppy's hexagonal-pupil PSF with diffraction spikes).
 DEMO_SCENES = ("point", "realistic")
 
 
@@ -158,7 +160,8 @@ class DemoImages:
     centre: object
 
 
-def render_demo(system, truth, *, seed=0, scene="point", cluster_radii=None):
+def render_demo(system, truth, *, seed=0, scene="point", cluster_radii=None, psf=None,
+                clumps=None, member=None, icl=None, patch=None):
     """The demo's two-band mock images of both arcs.
 
     Parameters
@@ -170,14 +173,23 @@ def render_demo(system, truth, *, seed=0, scene="point", cluster_radii=None):
     seed : int
         Seed of the noise (and of the cluster radii of the realistic scene).
     scene : {"point", "realistic"}
-        "point": every source is a point. "realistic": every source is a
-        star cluster of finite size (``render_mock_images(r_eff=...)``),
-        its half-light radius drawn by
-        :func:`~lensdual.simulation.draw_cluster_radii` in
-        ``cluster_radii``; the noise is the point scene's.
+        "point": every source is a point, on the lensed Sérsic host, with
+        the Gaussian PSF. "realistic": every source is a star cluster of
+        finite size (``render_mock_images(r_eff=...)``), its half-light
+        radius drawn by :func:`~lensdual.simulation.draw_cluster_radii` in
+        ``cluster_radii``, and, unless overridden below, the host has
+        faint clumps, a cluster member and an intracluster-light gradient
+        sit next to the arcs, a diffuse patch lies under the L1 image of
+        pair 0, and the PSF is poppy's hexagonal-pupil PSF with
+        diffraction spikes (``psf="poppy"``, needs the ``psf`` extra); the
+        noise is the point scene's.
     cluster_radii : tuple of two `~astropy.units.Quantity`, optional
         The range ``(low, high)`` of the realistic scene's radii; default
         `~lensdual.simulation.CLUSTER_RADIUS_RANGE` (1-50 pc).
+    psf, clumps, member, icl, patch : optional
+        As in :func:`~lensdual.simulation.render_mock_images`; None (the
+        default) takes the scene's choice (realistic: ``"poppy"`` and
+        True; point: the Gaussian PSF and off).
 
     Returns
     -------
@@ -193,12 +205,18 @@ def render_demo(system, truth, *, seed=0, scene="point", cluster_radii=None):
     if scene not in DEMO_SCENES:
         raise ValueError(f"scene must be one of {DEMO_SCENES}, got {scene!r}")
     r_eff = None
+    real = scene == "realistic"
+    parts = {"psf": ("poppy" if real else None) if psf is None else psf}
+    for name, value in (("clumps", clumps), ("member", member), ("icl", icl),
+                        ("patch", patch)):
+        parts[name] = real if value is None else value
     if scene == "realistic":
         low, high = CLUSTER_RADIUS_RANGE if cluster_radii is None else cluster_radii
         # a generator of its own: the noise draws are the point scene's
         r_eff = draw_cluster_radii(len(truth), low=low, high=high,
                                    seed=np.random.default_rng([seed, 1]))
-    mocks = render_mock_images(system, bands=DEMO_BANDS, pairs=truth, seed=seed, r_eff=r_eff)
+    mocks = render_mock_images(system, bands=DEMO_BANDS, pairs=truth, seed=seed, r_eff=r_eff,
+                               **parts)
     images = {arc: dict(mocks.arc(arc)) for arc in ("L1", "L2")}
     psf = {band: np.asarray(mocks[("L1", band)].psf) for band in DEMO_BANDS}
     meta = mocks[("L1", DEMO_BANDS[0])].meta

@@ -1,6 +1,7 @@
 """Finite-size star clusters in the mock images (``render_mock_images(r_eff=...)``)."""
 
 import math
+import warnings
 
 import astropy.units as u
 import numpy as np
@@ -197,3 +198,211 @@ def test_demo_scenes():
     assert "r_eff" not in point.mocks.pairs.colnames
     with pytest.raises(ValueError, match="scene must be one of"):
         render_demo(system, truth, scene="messy")
+
+
+# ---------------------------------------------------------------------------
+# the realistic scene's other parts: PSF with spikes, member, ICL, patch, clumps
+# ---------------------------------------------------------------------------
+
+
+def _azimuthal(kernel, r_min, r_max, width=3):
+    """Mean of kernel * r in azimuth bins of ``width`` degrees between two radii (samples)."""
+    n = kernel.shape[0]
+    c = (n - 1) / 2
+    y, x = np.mgrid[:n, :n] - c
+    r = np.hypot(x, y)
+    theta = np.degrees(np.arctan2(y, x)) % 360
+    ring = (r > r_min) & (r < r_max)
+    bins = np.arange(0, 360, width)
+    prof = np.array([(kernel * r)[ring & (theta >= a) & (theta < a + width)].mean()
+                     for a in bins])
+    return bins, prof / np.median(prof)
+
+
+def test_poppy_psf_has_six_spikes_and_the_diffraction_limited_core():
+    pytest.importorskip("poppy")
+    from lensdual.simulation import hexagonal_pupil_psf
+    from lensdual.simulation._psf import half_max_fwhm
+
+    sample = 0.008  # arcsec: 0.04 arcsec pixels, supersampling 5
+    kernel = hexagonal_pupil_psf("F150W", 0.04 * u.arcsec, supersampling=5)
+    assert kernel.shape == (255, 255) and kernel.sum() == pytest.approx(1.0, abs=1e-12)
+    assert kernel.min() >= 0 and np.unravel_index(kernel.argmax(), kernel.shape) == (127, 127)
+    # spikes: the six diagonal/vertical directions 30 + 60 k degrees and the
+    # horizontal pair of the vertical strut stand out; between them (15 degrees
+    # off) the profile is at its median
+    bins, prof = _azimuthal(kernel, 30, 125)
+    def at(angle):
+        return prof[(bins == angle % 360) | (bins == (angle - 3) % 360)].max()
+    spikes = [at(30 + 60 * k) for k in range(6)]
+    assert min(spikes) > 1.5, spikes
+    assert max(spikes) / min(spikes) < 1.8  # six-fold
+    assert min(at(0), at(180)) > 1.5  # the strut's extra pair
+    between = [at(15 + 60 * k) for k in range(6)] + [at(45 + 60 * k) for k in range(6)]
+    assert max(between) < 1.2, between
+    # the core: FWHM 1.03 lambda / D for the 6.5 m effective aperture, within 10 %
+    lam_d = (1.5e-6 / 6.5) * 206264.8
+    fwhm = half_max_fwhm(kernel) * sample
+    assert fwhm == pytest.approx(1.03 * lam_d, rel=0.10)
+    # it scales with the wavelength
+    long = hexagonal_pupil_psf("F200W", 0.04 * u.arcsec, supersampling=5)
+    assert half_max_fwhm(long) * sample / fwhm == pytest.approx(2.0 / 1.5, rel=0.05)
+
+
+def test_poppy_psf_in_the_renderer(sheet):
+    pytest.importorskip("poppy")
+    mocks = _render(sheet, None, psf="poppy")
+    image = mocks[("L1", "F150W")]
+    assert image.meta["PSFTYPE"] == "POPPY"
+    assert image.psf.shape == (51, 51) and image.psf.sum() == pytest.approx(1.0)
+    assert 0.045 < image.meta["PSFFWHM"] < 0.06
+    # the point's flux, apart from the part of the spikes beyond the cutout
+    assert mocks.point_source_model[("L1", "F150W")].value.sum() == pytest.approx(100, rel=0.03)
+
+
+def test_poppy_missing_raises_a_clear_import_error(sheet, monkeypatch):
+    import builtins
+
+    from lensdual.simulation import _psf
+
+    real_import = builtins.__import__
+
+    def no_poppy(name, *args, **kwargs):
+        if name == "poppy" or name.startswith("poppy."):
+            raise ImportError("No module named 'poppy'")
+        return real_import(name, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "__import__", no_poppy)
+    _psf._poppy_kernel.cache_clear()
+    with pytest.raises(ImportError, match=r"lensdual\[psf\]"):
+        _render(sheet, None, psf="poppy")
+    _psf._poppy_kernel.cache_clear()
+    # the rest of the renderer works without poppy
+    assert _render(sheet, None).point_source_model[("L1", "F150W")].value.sum() > 0
+
+
+BIG = 8.0 * u.arcsec  # an uncropped stamp for compact profiles near the arc's centre
+
+
+def test_member_and_patch_add_the_flux_asked_for(sheet):
+    member = {"flux": 50 * u.nJy, "R_sersic": 0.1 * u.arcsec, "n_sersic": 1.0,
+              "arc": "L1", "offset": [0.3, -0.2] * u.arcsec}
+    patch = {"flux": 20 * u.nJy, "sigma": 0.1 * u.arcsec}
+    mocks = _render(sheet, None, flux=0.0, cutout_size=BIG, member=member, patch=patch)
+    total = mocks.image_plane_model[("L1", "F150W")].value.sum()
+    assert total == pytest.approx(70.0, rel=0.01)
+    only_patch = _render(sheet, None, flux=0.0, cutout_size=BIG, patch=patch)
+    model = only_patch.image_plane_model[("L1", "F150W")].value
+    assert model.sum() == pytest.approx(20.0, rel=1e-3)
+    # the patch is centred on the L1 image (the pair's, row 0)
+    _, centroid, _ = _moments(model, 0.04)
+    n = model.shape[0]
+    offset = THETA0 - (np.round(THETA0 / 0.04) - (n - 1) / 2) * 0.04
+    np.testing.assert_allclose(centroid, offset, atol=2e-3)
+    assert only_patch.pairs["patch1"].tolist() == [True]
+    assert only_patch.pairs["patch2"].tolist() == [False]
+    # a member dict per band
+    per_band = _render(sheet, None, flux=0.0, cutout_size=BIG, bands=["F150W", "F200W"],
+                       pairs=_two_band_pairs(),
+                       member={**member, "flux": {"F150W": 10 * u.nJy, "F200W": 30 * u.nJy}})
+    assert per_band.image_plane_model[("L1", "F200W")].value.sum() == pytest.approx(30, rel=0.01)
+
+
+def _two_band_pairs():
+    t = _pairs(0.0)
+    t["flux1_F200W"] = t["flux1_F150W"]
+    t["flux2_F200W"] = t["flux2_F150W"]
+    return t
+
+
+def test_icl_gradient(sheet):
+    sb, h = 300.0, 2.0
+    icl = {"surface_brightness": sb * u.nJy / u.arcsec ** 2, "scale_length": h * u.arcsec,
+           "direction": 90 * u.deg}
+    mocks = _render(sheet, None, flux=0.0, icl=icl)
+    model = mocks.image_plane_model[("L1", "F150W")].value
+    n, scale = model.shape[0], 0.04
+    # the integral of S0 exp((y - y_c) / h) over the cutout, in closed form
+    cen = np.round(THETA0 / scale) * scale
+    lo, hi = cen - (n / 2) * scale, cen + (n / 2) * scale
+    expected = sb * (hi[0] - lo[0]) * h * (np.exp((hi[1] - THETA0[1]) / h)
+                                           - np.exp((lo[1] - THETA0[1]) / h))
+    assert model.sum() == pytest.approx(expected, rel=1e-9)
+    # brighter by e per scale length along +y, flat along x
+    rows = model.mean(axis=1)
+    assert rows[-1] / rows[0] == pytest.approx(np.exp((n - 1) * scale / h), rel=1e-9)
+    np.testing.assert_allclose(model[:, 0], model[:, -1])
+    assert mocks.image_plane_model[("L2", "F150W")].value.max() == 0.0
+    # default direction: towards the lens centre (THETA0 has x > 0, y < 0)
+    toward = _render(sheet, None, flux=0.0, icl=True).image_plane_model[("L1", "F150W")].value
+    assert toward[0, -1] < toward[-1, 0]  # brighter at small x, large y (the centre's side)
+
+
+def test_patch_lies_under_exactly_the_chosen_image(analog):
+    system, pairs = analog
+    truth = pairs[[c for c in pairs.colnames if not c.startswith("snr")]]
+    mocks = render_mock_images(system, noise=False, host=False, pairs=truth,
+                               patch={"pair": 3})
+    assert np.flatnonzero(mocks.pairs["patch1"]).tolist() == [3]
+    assert not mocks.pairs["patch2"].any()
+    model = mocks.image_plane_model[("L1", "F150W")].value
+    # the patch's centroid is the chosen image, in pixels of the L1 cutout
+    yy, xx = np.mgrid[:model.shape[0], :model.shape[1]]
+    centroid = np.array([(model * xx).sum(), (model * yy).sum()]) / model.sum()
+    pix = mocks.truth_pixels("L1")
+    np.testing.assert_allclose(centroid, pix[3], atol=0.05)
+    assert np.argmin(np.hypot(*(pix - centroid).T)) == 3
+
+
+def test_clumps_stay_below_the_detection_threshold(analog):
+    from lensdual.detection import find_point_sources
+    from lensdual.simulation import MOCK_CLUMPS
+
+    system, pairs = analog
+    dark = pairs[[c for c in pairs.colnames if not c.startswith("snr")]]
+    for c in dark.colnames:
+        if c.startswith("flux"):
+            dark[c] = 0 * dark[c]
+    found = {}
+    for label, scale in (("default", 1.0), ("30x", 30.0)):
+        lo, hi = MOCK_CLUMPS["flux"]
+        clumps = {"flux": (lo * scale, hi * scale)}
+        mocks = render_mock_images(system, host=False, pairs=dark, seed=5, clumps=clumps)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            cat = find_point_sources(mocks.arc("L2"))
+        found[label] = 0 if cat is None else len(cat)
+        assert mocks.host_model[("L2", "F150W")].value.sum() > 0
+    assert found["default"] == 0
+    assert found["30x"] > 0  # the same clumps, brighter, are found: the check can fail
+
+
+@pytest.mark.parametrize(("kwargs", "error", "match"), [
+    ({"member": {"colour": 1}}, ValueError, "unknown key"),
+    ({"member": "yes"}, TypeError, "True, False, None or a dict"),
+    ({"member": {"flux": 5.0}}, TypeError, "Quantity"),
+    ({"member": {"flux": -1 * u.nJy}}, ValueError, ">= 0"),
+    ({"member": {"arc": "L3"}}, ValueError, "'L1' or 'L2'"),
+    ({"member": {"offset": [1, 2, 3] * u.arcsec}}, TypeError, "shape"),
+    ({"icl": {"scale_length": 0 * u.arcsec}}, ValueError, "> 0"),
+    ({"icl": {"surface_brightness": 1 * u.nJy}}, TypeError, "arcsec"),
+    ({"icl": {"direction": 1.0}}, TypeError, "angle"),
+    ({"patch": {"pair": 5}}, ValueError, "row of the pairs table"),
+    ({"clumps": {"flux": (1 * u.nJy, 0.5 * u.nJy)}}, ValueError, "low <= high"),
+    ({"clumps": {"sigma": 0.1 * u.arcsec}}, TypeError, "pair"),
+    ({"psf": {"F150W": "poppy"}, "bands": ["F150W", "F999W"]}, ValueError, "F999W"),
+])
+def test_bad_scene_parts(sheet, kwargs, error, match):
+    with pytest.raises(error, match=match):
+        _render(sheet, None, **kwargs)
+
+
+def test_hexagonal_psf_bad_input():
+    from lensdual.simulation import hexagonal_pupil_psf
+
+    with pytest.raises(ValueError, match="no wavelength"):
+        hexagonal_pupil_psf("F999W", 0.04 * u.arcsec)
+    with pytest.raises(ValueError, match="odd"):
+        hexagonal_pupil_psf("F150W", 0.04 * u.arcsec, supersampling=2)
+    with pytest.raises(TypeError, match="length"):
+        hexagonal_pupil_psf("F150W", 0.04 * u.arcsec, wavelength=2 * u.s)

@@ -27,17 +27,25 @@ from .._frames import tangent_to_sky
 from .._lens.model import LensModelBase
 from .._pairs_table import POSITION_COLUMNS, arc_xy, flux_col
 from .._validation import as_angle_scalar, as_int, as_positions, as_real
-from . import _clusters
+from . import _clusters, _psf, _scene
 from ._clusters import CLUSTER_RADIUS_RANGE, draw_cluster_radii
+from ._psf import HEX_PSF_WAVELENGTH, hexagonal_pupil_psf
+from ._scene import MOCK_CLUMPS, MOCK_ICL, MOCK_MEMBER, MOCK_PATCH
 from .lens_system import LensSystem
 
 __all__ = [
     "CLUSTER_RADIUS_RANGE",
     "DEFAULT_SKY_CENTER",
+    "HEX_PSF_WAVELENGTH",
+    "MOCK_CLUMPS",
     "MOCK_HOST",
+    "MOCK_ICL",
+    "MOCK_MEMBER",
+    "MOCK_PATCH",
     "PSF_FWHM",
     "MockImages",
     "draw_cluster_radii",
+    "hexagonal_pupil_psf",
     "lens_to_sky",
     "read_mock_images",
     "render_mock_images",
@@ -103,7 +111,7 @@ class MockImages(Mapping):
         The cutouts.
     pairs : `~astropy.table.QTable`, optional
         The truth table.
-    host_model, point_source_model : dict, optional
+    host_model, point_source_model, image_plane_model : dict, optional
         The noiseless components, keyed like ``images``.
 
     Attributes
@@ -119,9 +127,15 @@ class MockImages(Mapping):
         Per ``(arc, band)``, the noiseless lensed, PSF-convolved host and
         point sources (nJy per pixel, sky-subtracted). Empty when read back
         from files.
+    image_plane_model : dict of tuple to `~astropy.units.Quantity`
+        Per ``(arc, band)``, the noiseless light that is not lensed: the
+        cluster member, the intracluster light and the diffuse patch of
+        ``render_mock_images(member=..., icl=..., patch=...)`` (nJy per
+        pixel); zeros when there is none, empty when read back from files.
     """
 
-    def __init__(self, images, *, pairs=None, host_model=None, point_source_model=None):
+    def __init__(self, images, *, pairs=None, host_model=None, point_source_model=None,
+                 image_plane_model=None):
         self._images = dict(images)
         for key, image in self._images.items():
             if not (isinstance(key, tuple) and len(key) == 2
@@ -133,6 +147,7 @@ class MockImages(Mapping):
         self.pairs = pairs
         self.host_model = dict(host_model or {})
         self.point_source_model = dict(point_source_model or {})
+        self.image_plane_model = dict(image_plane_model or {})
 
     def __getitem__(self, key):
         return self._images[key]
@@ -445,8 +460,8 @@ class _BandPSF:
     kernel: np.ndarray  # the kernel given to lenstronomy, sampled at scale / supersampling
     supersampling: int  # the sub-pixels per pixel side of ``kernel``
     pixel_kernel: np.ndarray  # the kernel at the pixel scale (the cutout's ``psf``)
-    fwhm: float  # Gaussian-equivalent FWHM [arcsec]
-    kind: str  # "GAUSSIAN" (band default) or "USER"
+    fwhm: float  # Gaussian-equivalent FWHM [arcsec] (POPPY: of the azimuthal mean)
+    kind: str  # "GAUSSIAN" (band default), "USER" or "POPPY"
 
 
 @dataclass(frozen=True)
@@ -484,6 +499,19 @@ class _Scene:
     kwargs_host: dict | None  # lenstronomy Sérsic parameters without "amp"; None: no host
     host_amp: dict  # per band, the host's lenstronomy amplitude
     cov: np.ndarray | None = None  # (2N, 2, 2) image covariances of all_xy [arcsec^2]; None: points
+    clumps: list | None = None  # lenstronomy GAUSSIAN kwargs of the host's clumps; None: none
+    member: dict | None = None  # the checked member (_scene.member_params); None: none
+    icl: dict | None = None  # the checked ICL gradient; None: none
+    patch: dict | None = None  # the checked diffuse patch; None: none
+
+    @property
+    def has_image_plane_light(self):
+        """Whether a member, ICL or a patch is to be painted."""
+        return self.member is not None or self.icl is not None or self.patch is not None
+
+    def arc_centre(self, arc):
+        """The mean lens-frame position of the arc's images [arcsec]."""
+        return self.pos[arc].mean(axis=0)
 
 
 def _check_bands(bands):
@@ -515,7 +543,12 @@ def _band_psfs(psf, bands, scale, ss):
     for b in bands:
         user = psf[b] if isinstance(psf, Mapping) and b in psf else (
             None if isinstance(psf, Mapping) else psf)
-        if user is None:
+        if isinstance(user, str) and user == "poppy":
+            kernel = hexagonal_pupil_psf(b, scale * u.arcsec, supersampling=ss)
+            pixel_kernel = _psf.bin_kernel(kernel, ss)
+            fwhm = _psf.half_max_fwhm(kernel) * scale / ss
+            psfs[b] = _BandPSF(kernel, ss, pixel_kernel, fwhm, "POPPY")
+        elif user is None:
             if b not in PSF_FWHM:
                 raise ValueError(f"band {b!r} has no default PSF (known bands: "
                                  f"{sorted(PSF_FWHM)}); pass psf= for it")
@@ -589,12 +622,15 @@ def _host_kwargs(host_p, truth, system, xy_l1):
             "center_x": float(centre[0]), "center_y": float(centre[1])}
 
 
-def _make_scene(system, truth, bands, host_p, r_eff=None):
+def _make_scene(system, truth, bands, host_p, r_eff=None, extras=None):
     """The `_Scene` of the truth table and the host parameters (None: no host).
 
     With ``r_eff`` (not None) the point sources are finite-size clusters: the
     truth gains ``r_eff``, ``r_eff_angle`` and ``stretch1``, ``stretch2``.
+    ``extras`` holds the checked ``clumps`` (with their generator
+    ``clump_rng``), ``member``, ``icl`` and ``patch`` (each None when off).
     """
+    extras = extras or {}
     from lenstronomy.LightModel.light_model import LightModel
 
     pos = {arc: arc_xy(truth, arc) for arc in _ARCS}
@@ -606,13 +642,23 @@ def _make_scene(system, truth, bands, host_p, r_eff=None):
         kwargs_host = _host_kwargs(host_p, truth, system, pos["L1"])
         unit_flux = source_model.total_flux([{**kwargs_host, "amp": 1.0}])[0]
         host_amp = {b: host_p["flux"][b] / unit_flux for b in bands}
+    clumps = None
+    if extras.get("clumps") is not None:
+        if kwargs_host is None:  # clumps without the host's light: about its default centre
+            kwargs_host = _host_kwargs(_host_params(True, bands), truth, system, pos["L1"])
+            host_amp = dict.fromkeys(bands, 0.0)
+        centre = np.array([kwargs_host["center_x"], kwargs_host["center_y"]])
+        clumps = _scene.draw_clumps(extras["clumps"], centre, extras["clump_rng"])
+        source_model = LightModel(["SERSIC_ELLIPSE"] + ["GAUSSIAN"] * len(clumps))
     lens = _LensAdapter(system.lens_model, system.kwargs_lens)
     all_xy = np.vstack([pos[a] for a in _ARCS])
     cov = None
     if r_eff is not None:
         cov = _cluster_covariances(system, lens, truth, all_xy, r_eff)
     return _Scene(system=system, lens=lens, source_model=source_model, pos=pos, flux=flux,
-                  all_xy=all_xy, kwargs_host=kwargs_host, host_amp=host_amp, cov=cov)
+                  all_xy=all_xy, kwargs_host=kwargs_host, host_amp=host_amp, cov=cov,
+                  clumps=clumps, member=extras.get("member"), icl=extras.get("icl"),
+                  patch=extras.get("patch"))
 
 
 def _cluster_covariances(system, lens, truth, all_xy, r_eff):
@@ -640,11 +686,9 @@ def _arc_grid(settings, xy):
     return grid, cen, _tan_wcs(settings.sky_center, scale, origin)
 
 
-def _image_model(grid, band_psf, scene, ss):
-    """lenstronomy's ImageModel of one cutout and band."""
+def _psf_and_numerics(band_psf, ss):
+    """lenstronomy's PSF and ``kwargs_numerics`` of one band."""
     from lenstronomy.Data.psf import PSF
-    from lenstronomy.ImSim.image_model import ImageModel
-    from lenstronomy.PointSource.point_source import PointSource
 
     kernel, k_ss = band_psf.kernel, band_psf.supersampling
     lpsf = PSF(psf_type="PIXEL", kernel_point_source=kernel,
@@ -657,6 +701,15 @@ def _image_model(grid, band_psf, scene, ss):
                        "convolution_type": "fft"}
     if k_ss > 1:
         kwargs_numerics["supersampling_kernel_size"] = kernel.shape[0] // k_ss
+    return lpsf, kwargs_numerics
+
+
+def _image_model(grid, band_psf, scene, ss):
+    """lenstronomy's ImageModel of one cutout and band."""
+    from lenstronomy.ImSim.image_model import ImageModel
+    from lenstronomy.PointSource.point_source import PointSource
+
+    lpsf, kwargs_numerics = _psf_and_numerics(band_psf, ss)
     return ImageModel(grid, lpsf, lens_model_class=scene.lens,
                       source_model_class=scene.source_model,
                       point_source_class=PointSource(["LENSED_POSITION"],
@@ -669,8 +722,30 @@ def _host_image(model, scene, band, n):
     if scene.kwargs_host is None:
         return np.zeros((n, n))
     amp = scene.host_amp[band]
+    kwargs_source = [{**scene.kwargs_host, "amp": amp}] + list(scene.clumps or [])
     return np.asarray(model.source_surface_brightness(
-        [{**scene.kwargs_host, "amp": amp}], scene.system.kwargs_lens), dtype=np.float64)
+        kwargs_source, scene.system.kwargs_lens), dtype=np.float64)
+
+
+def _image_plane_image(settings, scene, arc, band, grid, cen):
+    """The member, the ICL and the patch on one cutout (nJy per pixel; not lensed)."""
+    from lenstronomy.ImSim.image_model import ImageModel
+    from lenstronomy.LightModel.light_model import LightModel
+
+    n = settings.n
+    out = np.zeros((n, n))
+    centres = {a: scene.arc_centre(a) for a in _ARCS}
+    profiles, kwargs = _scene.image_plane_kwargs(scene.member, scene.patch, centres,
+                                                 scene.pos, band)
+    if profiles:
+        lpsf, kwargs_numerics = _psf_and_numerics(settings.psfs[band], settings.supersampling)
+        model = ImageModel(grid, lpsf, lens_light_model_class=LightModel(profiles),
+                           kwargs_numerics=kwargs_numerics)
+        out += np.asarray(model.lens_surface_brightness(kwargs), dtype=np.float64)
+    if scene.icl is not None and scene.icl["arc"] == arc:
+        origin = cen - settings.half * settings.scale
+        out += _scene.icl_image(scene.icl, band, centres[arc], origin, settings.scale, n)
+    return out
 
 
 def _point_source_image(model, scene, settings, band, cen):
@@ -726,7 +801,8 @@ def _cutout_header(settings, arc, band, cen):
     meta["ARC"] = (arc, "arc of the fold pair")
     meta["PIXSCALE"] = (settings.scale, "pixel scale [arcsec]")
     meta["PSFFWHM"] = (band_psf.fwhm, "PSF FWHM (Gaussian-equivalent) [arcsec]")
-    meta["PSFTYPE"] = (band_psf.kind, "GAUSSIAN (band default) or USER")
+    meta["PSFTYPE"] = (band_psf.kind, "hexagonal pupil, by poppy" if band_psf.kind == "POPPY"
+                       else "GAUSSIAN (band default) or USER")
     meta["EXPTIME"] = (settings.exposure_time, "exposure time [s]")
     meta["SKYBKG"] = (settings.sky_background[band], "sky background [MJy/sr], subtracted")
     meta["RDNOISE"] = (settings.read_noise[band], "read noise per pixel [electron]")
@@ -770,7 +846,12 @@ def _render_cutout(settings, scene, arc, band, grid, cen, wcs, rng):
     else:
         clusters = _cluster_images(scene, settings, band, cen)
         ps_img = sum(clusters.values(), np.zeros((settings.n, settings.n)))
-    clean = np.clip(host_img + ps_img, 0.0, None)
+    if scene.has_image_plane_light:
+        ip_img = _image_plane_image(settings, scene, arc, band, grid, cen)
+        clean = np.clip(host_img + ps_img + ip_img, 0.0, None)
+    else:
+        ip_img = np.zeros((settings.n, settings.n))
+        clean = np.clip(host_img + ps_img, 0.0, None)
     data, sigma = _add_noise(clean, settings, band, rng)
     if scene.cov is None:
         snr = _optimal_snr(model, scene, settings, arc, band, cen, sigma)
@@ -779,7 +860,7 @@ def _render_cutout(settings, scene, arc, band, grid, cen, wcs, rng):
     image = CCDData(data, unit=_IMAGE_UNIT, uncertainty=StdDevUncertainty(sigma),
                     wcs=wcs.deepcopy(), meta=_cutout_header(settings, arc, band, cen),
                     psf=settings.psfs[band].pixel_kernel.copy())
-    return image, host_img, ps_img, snr
+    return image, host_img, ps_img, ip_img, snr
 
 
 def render_mock_images(system, *, bands=("F150W", "F200W"), pixel_scale=0.04 * u.arcsec,
@@ -787,7 +868,8 @@ def render_mock_images(system, *, bands=("F150W", "F200W"), pixel_scale=0.04 * u
                        exposure_time=10.0 * u.ks, sky_background=0.2 * u.MJy / u.sr,
                        read_noise=10.0 * u.electron, zero_point=28.0, noise=True,
                        pairs=None, intrinsic_flux=None, supersampling=5,
-                       sky_center=DEFAULT_SKY_CENTER, seed=None, r_eff=None):
+                       sky_center=DEFAULT_SKY_CENTER, seed=None, r_eff=None, clumps=None,
+                       member=None, icl=None, patch=None):
     r"""Mock images of the fold pair of arcs: one cutout per arc and band.
 
     Each cutout is centred on one arc of the constellation's fold pair (the
@@ -821,10 +903,14 @@ def render_mock_images(system, *, bands=("F150W", "F200W"), pixel_scale=0.04 * u
     psf : None, array, str, `~pathlib.Path` or dict
         None: a Gaussian of the band's FWHM in :data:`PSF_FWHM`
         (integrated over (sub-)pixels; a band not in the table raises
-        ValueError). A 2-D array or the path of a FITS file (first HDU with
-        data): the PSF at the pixel scale, i.e. not supersampled, square,
-        odd-sized, centred on its central pixel, non-negative; it is
-        normalised to sum 1. A dict gives one of these per band.
+        ValueError). ``"poppy"``: the JWST-like PSF with diffraction spikes
+        of :func:`hexagonal_pupil_psf` (a hexagonal segmented pupil with
+        struts, at the band's wavelength in :data:`HEX_PSF_WAVELENGTH`,
+        sampled at the sub-pixels; needs poppy, the ``psf`` extra). A 2-D
+        array or the path of a FITS file (first HDU with data): the PSF at
+        the pixel scale, i.e. not supersampled, square, odd-sized, centred
+        on its central pixel, non-negative; it is normalised to sum 1. A
+        dict gives one of these per band.
     host : bool, None or dict
         True: the default host :data:`MOCK_HOST`; False or None: no host; a
         dict overrides keys of :data:`MOCK_HOST`: ``flux`` (unlensed total
@@ -876,14 +962,39 @@ def render_mock_images(system, *, bands=("F150W", "F200W"), pixel_scale=0.04 * u
         ``stretch2`` (the largest singular value of the inverse lens
         Jacobian at each image: how much the cluster is stretched along
         its arc).
+    clumps : bool, None or dict
+        True: faint clumps of the host galaxy (:data:`MOCK_CLUMPS`), round
+        Gaussians in the source plane ray-traced with the host, each below
+        the detection threshold; a dict overrides keys of
+        :data:`MOCK_CLUMPS` (``n``, ``flux`` and ``sigma`` ranges,
+        ``spread``). Their draw has a generator of its own (spawned from
+        ``seed``), so the noise is the same with and without them.
+    member : bool, None or dict
+        True: the light of a cluster member near one arc
+        (:data:`MOCK_MEMBER`: a Sérsic in the image plane, not lensed,
+        PSF-convolved); a dict overrides keys (``flux``, a Quantity or a
+        dict per band, ``R_sersic``, ``n_sersic``, ``e1``, ``e2``, ``arc``,
+        ``offset`` from the arc's centre).
+    icl : bool, None or dict
+        True: an intracluster-light gradient on one arc's cutouts
+        (:data:`MOCK_ICL`: exponential in the image plane); a dict
+        overrides keys (``surface_brightness`` at the arc's centre,
+        ``scale_length``, ``arc``, ``direction``).
+    patch : bool, None or dict
+        True: a faint extended Gaussian in the image plane under one image
+        of one pair (:data:`MOCK_PATCH`: row 0's L1 image); a dict
+        overrides keys (``flux``, ``sigma``, ``pair``, a row of the pairs
+        table, ``arc``). The truth table gains the boolean columns
+        ``patch1`` and ``patch2`` (True for the image under the patch).
 
     Returns
     -------
     images : `MockImages`
         A mapping ``{(arc, band): CCDData}`` for arcs ``"L1"`` and ``"L2"``
         with the truth table in ``images.pairs`` (with the SNR columns) and
-        the noiseless components in ``images.host_model`` and
-        ``images.point_source_model``. Each `~astropy.nddata.CCDData` has
+        the noiseless components in ``images.host_model`` (with the
+        clumps), ``images.point_source_model`` and
+        ``images.image_plane_model`` (member, ICL, patch). Each `~astropy.nddata.CCDData` has
         ``unit`` nJy (flux per pixel: sums over pixels are fluxes), a
         `~astropy.nddata.StdDevUncertainty`, a TAN ``wcs``, the pixel-scale
         PSF in ``psf`` and ``meta`` (a FITS header) with ``BAND``, ``ARC``,
@@ -901,7 +1012,11 @@ def render_mock_images(system, *, bands=("F150W", "F200W"), pixel_scale=0.04 * u
     ValueError
         A band without PSF, a bad PSF (not 2-D, not square and odd-sized,
         negative or non-finite), bad ``pairs`` columns or out-of-range
-        values (also a negative ``r_eff``, or one of the wrong length).
+        values (also a negative ``r_eff``, or one of the wrong length; an
+        unknown key of ``clumps``, ``member``, ``icl`` or ``patch``, or a
+        ``patch`` pair outside the table).
+    ImportError
+        ``psf="poppy"`` without poppy installed.
 
     Notes
     -----
@@ -944,7 +1059,9 @@ def render_mock_images(system, *, bands=("F150W", "F200W"), pixel_scale=0.04 * u
 
     Only the point-source images on the fold pair of arcs are painted
     (other images of the constellation, e.g. near the tangential critical
-    curve, are far outside the cutouts) and there is no lens light.
+    curve, are far outside the cutouts); the only lens light is that of
+    ``member`` and ``icl``. See ``lensdual/simulation/_scene.py`` for the
+    clumps, the member, the ICL and the patch.
     """
     if not isinstance(system, LensSystem):
         raise TypeError(f"system must be a LensSystem, got {type(system).__name__}")
@@ -954,24 +1071,36 @@ def render_mock_images(system, *, bands=("F150W", "F200W"), pixel_scale=0.04 * u
         zero_point=zero_point, noise=noise, supersampling=supersampling, sky_center=sky_center)
     rng = np.random.default_rng(seed)
     host_p = _host_params(host, settings.bands)
+    extras = {"clumps": _scene.clump_params(clumps),
+              "member": _scene.member_params(member, settings.bands),
+              "icl": _scene.icl_params(icl, settings.bands)}
     truth = _truth_table(system, settings.bands, pairs, intrinsic_flux, rng)
-    scene = _make_scene(system, truth, settings.bands, host_p, r_eff)
+    extras["patch"] = _scene.patch_params(patch, settings.bands, len(truth))
+    if extras["clumps"] is not None:
+        # spawning leaves rng's stream (the noise) as it is
+        extras["clump_rng"] = rng.spawn(1)[0]
+    scene = _make_scene(system, truth, settings.bands, host_p, r_eff, extras)
+    if scene.patch is not None:
+        for k, arc in enumerate(_ARCS, start=1):
+            truth[f"patch{k}"] = (np.arange(len(truth)) == scene.patch["pair"]) \
+                & (scene.patch["arc"] == arc)
 
-    images, host_models, ps_models, snr = {}, {}, {}, {}
+    images, host_models, ps_models, ip_models, snr = {}, {}, {}, {}, {}
     for arc in _ARCS:
         grid, cen, wcs = _arc_grid(settings, scene.pos[arc])
         for b in settings.bands:
             key = (arc, b)
-            images[key], host_img, ps_img, snr[key] = _render_cutout(
+            images[key], host_img, ps_img, ip_img, snr[key] = _render_cutout(
                 settings, scene, arc, b, grid, cen, wcs, rng)
             host_models[key] = host_img * _IMAGE_UNIT
             ps_models[key] = ps_img * _IMAGE_UNIT
+            ip_models[key] = ip_img * _IMAGE_UNIT
 
     for b in settings.bands:
         truth[f"snr1_{b}"] = snr[("L1", b)]
         truth[f"snr2_{b}"] = snr[("L2", b)]
     return MockImages(images, pairs=truth, host_model=host_models,
-                      point_source_model=ps_models)
+                      point_source_model=ps_models, image_plane_model=ip_models)
 
 
 # ---------------------------------------------------------------------------
