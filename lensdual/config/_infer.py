@@ -307,7 +307,8 @@ class _InferenceValidator(_Validator):
         if "family" in table and "z_source" in table:
             self.add(f"[{sec}] z_source: a family has its own redshifts; give z_source with "
                      "lenstool only")
-        model = self.lenstool_model(lenstool, z_source, sec, table)
+        model = None if "family" in table else self.lenstool_model(lenstool, z_source, sec,
+                                                                   table)
         family_ok = self.family(family, sec)
         tab = self.pairs_table(pairs, sec) if _valid(pairs) and pairs is not None else None
         if tab is not None and model is not None:
