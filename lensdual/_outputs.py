@@ -45,6 +45,8 @@ ANALYSIS_OUTPUTS = ("pairs.ecsv", "catalog_L1.ecsv", "catalog_L2.ecsv", "pairing
                     "sources_L2.reg", "constellation.png")
 #: The files of the parametric comparison.
 PARAMETRIC_OUTPUTS = ("parametric.ecsv", "parametric.png")
+#: The files of ``lensdual infer``.
+INFERENCE_OUTPUTS = ("posterior.ecsv", "posterior.png", "report.txt")
 #: The fixed names of a catalogue-only (knots) run.
 KNOT_OUTPUTS = ("knot_images.ecsv", "report.txt")
 #: A temporary directory whose process is gone is removed after this long when

@@ -1,11 +1,14 @@
-"""The ``lensdual`` command line: ``lensdual demo`` and ``lensdual run CONFIG.toml``.
+"""The ``lensdual`` command line: ``lensdual demo``, ``lensdual run CONFIG.toml`` and
+``lensdual infer CONFIG.toml``.
 
 ``lensdual demo`` simulates the SMACS0723 analogue of the paper (two cluster
 members and one sub-halo on the L2 image of one point source; see
 :mod:`lensdual.demo`), renders two-band mock images and analyses them with the
 real-data pipeline, knowing nothing of the truth until it compares its results
 with it at the end. ``lensdual run`` runs the same pipeline on the FITS images
-named in a TOML configuration file (see :mod:`lensdual.config`).
+named in a TOML configuration file (see :mod:`lensdual.config`). ``lensdual
+infer`` turns the pairs tables of such runs, each with its smooth lens, into a
+posterior on the sub-halo abundance (:mod:`lensdual.inference`).
 
 The pipeline itself, for both, is :func:`lensdual.pipeline.analyse`, which a
 Python user calls directly; this module only parses the command line, reads
@@ -27,6 +30,7 @@ from pathlib import Path
 # The pipeline and the demo live in lensdual.pipeline and lensdual.demo.
 from ._outputs import (
     ANALYSIS_OUTPUTS,
+    INFERENCE_OUTPUTS,
     KNOT_OUTPUTS,
     PAIRS_TABLE_COLUMNS_DOC,
     PARAMETRIC_OUTPUTS,
@@ -264,6 +268,53 @@ def _cmd_run(args):
                    removed=removed)
 
 
+@contextmanager
+def _thread_pool(threads):
+    """A thread pool of ``threads`` workers for the forward model, or None for one."""
+    if threads <= 1:
+        yield None
+        return
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(threads) as pool:
+        yield pool
+
+
+def _cmd_infer(args):
+    from ._inference_run import format_inference_report, run_inference, write_inference
+    from .config import ConfigError, load_inference_config
+
+    start = time.perf_counter()
+    try:
+        config = load_inference_config(args.config, outdir=args.outdir)
+    except ConfigError as err:
+        print(f"lensdual infer: {err}", file=sys.stderr)
+        return EXIT_USAGE
+    try:
+        check_output_directory(config.outdir, INFERENCE_OUTPUTS)
+    except OSError as err:
+        print(f"lensdual infer: {err}", file=sys.stderr)
+        return EXIT_FAILED
+    steps = []
+    for spec in config.systems:
+        steps.append(f"forward model {spec.name}")
+        if config.weight == "composite":
+            steps.append(f"composite weight {spec.name}")
+    steps += ["posterior", "write"]
+    progress = _Progress(steps, args, desc="lensdual infer")
+    removed = []
+    try:
+        with _thread_pool(args.threads) as pool:
+            run = run_inference(config, client=pool, progress=progress)
+        report = format_inference_report(run.posterior, title=Path(args.config).stem)
+        with atomic_directory(config.outdir, removed) as tmp, progress.step("write outputs"):
+            write_inference(run, tmp, report)
+    except (*_FAILURES, ImportError) as err:
+        return _finish(args, "infer", progress, start, error=err)
+    return _finish(args, "infer", progress, start, report=report, outdir=config.outdir,
+                   removed=removed)
+
+
 def _analyse_knot_config(config):
     """`~lensdual.pipeline.analyse_knots` on the ``[knots]`` section of a run configuration."""
     spec = config.knots
@@ -336,6 +387,27 @@ def _config_schema():
             + textwrap.dedent(doc[knots:knots_end]))
 
 
+def _inference_example():
+    """The keys of a ``lensdual infer`` file, their meaning and defaults, for its help."""
+    import textwrap
+
+    from .config import INFERENCE_FIELDS
+
+    lines, table = [], None
+    for f in INFERENCE_FIELDS:
+        if f.table != table:
+            table = f.table
+            lines.append("[[inference.system]] (one per constellation)"
+                         if table == "inference.system" else f"[{table}]")
+        kind = f"{f.type} {f.bounds()}" if f.choices is None else f.type
+        text = f"{f.key} ({kind.strip()}; default {f.shown_default()}): {f.doc}"
+        if f.choices is not None:
+            text += f"; one of {f.bounds()}"
+        lines += textwrap.wrap(text, 88, initial_indent="  ", subsequent_indent="      ")
+    return "\n".join(lines) + ("\n\n[output] outdir is as for 'lensdual run' (default "
+                              "lensdual-inference).")
+
+
 def _add_output_options(parser):
     """--progress and --quiet, common to every command."""
     parser.add_argument("--progress", action="store_true",
@@ -352,7 +424,7 @@ def build_parser():
     Returns
     -------
     `argparse.ArgumentParser`
-        The parser, with the ``demo`` and ``run`` sub-commands.
+        The parser, with the ``demo``, ``run`` and ``infer`` sub-commands.
     """
     from . import __version__
     from .estimators import METHODS
@@ -455,6 +527,33 @@ def build_parser():
                      help="output directory (overrides [output] outdir of the file)")
     _add_output_options(run)
     run.set_defaults(func=_cmd_run)
+
+    infer = sub.add_parser(
+        "infer", help="a posterior on the sub-halo abundance from analysed constellations",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="Turn the pairs tables of analysed constellations (pairs.ecsv of "
+                    "'lensdual run'), each with its smooth lens (a Lenstool best.par, or a "
+                    "lens family for mocks), into a posterior on pyHalo's sub-halo "
+                    "abundance sigma_sub: the forward model of every pair's flux anomaly "
+                    "under a CDM or WDM population on a grid of abundances, each system's "
+                    "composite-likelihood weight, and the posterior under a log-uniform "
+                    "prior (see the docs page 'What the flags say about dark matter'). The "
+                    "file is checked before any work starts (exit code 2 and nothing "
+                    "written on a problem). Writes posterior.ecsv (the posterior, its "
+                    "median and intervals in the metadata, and every system's), "
+                    "posterior.png and report.txt, replacing only files that lensdual wrote "
+                    "there and nobody changed since.",
+        epilog="The configuration file (relative paths are relative to it):\n\n"
+               + _inference_example())
+    infer.add_argument("config", type=Path, help="the TOML configuration file")
+    infer.add_argument("--outdir", type=Path, default=None,
+                       help="output directory (overrides [output] outdir of the file; "
+                            "default lensdual-inference beside the file)")
+    infer.add_argument("--threads", type=_int_range(1), default=1,
+                       help="threads of the forward model (the result does not depend on "
+                            "them)")
+    _add_output_options(infer)
+    infer.set_defaults(func=_cmd_infer)
     return parser
 
 

@@ -730,6 +730,8 @@ def test_bounds_from_the_schema(data_dir, field):
 def _doc_table(doc):
     """{key name: (type, default)} of the list-table of keys in ``doc``."""
     block = doc[doc.index(".. list-table::"):]
+    if ".. rubric:: The keys of lensdual infer" in block:  # lensdual infer's table follows
+        block = block[:block.index(".. rubric:: The keys of lensdual infer")]
     rows = re.findall(r"^   \* - (.*)\n     - (.*)\n     - (.*)\n     - (.*)$", block, re.M)
     return {name: (kind, shown) for name, kind, shown, _ in rows[1:]}
 

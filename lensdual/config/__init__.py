@@ -119,7 +119,8 @@ table is.
 from . import _schema
 from ._core import *  # noqa: F403
 from ._core import __all__ as _core_all
-from ._schema import FIELDS, Field, schema_table
+from ._infer import InferenceConfig, InferenceSystemSpec, load_inference_config
+from ._schema import FIELDS, INFERENCE_FIELDS, Field, schema_table
 from ._writer import format_config, write_config
 
 # The modules of the package (all private; everything public is imported here):
@@ -129,12 +130,29 @@ from ._writer import format_config, write_config
 #   load_images, band_psfs;
 # * ``_fits``: what is read in FITS files (HDUs, WCS and grids, units, error and
 #   weight maps, sky noise, PSF images);
+# * ``_infer``: load_inference_config (``lensdual infer``) and its specification classes;
 # * ``_values``: angles, sky positions and units, and the words of the messages;
 # * ``_writer``: format_config and write_config.
 
-__all__ = [*_core_all, "format_config", "write_config", "Field", "FIELDS", "schema_table"]
+__all__ = [*_core_all, "InferenceConfig", "InferenceSystemSpec", "load_inference_config",
+           "format_config", "write_config", "Field", "FIELDS", "INFERENCE_FIELDS",
+           "schema_table"]
+
+_INFERENCE_DOC = """
+.. rubric:: The keys of lensdual infer
+
+``lensdual infer CONFIG.toml`` turns analysed constellations into a posterior
+on the sub-halo abundance (:mod:`lensdual.inference`; the docs page "What the
+flags say about dark matter" has an example file).
+:func:`load_inference_config` reads its file: an optional ``[output]`` table
+(``outdir``, default ``lensdual-inference``), an ``[inference]`` table and one
+``[[inference.system]]`` table per constellation. Made from
+``INFERENCE_FIELDS`` by :func:`schema_table`.
+
+"""
 
 # The keys of [output] and [analysis] in the example, and the table of keys, come from
 # the schema (lensdual run --help prints the example).
 __doc__ = (__doc__.replace("@output@", _schema.example("output"))
-           .replace("@analysis@", _schema.example("analysis")) + schema_table())
+           .replace("@analysis@", _schema.example("analysis")) + schema_table()
+           + _INFERENCE_DOC + schema_table(INFERENCE_FIELDS))

@@ -19,13 +19,16 @@ from astropy import units as u
 
 from ..duality import DEFAULT_SNR_THRESHOLD, DEFAULT_TEST, TESTS
 from ..estimators import DEFAULT_METHOD, DEFAULT_N_BOOTSTRAP, METHODS
+from ..inference import MIN_REALISATIONS, MODELS
 from ..pairing import DEFAULT_MAX_MAGNIFICATION
 from ..parametric.fitting import DEFAULT_MODEL
 from ..pipeline import DEFAULT_SEED
+from ..simulation.families import FAMILIES
 from ._writer import _toml_string, _toml_value
 
 __all__ = ["Field", "FIELDS", "TABLES", "REQUIRED", "MIN_NULL_REALISATIONS", "table_keys",
-           "field", "default", "keys", "example", "schema_table"]
+           "field", "default", "keys", "example", "schema_table", "INFERENCE_FIELDS",
+           "INFERENCE_TABLES", "INFERENCE_OUTDIR", "INFERENCE_SYSTEM", "inference_field"]
 
 #: The arcs of a run, in order.
 _ARCS = ("L1", "L2")
@@ -311,7 +314,80 @@ FIELDS = (
        'the position error: "auto" (per pair of macro-images, from the residuals) or an angle'),
 )
 
+#: The default output directory of ``lensdual infer`` (its ``[output] outdir``).
+INFERENCE_OUTDIR = "lensdual-inference"
+#: The schema's name of the tables of the ``[[inference.system]]`` array.
+INFERENCE_SYSTEM = "inference.system"
+
+#: The keys of a ``lensdual infer`` configuration: ``[output]`` (as `FIELDS`, with
+#: the default `INFERENCE_OUTDIR`), ``[inference]`` and every table of the
+#: ``[[inference.system]]`` array.
+INFERENCE_FIELDS = (
+    _F("inference", "model", "string", "CDM",
+       'the dark-matter model of the sub-haloes (lensdual.inference.MODELS)',
+       choices=tuple(MODELS)),
+    _F("inference", "log_mhm", "real", None,
+       'log10 of the WDM half-mode mass [Msun]; required with model = "WDM", not with "CDM"'),
+    _F("inference", "log_m_host", "real", 15.0,
+       "log10 of the host halo's mass [Msun] (pyHalo's host scaling of sigma_sub)"),
+    _F("inference", "sigma_sub", "[min, max]", (1e-3, 0.3),
+       "the bounds of the abundance grid and of its log-uniform prior, kpc^-2 "
+       "(0 < min < max)", shown="[0.001, 0.3]", note="kpc^-2: the prior's bounds"),
+    _F("inference", "n_sigma_sub", "integer", 30,
+       'abundances of the grid, log-spaced (>= 5 with weight = "composite")', minimum=2),
+    _F("inference", "n_realisations", "integer", 1000,
+       "realisations of the population per abundance and image", minimum=MIN_REALISATIONS),
+    _F("inference", "seed", "integer", 0, "seed of the realisations and the mocks", minimum=0),
+    _F("inference", "weight", '"composite" or real', "composite",
+       'each system\'s composite-likelihood weight: "composite" (measured on mocks of the '
+       "constellation, lensdual.inference.composite_weight) or a number in (0, 1] "
+       "(1: the pairs' errors independent)",
+       note='"composite" (by simulation) or a number in (0, 1]'),
+    _F("inference", "n_mocks", "integer", 100,
+       'mock universes of each composite weight (weight = "composite")', minimum=20),
+
+    _F(INFERENCE_SYSTEM, "name", "string", None,
+       "the system's name in the report and the posterior's metadata",
+       shown="the pairs file's stem (its folder's name for pairs.ecsv)"),
+    _F(INFERENCE_SYSTEM, "pairs", "file", REQUIRED,
+       "the analysed constellation: the pairs.ecsv of lensdual run (or any check_duality "
+       "result written as ECSV)"),
+    _F(INFERENCE_SYSTEM, "lenstool", "file", None,
+       "the smooth lens: a Lenstool parameter file (best.par); the pairs are placed in its "
+       "frame by their sky1, sky2 columns (else x, y about meta['reference']); not with "
+       "family"),
+    _F(INFERENCE_SYSTEM, "family", "string", None,
+       "the smooth lens of a mock: a lens family of lensdual.simulation.FAMILIES, the pairs "
+       "in its frame; not with lenstool", choices=tuple(FAMILIES)),
+    _F(INFERENCE_SYSTEM, "z_source", "real", None,
+       "the source redshift, > the model's z_lens; required with lenstool (a family has "
+       "its own)", above=0),
+    _F(INFERENCE_SYSTEM, "sigma_pos", "angle", None,
+       "the position error of the composite weight's mocks",
+       shown="the table's (its duality test's, else the median pos_err)"),
+    _F(INFERENCE_SYSTEM, "flux_rel_err", "real", None,
+       "the relative flux error of the composite weight's mocks", above=0,
+       shown="the table's median flux_err / flux"),
+    _F(INFERENCE_SYSTEM, "radius", "angle", None,
+       "the radius of the disc of sub-haloes around every image",
+       shown="per arc, the median nearest-neighbour separation"),
+)
+
 del _F
+
+#: The top-level tables of a ``lensdual infer`` configuration.
+INFERENCE_TABLES = ("output", "inference")
+
+_BY_NAME_INFERENCE = {(f.table, f.key): f for f in INFERENCE_FIELDS}
+
+
+def inference_field(table, key):
+    """The `Field` of ``key`` in ``table`` of a ``lensdual infer`` configuration
+    (``"output"``, ``"inference"`` or `INFERENCE_SYSTEM`)."""
+    if table == "output":
+        return _BY_NAME[(table, key)]
+    return _BY_NAME_INFERENCE[(table, key)]
+
 
 #: The top-level tables, in order.
 TABLES = ("output", "analysis", "bands", "arcs", "catalogs", "pairing", "parametric", "knots")
@@ -364,8 +440,14 @@ def _cell(text):
     return text.replace("*", r"\*").replace("|", r"\|")
 
 
-def schema_table():
+def schema_table(fields=None):
     """The keys of the configuration as a reStructuredText table, from `FIELDS`.
+
+    Parameters
+    ----------
+    fields : sequence of `Field`, optional
+        The keys of the table; default `FIELDS` (``lensdual run``), e.g.
+        `INFERENCE_FIELDS` for ``lensdual infer``.
 
     Returns
     -------
@@ -375,7 +457,7 @@ def schema_table():
     """
     lines = [".. list-table::", "   :header-rows: 1", "   :widths: 28 20 20 32", "",
              "   * - Key", "     - Type", "     - Default", "     - Meaning"]
-    for f in FIELDS:
+    for f in FIELDS if fields is None else fields:
         bounds = f.bounds()
         kind = f"{f.type} {bounds}" if f.minimum is not None or f.above is not None else f.type
         meaning = f"{f.doc}; one of {bounds}" if f.choices else f.doc

@@ -266,7 +266,8 @@ def composite_weight(pairs, lens, simulation, *, sigma_pos, flux_rel_err, n_mock
     Returns
     -------
     weight : float
-        :math:`\min(1, H / J)`.
+        :math:`\min(1, H / J)`, over the mocks with a tested pair (1 when
+        fewer than two have one).
     """
     from .. import check_duality
     from .._validation import as_int
@@ -295,6 +296,8 @@ def composite_weight(pairs, lens, simulation, *, sigma_pos, flux_rel_err, n_mock
             warnings.simplefilter("ignore", EstimatorWarning)
             result = check_duality(noisy, sigma_pos=sigma_pos, seed=int(rng.integers(2**31)),
                                    **check_kwargs)
+        if not np.asarray(result["tested"], dtype=bool).any():
+            continue  # a mock without a tested pair has a flat likelihood: no slope to measure
         lls.append(_system_log_likelihood(result, simulation)[0])
         truths.append(np.log10(truth))
     return _magnitude_weight(log_grid, np.array(lls), np.array(truths))
