@@ -90,11 +90,11 @@ def _in_lens_frame(spec):
         return (spec.table, lens, info["z_lens"], info["z_source"],
                 getattr(lens, "cosmology", None), f"lens family {spec.family}")
     from .parametric import read_lenstool
-    from .parametric.comparison import _frame_reference, _in_lenstool_frame, _sky_positions
+    from .parametric._frame import frame_reference, in_lenstool_frame, sky_positions
 
     model = read_lenstool(spec.lenstool)
-    sky = _sky_positions(spec.table, _frame_reference(spec.table, None))
-    tab = _in_lenstool_frame(spec.table, model, sky)
+    sky = sky_positions(spec.table, frame_reference(spec.table, None))
+    tab = in_lenstool_frame(spec.table, model, sky)
     return (tab, model, float(model.z_lens), spec.z_source, model.cosmology,
             f"Lenstool model {spec.lenstool.name}")
 
@@ -109,9 +109,9 @@ def clean_pairs(tab, lens, population, flux_rel_err):
     ``F / |det A|``. Pairs without a finite positive flux in every band are
     left out. The flux errors are ``flux_rel_err`` times the fluxes.
     """
-    from .inference._forward import _as_lens
+    from .inference._forward import as_lens
 
-    lens = _as_lens(lens, population)
+    lens = as_lens(lens, population)
     xy = [u.Quantity(tab[c], u.arcsec) for c in ("x1", "y1", "x2", "y2")]
     det1 = np.abs(np.linalg.det(np.asarray(lens.jacobian(np.column_stack(xy[:2])), float)))
     det2 = np.abs(np.linalg.det(np.asarray(lens.jacobian(np.column_stack(xy[2:])), float)))
@@ -286,7 +286,7 @@ def write_inference(run, directory, report_text):
     """posterior.ecsv, posterior.png and report.txt of ``lensdual infer``."""
     import matplotlib.pyplot as plt
 
-    from ._outputs import _save_figure, write_table
+    from ._outputs import save_figure, write_table
     from .visualization import plot_abundance_posterior
 
     posterior = run.posterior
@@ -300,6 +300,6 @@ def write_inference(run, directory, report_text):
                  f"{posterior.meta['inference']['n_pairs']} tested pairs", fontsize=9)
     fig = ax.figure
     fig.tight_layout()
-    _save_figure(fig, directory / "posterior.png", 120)
+    save_figure(fig, directory / "posterior.png", 120)
     plt.close("all")
     (directory / "report.txt").write_text(report_text + "\n")

@@ -294,7 +294,7 @@ def write_table(table, path):
     table.write(path, format="ascii.ecsv", overwrite=True)
 
 
-def _save_figure(fig, path, dpi):
+def save_figure(fig, path, dpi):
     """Write ``fig`` to ``path`` and close it."""
     import matplotlib.pyplot as plt
 
@@ -306,11 +306,11 @@ def write_figures(analysis, directory, *, title, images=None):
     """The pairing map, the duality figure and (with ``images``) the pairs on both arcs."""
     from .visualization._run import constellation_figure, duality_figure, pairing_map_figure
 
-    _save_figure(pairing_map_figure(analysis, title), directory / "pairing_map.png", 120)
+    save_figure(pairing_map_figure(analysis, title), directory / "pairing_map.png", 120)
     if images is not None:
-        _save_figure(constellation_figure(analysis, images, title),
+        save_figure(constellation_figure(analysis, images, title),
                      directory / "constellation.png", 110)
-    _save_figure(duality_figure(analysis, title), directory / "duality.png", 120)
+    save_figure(duality_figure(analysis, title), directory / "duality.png", 120)
 
 
 def write_regions(analysis, directory):
@@ -388,7 +388,7 @@ def parametric_outputs(analysis, directory, *, lenstool=None, fit=False, model=N
         kwargs["model"] = tuple(model)
     table, fig = parametric_comparison(analysis.result, **kwargs)
     write_table(table, directory / "parametric.ecsv")
-    _save_figure(fig, directory / "parametric.png", 120)
+    save_figure(fig, directory / "parametric.png", 120)
     return table
 
 
@@ -443,7 +443,7 @@ def write_knot_figure(table, path):
     """``mu_size`` against the models' ratios of one knot table, as a PNG."""
     from .visualization._run import knot_figure
 
-    _save_figure(knot_figure(table), path, 120)
+    save_figure(knot_figure(table), path, 120)
 
 
 

@@ -127,7 +127,13 @@ class InferenceConfig:
         return np.geomspace(*self.sigma_sub, self.n_sigma_sub) / u.kpc**2
 
     def input_files(self):
-        """Every file the run reads: the configuration, pairs tables and Lenstool files."""
+        """Every file the run reads: the configuration, pairs tables and Lenstool files.
+
+        Returns
+        -------
+        list of `~pathlib.Path`
+            Absolute paths, each once, the configuration file first.
+        """
         files = [self.path]
         for s in self.systems:
             files += [s.pairs, s.lenstool]

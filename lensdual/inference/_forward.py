@@ -84,7 +84,7 @@ def _as_sigma_grid(sigma_sub):
     return s
 
 
-def _as_lens(lens, population):
+def as_lens(lens, population):
     """A LensSystem at the population's redshifts (LenstoolModel: its lens_system)."""
     if hasattr(lens, "lens_system") and not hasattr(lens, "jacobian"):
         lens = lens.lens_system(population.z_source)
@@ -270,7 +270,7 @@ def _simulate(pairs, lens, population, sigma, n_real, radii, seed, client):
     if not isinstance(population, SubhaloPopulation):
         raise TypeError(f"population must be a SubhaloPopulation, got "
                         f"{type(population).__name__}")
-    lens = _as_lens(lens, population)
+    lens = as_lens(lens, population)
     xy1, xy2 = _positions(pairs)
     if radii is None:
         if len(pairs) < 2:

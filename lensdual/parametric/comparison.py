@@ -14,11 +14,12 @@ from astropy import units as u
 from astropy.coordinates import SkyCoord
 from astropy.table import QTable, Table
 
-from .._frames import tangent_to_sky, tangent_xy
+from .._frames import tangent_xy
 from .._pairs_table import POS_ERR_COLUMNS, POSITION_COLUMNS
 from .._validation import as_real
 from ..duality import DEFAULT_SNR_THRESHOLD
 from ..visualization._parametric import plot_parametric_comparison
+from ._frame import frame_reference, in_lenstool_frame, sky_positions, with_positions
 from .fitting import DEFAULT_MODEL, compare_with_parametric, fit_parametric_lens
 from .lenstool import LenstoolModel, read_lenstool
 
@@ -27,26 +28,8 @@ __all__ = ["parametric_comparison"]
 _POSITIONS = POSITION_COLUMNS
 
 
-def _sky_positions(tab, reference):
-    """``(sky1, sky2)`` of a pairs table: its SkyCoord columns, else its x/y about
-    ``reference``; None when neither is possible."""
-    if "sky1" in tab.colnames and "sky2" in tab.colnames:
-        sky1, sky2 = tab["sky1"], tab["sky2"]
-        if not isinstance(sky1, SkyCoord) or not isinstance(sky2, SkyCoord):
-            raise TypeError("pairs['sky1'] and pairs['sky2'] must be SkyCoord columns")
-        return sky1, sky2
-    if reference is None:
-        return None
-    xy = [tab[c].to_value(u.arcsec) for c in _POSITIONS]
-    return tangent_to_sky(xy[0], xy[1], reference), tangent_to_sky(xy[2], xy[3], reference)
 
 
-def _with_positions(tab, xy1, xy2):
-    """A copy of ``tab`` with x1, y1, x2, y2 replaced (arcsec)."""
-    out = QTable(tab, copy=True)
-    for name, values in zip(_POSITIONS, (xy1[0], xy1[1], xy2[0], xy2[1]), strict=True):
-        out[name] = np.asarray(values, dtype=float) * u.arcsec
-    return out
 
 
 def _check_options(pairs, *, fit, lenstool, z_source, reference, centre, fit_kwargs):
@@ -81,15 +64,6 @@ def _duality_table(pairs):
     return tab
 
 
-def _frame_reference(tab, reference):
-    """The origin of the pairs' frame: ``reference``, else ``meta['reference']`` (or None)."""
-    if reference is None:
-        reference = tab.meta.get("reference")
-        if reference is not None and not (isinstance(reference, SkyCoord)
-                                          and reference.isscalar):
-            raise TypeError("pairs.meta['reference'] must be a scalar SkyCoord, got "
-                            f"{reference!r}")
-    return reference
 
 
 def _lenstool_model(lenstool, zs):
@@ -110,7 +84,7 @@ def _lenstool_model(lenstool, zs):
 def _needed_sky(tab, reference, *, lt_model, fit, centre):
     """The pairs' ``(sky1, sky2)`` if the Lenstool model or a fit about ``centre`` needs them."""
     need_sky = lt_model is not None or (fit and centre is not None)
-    sky = _sky_positions(tab, reference) if need_sky else None
+    sky = sky_positions(tab, reference) if need_sky else None
     if need_sky and sky is None:
         what = "the Lenstool model's frame" if lt_model is not None else "the frame of centre"
         raise ValueError(f"cannot place the pairs in {what}: the table has no sky1, sky2 "
@@ -119,17 +93,12 @@ def _needed_sky(tab, reference, *, lt_model, fit, centre):
     return sky
 
 
-def _in_lenstool_frame(tab, lt_model, sky):
-    """A copy of ``tab`` with the positions in the Lenstool model's frame."""
-    xy1 = lt_model.to_model_frame(sky[0]).to_value(u.arcsec).T
-    xy2 = lt_model.to_model_frame(sky[1]).to_value(u.arcsec).T
-    return _with_positions(tab, xy1, xy2)
 
 
 def _fit_frame(tab, sky, centre, lt_tab):
     """``(table, description)``: the pairs in the frame of the fit."""
     if centre is not None:
-        frame_tab = _with_positions(tab, tangent_xy(sky[0], centre),
+        frame_tab = with_positions(tab, tangent_xy(sky[0], centre),
                                     tangent_xy(sky[1], centre))
         return frame_tab, (f"tangent plane about RA={centre.icrs.ra.deg:.7f} "
                            f"Dec={centre.icrs.dec.deg:.7f} deg (centre)")
@@ -262,14 +231,14 @@ def parametric_comparison(pairs, *, lenstool=None, fit=False,
     zs = _check_options(pairs, fit=fit, lenstool=lenstool, z_source=z_source,
                         reference=reference, centre=centre, fit_kwargs=fit_kwargs)
     tab = _duality_table(pairs)
-    reference = _frame_reference(tab, reference)
+    reference = frame_reference(tab, reference)
     lt_model = _lenstool_model(lenstool, zs)
     if fit and z_lens is None:
         if lt_model is None:
             raise ValueError("z_lens is required for the fit (or give a Lenstool model)")
         z_lens = lt_model.z_lens
     sky = _needed_sky(tab, reference, lt_model=lt_model, fit=fit, centre=centre)
-    lt_tab = None if lt_model is None else _in_lenstool_frame(tab, lt_model, sky)
+    lt_tab = None if lt_model is None else in_lenstool_frame(tab, lt_model, sky)
 
     parametric = None
     meta = {"lenstool": None if lt_model is None else str(lt_model.path),
