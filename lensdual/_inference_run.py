@@ -284,8 +284,6 @@ def format_inference_report(posterior, *, title="lensdual infer"):
 
 def write_inference(run, directory, report_text):
     """posterior.ecsv, posterior.png and report.txt of ``lensdual infer``."""
-    import matplotlib.pyplot as plt
-
     from ._outputs import save_figure, write_table
     from .visualization import plot_abundance_posterior
 
@@ -301,5 +299,4 @@ def write_inference(run, directory, report_text):
     fig = ax.figure
     fig.tight_layout()
     save_figure(fig, directory / "posterior.png", 120)
-    plt.close("all")
     (directory / "report.txt").write_text(report_text + "\n")
