@@ -140,9 +140,13 @@ def _local_fit(d, y, s, sig_target, sig, m, degree, cond_max, coef, a, s_eff):
 
 @njit(**JIT_OPTIONS)
 def predict_all(pos, y, s, sig2, usable, resolved, n_local, n_check, min_check, cond_max,
-                value, var, status, n_used):
+                max_unresolved, value, var, status, n_used):
     """The leave-one-out prediction of every pair (steps 0 to 3): fills ``value``,
-    ``var`` (without the common model variance), ``status`` and ``n_used``."""
+    ``var`` (without the common model variance), ``status`` and ``n_used``.
+
+    A pair is predicted where it is ``resolved`` and at most ``max_unresolved`` of
+    its quadratic's neighbours are not.
+    """
     n = y.size
     dist = np.empty(n)
     coef = np.empty(_n_terms(3))
@@ -169,11 +173,11 @@ def predict_all(pos, y, s, sig2, usable, resolved, n_local, n_check, min_check, 
         order = others[:count][np.argsort(dist[:count], kind="mergesort")]
         m_local = min(n_local, count)
         m_check = min(n_check, count)
-        unresolved = not resolved[i]
+        n_unresolved = 0
         for k in range(m_local):
             if not resolved[order[k]]:
-                unresolved = True
-        if unresolved:
+                n_unresolved += 1
+        if not resolved[i] or n_unresolved > max_unresolved:
             status[i] = UNRESOLVED
             continue
         for k in range(m_check):

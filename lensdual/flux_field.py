@@ -11,9 +11,10 @@ flux ratio against it and the geometric ``mu_size`` together.
 
 The prediction at pair ``i`` (see :ref:`joint-test` for the specification):
 
-0. it is made only where the pair and those neighbours are *resolved* (for
-   :func:`~lensdual.duality.check_duality`: their geometric fit passed its
-   chi-square test);
+0. it is made only where the pair is *resolved* (for
+   :func:`~lensdual.duality.check_duality`: its geometric fit passed its
+   chi-square test) and so are those neighbours, up to
+   :data:`MAX_UNRESOLVED` of them (the failures that chance explains);
 1. the :data:`N_LOCAL` nearest usable neighbours of ``i`` on arc L2 (``i``
    itself excluded) get a weighted quadratic fit of ``ln mu_flux`` in the
    whitened local frame centred on ``i``; the weights are the inverse
@@ -37,16 +38,39 @@ import numpy as np
 from astropy import units as u
 from astropy.table import QTable
 from scipy.optimize import brentq
+from scipy.stats import binom
 
 from . import _flux_field_kernels as _kernels
+from .estimators._adaptive import SETTINGS as ADAPTIVE_SETTINGS
 from .estimators.core import as_sigma
 
-__all__ = ["flux_field_prediction", "FIELD_STATUS", "N_LOCAL", "N_CHECK"]
+__all__ = ["flux_field_prediction", "FIELD_STATUS", "N_LOCAL", "N_CHECK", "MAX_UNRESOLVED"]
 
 #: Neighbours of the quadratic fit (6 coefficients, so 4 residual degrees of freedom).
 N_LOCAL = 10
 #: Neighbours of the cubic fit (10 coefficients) that bounds the quadratic's truncation error.
 N_CHECK = 16
+#: Level at which a neighbourhood's count of unresolved neighbours is more than chance.
+_UNRESOLVED_LEVEL = 0.05
+
+
+def _max_unresolved(n_local, alpha):
+    """The most unresolved neighbours among ``n_local`` that chance explains.
+
+    Each neighbour's adaptive fit fails its chi-square test at level ``alpha``
+    by chance where the map is resolved, so the count of unresolved neighbours
+    is at most Binomial(``n_local``, ``alpha``) there. The largest count ``k``
+    whose upper tail ``P(K >= k)`` is at least :data:`_UNRESOLVED_LEVEL` is
+    returned (2 of 10 at ``alpha`` = 0.05).
+    """
+    k = 0
+    while k < n_local and binom.sf(k, n_local, alpha) >= _UNRESOLVED_LEVEL:
+        k += 1
+    return k
+
+
+#: Most unresolved neighbours among the quadratic's N_LOCAL that chance explains (2).
+MAX_UNRESOLVED = _max_unresolved(N_LOCAL, ADAPTIVE_SETTINGS.alpha)
 #: Fewest neighbours of the cubic check: two residual degrees of freedom.
 _MIN_CHECK = 12
 #: Median of |Z| for a unit Gaussian Z.
@@ -59,7 +83,7 @@ _COND_MAX = 1e9
 
 #: The values of ``field_status``: ``"ok"`` (predicted), ``"too few neighbours"``
 #: (fewer than the cubic check's 12 usable neighbours), ``"unresolved"`` (the
-#: pair or one of its quadratic's neighbours is not ``resolved``),
+#: pair, or more than MAX_UNRESOLVED of its quadratic's neighbours, not ``resolved``),
 #: ``"ill-conditioned"`` (the neighbours lie on a curve a quadratic cannot be
 #: fitted on), and ``"excluded"`` (the pair's position is not measured).
 FIELD_STATUS = ("ok", "too few neighbours", "unresolved", "ill-conditioned", "excluded")
@@ -112,7 +136,7 @@ def field_arrays(pos, y, s, sig2, usable=None, resolved=None):
                          np.ascontiguousarray(sig2, dtype=float),
                          np.ascontiguousarray(usable, dtype=np.bool_),
                          np.ascontiguousarray(resolved, dtype=np.bool_), N_LOCAL, N_CHECK,
-                         _MIN_CHECK, _COND_MAX, value, var, code, n_used)
+                         _MIN_CHECK, _COND_MAX, MAX_UNRESOLVED, value, var, code, n_used)
     ok = (code == _kernels.OK) & placed
     calib = ok & usable
     model_var = _common_variance(y[calib] - value[calib], s[calib] ** 2 + var[calib])
@@ -144,8 +168,9 @@ def flux_field_prediction(theta2, ln_mu_flux, ln_mu_flux_err, *, sigma_pos=None,
         its own prediction.
     resolved : array-like of bool, optional
         Pairs where the constellation resolves the lens map (default: all).
-        A pair is predicted only where it and every neighbour of its quadratic
-        fit are resolved; elsewhere ``field_status`` is ``"unresolved"``.
+        A pair is predicted only where it is resolved and at most
+        :data:`MAX_UNRESOLVED` of its quadratic fit's neighbours are not;
+        elsewhere ``field_status`` is ``"unresolved"``.
         :func:`~lensdual.duality.check_duality` passes the pairs whose adaptive
         geometric fit passed its chi-square test (``mu_size_status`` ``"ok"``):
         ``ln mu`` is ``ln |det J|``, the log of the map's Jacobian

@@ -99,3 +99,21 @@ def test_sensitivity_page_includes_the_numbers():
     used = substitutions_used(page, "sens")
     assert used
     assert not used - defined
+
+
+def test_joint_status_numbers_are_read_from_the_tables():
+    """The joint-test page's Status quotes what docs/scripts/joint_status.py reads from
+    the calibration tables the page includes, and nothing it does not define."""
+    module = load_script("joint_status")
+    folder = STATIC / "joint"
+    sub = module.compute(module.read_table(folder / "calibration_dev.txt"),
+                         module.read_table(folder / "calibration_heldout.txt"))
+    assert_files_match(module.include_files(sub), folder, "docs/scripts/joint_status.py")
+    page = (ROOT / "docs" / "joint_test.rst").read_text()
+    assert ".. include:: _static/joint/status.inc" in page
+    assert substitutions_used(page, "jt") <= set(sub)
+    # an independent count of the cells within the false-flag target
+    rows = [ln.split() for ln in (folder / "calibration_dev.txt").read_text().splitlines()[1:]]
+    head = (folder / "calibration_dev.txt").read_text().split("\n", 1)[0].split()
+    ffr = [float(r[head.index("ffr")]) for r in rows]
+    assert sub["jt_cells_ok"] == str(sum(f <= 0.005 for f in ffr))

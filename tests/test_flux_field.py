@@ -8,7 +8,7 @@ import pytest
 from astropy.table import QTable
 
 from lensdual.duality import _joint_pass, check_duality
-from lensdual.flux_field import N_CHECK, N_LOCAL, flux_field_prediction
+from lensdual.flux_field import MAX_UNRESOLVED, N_CHECK, N_LOCAL, flux_field_prediction
 from lensdual.simulation import clean_constellation, noisy_constellation
 
 
@@ -315,15 +315,36 @@ def test_joint_test_refuses_bad_fluxes_by_name(column, value, match):
 def test_the_field_is_predicted_only_where_the_map_is_resolved(scatter):
     xy, rng = scatter
     y = 0.3 * xy[:, 0] + 0.02 * rng.standard_normal(30)
-    resolved = np.ones(30, bool)
-    resolved[0] = False
-    field = _field(xy, y, np.full(30, 0.02), resolved=resolved)
-    status = np.asarray(field["field_status"])
-    # pair 0 itself, and every pair that has it among its quadratic's neighbours
-    near = [i for i in range(30) if 0 in np.argsort(np.hypot(*(xy - xy[i]).T))[1:N_LOCAL + 1]]
-    assert status[0] == "unresolved"
-    assert set(np.flatnonzero(status == "unresolved")) == {0, *near}
-    assert np.isnan(field["ln_mu_field"][status == "unresolved"]).all()
+    # one unresolved pair, then a cluster of them around pair 0
+    for bad in ([0], list(np.argsort(np.hypot(*(xy - xy[0]).T))[:6])):
+        resolved = np.ones(30, bool)
+        resolved[bad] = False
+        field = _field(xy, y, np.full(30, 0.02), resolved=resolved)
+        status = np.asarray(field["field_status"])
+        expect = set()
+        for i in range(30):
+            near = np.argsort(np.hypot(*(xy - xy[i]).T))[1:N_LOCAL + 1]
+            if not resolved[i] or np.count_nonzero(~resolved[near]) > MAX_UNRESOLVED:
+                expect.add(i)
+        assert set(np.flatnonzero(status == "unresolved")) == expect
+        assert np.isnan(field["ln_mu_field"][status == "unresolved"]).all()
+        assert np.isfinite(field["ln_mu_field"][status == "ok"]).all()
+    # six unresolved pairs in one place leave some neighbourhood beyond chance
+    assert len(expect) > 6
+
+
+def test_unresolved_neighbours_chance_allows_follows_the_binomial_tail():
+    from math import comb
+
+    from lensdual.flux_field import _UNRESOLVED_LEVEL, _max_unresolved
+
+    def tail(k, n, p):  # P(K >= k)
+        return sum(comb(n, j) * p**j * (1 - p) ** (n - j) for j in range(k, n + 1))
+
+    for n, alpha in ((10, 0.05), (10, 0.01), (16, 0.05), (10, 0.2)):
+        k = _max_unresolved(n, alpha)
+        assert tail(k, n, alpha) >= _UNRESOLVED_LEVEL > tail(k + 1, n, alpha)
+    assert MAX_UNRESOLVED == _max_unresolved(N_LOCAL, 0.05) == 2
 
 
 def test_the_joint_test_reads_the_adaptive_fits_status():
