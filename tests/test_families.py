@@ -14,7 +14,7 @@ from lensdual.simulation import (
 from lensdual.simulation import families as fam_module
 
 LENSTRONOMY_FAMILIES = ("cluster_fold", "cluster_cusp", "galaxy_fold", "smacs_analog",
-                        "galaxy_sie_compact")
+                        "galaxy_sie_compact", "group_fold")
 
 
 def _system_or_skip(family):
@@ -167,7 +167,7 @@ def test_smacs_lenstool_without_data_raises(monkeypatch, tmp_path):
 
 @pytest.mark.parametrize("family", ["macs1149_lenstool", "a2744_lenstool", "a370_lenstool",
                                     "as1063_lenstool", "as1063_s13_lenstool",
-                                    "a2744_s3_lenstool"])
+                                    "a2744_s3_lenstool", "macs1149_s5_lenstool"])
 def test_hff_lenstool_without_data_raises(family, monkeypatch, tmp_path):
     monkeypatch.setenv("LENSDUAL_HFF_DIR", str(tmp_path))
     monkeypatch.setattr(fam_module, "_calibrated", fam_module._calibrated.__wrapped__)

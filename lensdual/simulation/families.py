@@ -97,6 +97,21 @@ separations on an arc):
     from those of ``a2744_lenstool`` (a larger region, 0.2 x 0.4 arcsec: the images are
     less magnified): ``|mu| ~ 5.5-16``, ``mu_true`` 0.88-1.71, baselines
     0.6-1.7 arcsec. Held out like the previous one.
+``macs1149_s5_lenstool``
+    The real CATS v4 Lenstool model of MACS J1149 at the redshift of its
+    system 5 (z = 2.79); sources next to the fold that makes images 5.1
+    (L1) and 5.2 (L2), 5.2 arcsec apart, 16 arcsec from image 1.2 of the
+    SN Refsdal host (``macs1149_lenstool``): ``|mu| ~ 10-20``, ``mu_true``
+    1.05-1.08, baselines 1.1-1.5 arcsec. Held out: added by a helper, no
+    statistic was run on it while it was chosen.
+``group_fold``
+    A galaxy group: an elliptical NFW halo (1e14 Msun, c = 8, q = 0.75,
+    position angle 30 deg, z = 0.4, source at z = 2) with a central galaxy
+    (tNFW, 2e12 Msun, at the halo's centre) and a satellite (tNFW, 1e11
+    Msun) 1.7-3 arcsec from arc L1; fold pair of a tangential arc 4.4-5.2
+    arcsec from the centre, between the galaxy and cluster scales: ``|mu| ~
+    11-25``, ``mu_true`` 0.92-1.45 (rising towards the satellite), baselines
+    1.1-2.4 arcsec. Held out like the previous one.
 
 How the regions were found
 --------------------------
@@ -104,24 +119,25 @@ The caustics of the full lens (members included) were traced on a 0.01-0.02
 arcsec grid in a window around the arcs. For a fold, the caustic point
 nearest to a source imaged on the wanted pair of arcs (the source of system
 5 for ``smacs_lenstool``, the centre of the demo's patch for
-``smacs_analog``) is the anchor ``fold_point`` and ``normal`` the unit vector
-from it into the multiply imaged side; for ``cluster_cusp`` the anchor is
-the cusp's tip and ``normal`` its axis (the bisector of the two fold
-branches 1 arcsec from the tip). The region is the rectangle ``fold_point +
-d * normal + s * tangent``, ``d`` in ``distance``, ``|s| <= half_length``. For
-``galaxy_fold`` the region is the tangential caustic shrunk by 0.05 arcsec
-and cut 0.45 arcsec from the fold of the pair (explicit ``polygon``), for
-``galaxy_sie_compact`` the caustic shrunk by 0.015 arcsec and cut 0.31
-arcsec from the fold (its images of a source are closer: the two on the
-arcs more than 0.6 arcsec apart, and from its other two images). The
-sizes were chosen so that 40 sources 0.08 arcsec apart fit (the image area
-of the region must hold them) and the margins so that no image merges with
-another. Every region was then checked on 20 000 random sources: each has
-exactly one image on either arc, the two are more than 0.9 arcsec apart and
-any other image of the source more than 0.9 arcsec from them, and the
-Jacobian keeps the sign of its arc along the segments between neighbouring
-images (no critical curve crosses an arc's constellation). The rounded
-values are hard-coded in :data:`FAMILY_PARAMETERS`.
+``smacs_analog``, a source 0.08 arcsec inside the tangential caustic midway
+between two cusps for ``group_fold``) is the anchor ``fold_point`` and
+``normal`` the unit vector from it into the multiply imaged side; for
+``cluster_cusp`` the anchor is the cusp's tip and ``normal`` its axis (the
+bisector of the two fold branches 1 arcsec from the tip). The region is the
+rectangle ``fold_point + d * normal + s * tangent``, ``d`` in ``distance``,
+``|s| <= half_length``. For ``galaxy_fold`` the region is the tangential
+caustic shrunk by 0.05 arcsec and cut 0.45 arcsec from the fold of the pair
+(explicit ``polygon``), for ``galaxy_sie_compact`` the caustic shrunk by
+0.015 arcsec and cut 0.31 arcsec from the fold (its images of a source are
+closer: the two on the arcs more than 0.6 arcsec apart, and from its other
+two images). The sizes were chosen so that 40 sources 0.08 arcsec apart fit
+(the image area of the region must hold them) and the margins so that no
+image merges with another. Every region was then checked on 20 000 random
+sources: each has exactly one image on either arc, the two are more than 0.9
+arcsec apart and any other image of the source more than 0.9 arcsec from
+them, and the Jacobian keeps the sign of its arc along the segments between
+neighbouring images (no critical curve crosses an arc's constellation). The
+rounded values are hard-coded in :data:`FAMILY_PARAMETERS`.
 """
 
 import copy
@@ -153,7 +169,8 @@ __all__ = [
 #: The lens families of :func:`clean_constellation`.
 FAMILIES = ("cluster_fold", "cluster_cusp", "galaxy_fold", "smacs_analog", "smacs_lenstool",
             "macs1149_lenstool", "a2744_lenstool", "a370_lenstool", "as1063_lenstool",
-            "as1063_s13_lenstool", "galaxy_sie_compact", "a2744_s3_lenstool")
+            "as1063_s13_lenstool", "galaxy_sie_compact", "a2744_s3_lenstool",
+            "macs1149_s5_lenstool", "group_fold")
 
 #: The environment variables that name the folders of the real Lenstool models
 #: the ``*_lenstool`` families are built on: ``LENSDUAL_SMACS0723_DIR`` the folder
@@ -402,6 +419,47 @@ FAMILY_PARAMETERS = {
                    "grid_spacing": 0.1 * u.arcsec},
         "link_length": 1.0 * u.arcsec,
     },
+    # a second fold of the MACS J1149 model, found by a helper the same way
+    # (caustic point nearest the traced source of system 5, the mean of its
+    # images 5.1 and 5.2 ray-traced; critical curves on a 0.02 arcsec grid),
+    # as a held-out family: no statistic was run on it
+    "macs1149_s5_lenstool": {
+        "description": ("real CATS v4 Lenstool model of MACS J1149 (held out), fold pair of "
+                        "system 5 (images 5.1 and 5.2, z = 2.79)"),
+        "z_source": 2.79,
+        "lenstool": _hff_model("macs1149_s5_lenstool", "CATS v4 Lenstool model",
+                               "macs1149_v4/best.par"),
+        "fold_point": (-6.625, 5.172) * u.arcsec,
+        "normal": (0.857, -0.515),
+        "distance": (0.05, 0.2) * u.arcsec,
+        "half_length": 0.12 * u.arcsec,
+        "reference": ((-3.78, -19.59), (-7.33, -17.26)) * u.arcsec,
+        "finder": {"center": (-5.7, -18.3) * u.arcsec, "half_width": 6.0 * u.arcsec,
+                   "grid_spacing": 0.1 * u.arcsec},
+        "link_length": 1.0 * u.arcsec,
+    },
+    # a group-scale lens added by a helper as a held-out family (no statistic
+    # was run on it): the fold point is the caustic point (0.01 arcsec grid)
+    # nearest a source 0.08 arcsec inside the tangential caustic, midway
+    # between two cusps; the satellite lies about 2 arcsec from arc L1
+    "group_fold": {
+        "description": ("elliptical NFW galaxy group + central galaxy + 1 satellite (held out), "
+                        "fold pair of a tangential arc at a 4-5 arcsec Einstein radius"),
+        "z_lens": 0.4,
+        "z_source": 2.0,
+        "main": {"mass": 1e14 * u.Msun, "concentration": 8.0, "axis_ratio": 0.75,
+                 "position_angle": 30.0 * u.deg},
+        "members": ((2e12 * u.Msun, None, (0.0, 0.0) * u.arcsec),
+                    (1e11 * u.Msun, None, (-5.0, 4.5) * u.arcsec)),
+        "fold_point": (-0.304, -0.400) * u.arcsec,
+        "normal": (0.055, 0.998),
+        "distance": (0.05, 0.2) * u.arcsec,
+        "half_length": 0.15 * u.arcsec,
+        "reference": ((-4.31, 2.49), (-4.45, -1.36)) * u.arcsec,
+        "finder": {"center": (-4.6, 0.8) * u.arcsec, "half_width": 4.0 * u.arcsec,
+                   "grid_spacing": 0.1 * u.arcsec},
+        "link_length": 1.0 * u.arcsec,
+    },
 }
 
 
@@ -479,6 +537,7 @@ def _lenstool_system(p):
 _LENS_BUILDERS = {
     "cluster_fold": _cluster_components,
     "cluster_cusp": _cluster_components,
+    "group_fold": _cluster_components,
     "galaxy_fold": _galaxy_components,
     "galaxy_sie_compact": _galaxy_components,
     "smacs_analog": _smacs_analog_system,
