@@ -107,7 +107,7 @@ def test_joint_status_numbers_are_read_from_the_tables():
     module = load_script("joint_status")
     folder = STATIC / "joint"
     sub = module.compute(module.read_table(folder / "calibration_dev.txt"),
-                         module.read_table(folder / "calibration_heldout.txt"))
+                         module.held_out_rows(folder))
     assert_files_match(module.include_files(sub), folder, "docs/scripts/joint_status.py")
     page = (ROOT / "docs" / "joint_test.rst").read_text()
     assert ".. include:: _static/joint/status.inc" in page
