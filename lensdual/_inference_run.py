@@ -21,7 +21,7 @@ import numpy as np
 from astropy import units as u
 from astropy.table import QTable
 
-from ._pairs_table import POS_ERR_COLUMNS, flux_col, flux_err_col, pair_bands
+from ._pairs_table import flux_col, flux_err_col, pair_bands, table_sigma_pos
 
 __all__ = ["InferenceRun", "run_inference", "format_inference_report", "table_sigma_pos",
            "table_flux_rel_err", "clean_pairs"]
@@ -48,19 +48,6 @@ class InferenceRun(NamedTuple):
     simulations: list
 
 
-def table_sigma_pos(tab):
-    """The position error of a duality result: its test's scalar ``sigma_pos``, else the
-    median of its ``pos_err1``, ``pos_err2``; None when it has neither."""
-    duality = tab.meta.get("duality")
-    used = duality.get("sigma_pos") if isinstance(duality, dict) else None
-    if isinstance(used, u.Quantity) and used.isscalar and used.unit.physical_type == "angle":
-        return used.to(u.arcsec)
-    if all(c in tab.colnames for c in POS_ERR_COLUMNS):
-        errs = np.concatenate([u.Quantity(tab[c], u.arcsec).value for c in POS_ERR_COLUMNS])
-        errs = errs[np.isfinite(errs) & (errs > 0)]
-        if errs.size:
-            return float(np.median(errs)) * u.arcsec
-    return None
 
 
 def table_flux_rel_err(tab):

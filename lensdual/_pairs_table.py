@@ -38,6 +38,7 @@ __all__ = [
     "flags_col",
     "flux_col",
     "flux_err_col",
+    "table_sigma_pos",
     "id_col",
     "mu_flux_col",
     "mu_flux_err_col",
@@ -463,3 +464,17 @@ def check_pairs_table(pairs, need=("positions",), *, bands=None):
         for band in pair_bands(tab) if bands is None else ([bands] if isinstance(bands, str)
                                                            else list(bands)):
             band_fluxes(tab, band)
+
+def table_sigma_pos(tab):
+    """The position error of a duality result: its test's scalar ``sigma_pos``, else the
+    median of its ``pos_err1``, ``pos_err2``; None when it has neither."""
+    duality = tab.meta.get("duality")
+    used = duality.get("sigma_pos") if isinstance(duality, dict) else None
+    if isinstance(used, u.Quantity) and used.isscalar and used.unit.physical_type == "angle":
+        return used.to(u.arcsec)
+    if all(c in tab.colnames for c in POS_ERR_COLUMNS):
+        errs = np.concatenate([u.Quantity(tab[c], u.arcsec).value for c in POS_ERR_COLUMNS])
+        errs = errs[np.isfinite(errs) & (errs > 0)]
+        if errs.size:
+            return float(np.median(errs)) * u.arcsec
+    return None

@@ -1269,6 +1269,16 @@ def load_config(path, *, outdir=None):
         The file is missing or not valid TOML, or the configuration has
         problems; all of them are listed in the one error.
     """
+    cfg_path, data = read_toml(path)
+    return _Validator(data, cfg_path, outdir).run()
+
+
+def read_toml(path):
+    """``(absolute path, parsed document)`` of a TOML configuration file.
+
+    Raises `ConfigError` (naming the file) where it is missing, not a file,
+    unreadable, not UTF-8 or not valid TOML.
+    """
     cfg_path = Path(path).expanduser().resolve()
     if not cfg_path.exists():
         raise ConfigError([f"configuration file not found: {cfg_path}"], cfg_path)
@@ -1284,7 +1294,7 @@ def load_config(path, *, outdir=None):
         raise ConfigError([f"the file is not UTF-8 text ({exc})"], cfg_path) from None
     except OSError as exc:
         raise ConfigError([f"cannot read the file ({exc})"], cfg_path) from None
-    return _Validator(data, cfg_path, outdir).run()
+    return cfg_path, data
 
 
 # ---------------------------------------------------------------------------

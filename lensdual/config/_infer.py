@@ -9,7 +9,6 @@ be a duality result with tested pairs, each Lenstool file is read.
 """
 
 import math
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -18,7 +17,7 @@ from astropy import units as u
 
 from ..exceptions import ConfigError
 from . import _schema
-from ._core import _ABSENT, _BAD, _toml_hint, _valid, _Validator
+from ._core import _ABSENT, _BAD, _valid, _Validator, read_toml
 from ._values import _describe, _suggest
 from ._writer import _toml_key
 
@@ -461,18 +460,5 @@ def load_inference_config(path, *, outdir=None):
         The file is missing or not valid TOML, or the configuration has
         problems; all of them are listed in the one error.
     """
-    cfg_path = Path(path).expanduser().resolve()
-    if not cfg_path.exists():
-        raise ConfigError([f"configuration file not found: {cfg_path}"], cfg_path)
-    if not cfg_path.is_file():
-        raise ConfigError([f"not a file: {cfg_path}"], cfg_path)
-    try:
-        text = cfg_path.read_bytes().decode("utf-8-sig")
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError([f"invalid TOML: {exc}{_toml_hint(text, exc)}"], cfg_path) from None
-    except UnicodeDecodeError as exc:
-        raise ConfigError([f"the file is not UTF-8 text ({exc})"], cfg_path) from None
-    except OSError as exc:
-        raise ConfigError([f"cannot read the file ({exc})"], cfg_path) from None
+    cfg_path, data = read_toml(path)
     return _InferenceValidator(data, cfg_path, outdir).run()

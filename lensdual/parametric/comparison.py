@@ -9,13 +9,12 @@ and/or fits a lenstronomy model to their positions, and returns the table of
 
 import os
 
-import numpy as np
 from astropy import units as u
 from astropy.coordinates import SkyCoord
 from astropy.table import QTable, Table
 
 from .._frames import tangent_xy
-from .._pairs_table import POS_ERR_COLUMNS, POSITION_COLUMNS
+from .._pairs_table import POSITION_COLUMNS, table_sigma_pos
 from .._validation import as_real
 from ..duality import DEFAULT_SNR_THRESHOLD
 from ..visualization._parametric import plot_parametric_comparison
@@ -107,26 +106,13 @@ def _fit_frame(tab, sky, centre, lt_tab):
     return tab, "pairs frame"
 
 
-def _default_sigma_pos(tab):
-    """The fit's default ``sigma_pos``: the duality test's, else the median per-source error."""
-    duality = tab.meta.get("duality")
-    used = duality.get("sigma_pos") if isinstance(duality, dict) else None
-    if isinstance(used, u.Quantity) and used.isscalar:
-        return used
-    if all(c in tab.colnames for c in POS_ERR_COLUMNS):
-        # per-source errors (e.g. from the PSF fits): their median, as one scalar
-        errs = np.concatenate([u.Quantity(tab[c], u.arcsec).value for c in POS_ERR_COLUMNS])
-        errs = errs[np.isfinite(errs) & (errs > 0)]
-        if errs.size:
-            return float(np.median(errs)) * u.arcsec
-    return None
 
 
 def _fit_and_compare(tab, frame_tab, *, model, z_lens, zs, fit_kwargs, snr_threshold,
                      n_samples, seed):
     """Fit the lenstronomy model in ``frame_tab``'s frame: ``(comparison table, meta)``."""
     kwargs = {"seed": seed}
-    sigma_pos = _default_sigma_pos(tab)
+    sigma_pos = table_sigma_pos(tab)
     if sigma_pos is not None:
         kwargs["sigma_pos"] = sigma_pos
     kwargs.update(fit_kwargs or {})

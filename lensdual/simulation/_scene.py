@@ -86,7 +86,7 @@ MOCK_PATCH = {
 _ARCS = ("L1", "L2")
 
 
-def _options(value, defaults, name):
+def options(value, defaults, name):
     """None (off) or the defaults updated with the user's dict."""
     if value is None or value is False:
         return None
@@ -151,7 +151,7 @@ def _range(value, name, unit, positive=True):
 
 def member_params(member, bands):
     """None, or the checked member: fluxes per band, lenstronomy shape, arc, offset."""
-    p = _options(member, MOCK_MEMBER, "member")
+    p = options(member, MOCK_MEMBER, "member")
     if p is None:
         return None
     return {"flux": _flux(p["flux"], "member['flux']", bands),
@@ -165,7 +165,7 @@ def member_params(member, bands):
 
 def icl_params(icl, bands):
     """None, or the checked ICL gradient."""
-    p = _options(icl, MOCK_ICL, "icl")
+    p = options(icl, MOCK_ICL, "icl")
     if p is None:
         return None
     direction = p["direction"]
@@ -183,7 +183,7 @@ def icl_params(icl, bands):
 
 def patch_params(patch, bands, n_rows):
     """None, or the checked diffuse patch."""
-    p = _options(patch, MOCK_PATCH, "patch")
+    p = options(patch, MOCK_PATCH, "patch")
     if p is None:
         return None
     pair = as_int(p["pair"], "patch['pair']", minimum=0)
@@ -197,7 +197,7 @@ def patch_params(patch, bands, n_rows):
 
 def clump_params(clumps):
     """None, or the checked clump options."""
-    p = _options(clumps, MOCK_CLUMPS, "clumps")
+    p = options(clumps, MOCK_CLUMPS, "clumps")
     if p is None:
         return None
     return {"n": as_int(p["n"], "clumps['n']", minimum=0),

@@ -383,17 +383,9 @@ def _check_pairs(pairs, bands):
 
 def _host_params(host, bands):
     """None (no host), or the validated host parameters with per-band fluxes (nJy)."""
-    if host is None or host is False:
+    p = _scene.options(host, MOCK_HOST, "host")
+    if p is None:
         return None
-    if host is True:
-        host = {}
-    if not isinstance(host, Mapping):
-        raise TypeError(f"host must be True, False, None or a dict of Sérsic parameters, "
-                        f"got {type(host).__name__}")
-    unknown = sorted(set(host) - set(MOCK_HOST))
-    if unknown:
-        raise ValueError(f"host has unknown key(s) {unknown}; allowed: {sorted(MOCK_HOST)}")
-    p = {**MOCK_HOST, **host}
     out = {
         "flux": _per_band(p["flux"], bands, "host['flux']",
                           lambda v, n: _as_quantity_scalar(v, n, _IMAGE_UNIT)),
