@@ -2,7 +2,8 @@
 
 :func:`simulate_demo` builds the lens (the analogue's cluster halo, its two
 members and one of the paper's sub-haloes 2 mas from the L2 image of one
-point source) and the true pairs of a constellation of point sources;
+point source, or a CDM sub-halo population around both arcs) and the true
+pairs of a constellation of point sources;
 :func:`render_demo` renders the two-band mock images that
 :func:`lensdual.pipeline.analyse` takes; :func:`compare_with_truth` compares
 the pipeline's pairs table with the injected truth, which only a simulation
