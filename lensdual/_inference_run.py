@@ -22,12 +22,11 @@ from astropy import units as u
 from astropy.table import QTable
 
 from ._pairs_table import flux_col, flux_err_col, pair_bands, table_sigma_pos
+from .inference._population import PYHALO_DEFAULT_SIGMA_SUB
 
 __all__ = ["InferenceRun", "run_inference", "format_inference_report", "table_sigma_pos",
            "table_flux_rel_err", "clean_pairs"]
 
-#: pyHalo's default sigma_sub (kpc^-2), drawn on the figure for orientation.
-PYHALO_DEFAULT_SIGMA_SUB = 0.025
 #: The mass and the zeta of the paper's binomial bound (Sect. 5.4).
 PAPER_BOUND_MASS = 1e8 * u.Msun
 PAPER_BOUND_ZETA = 3

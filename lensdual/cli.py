@@ -150,6 +150,7 @@ def _cmd_demo(args):
     names = ANALYSIS_OUTPUTS + ("truth_comparison.ecsv",)
     names += ("run.toml",) if args.write_config else ()
     names += PARAMETRIC_OUTPUTS if args.parametric else ()
+    names += ("subhaloes.ecsv",) if args.subhalo == "cdm" else ()
     try:
         check_output_directory(args.outdir, names)
     except OSError as err:
@@ -179,6 +180,8 @@ def _cmd_demo(args):
             with progress.step("write outputs"):
                 write_mock_images(mocks, tmp / "images")
                 write_table(comparison, tmp / "truth_comparison.ecsv")
+                if "subhaloes" in truth.meta:
+                    write_table(truth.meta["subhaloes"], tmp / "subhaloes.ecsv")
                 if args.write_config:
                     config, header = write_run_inputs(
                         mocks, tmp, estimator=args.estimator, test=args.test,
@@ -460,7 +463,9 @@ def build_parser():
     demo.add_argument("--subhalo", choices=DEMO_SUBHALOES, default="overconcentrated",
                       help="the injected sub-halo: 1e8 Msun with c = 100 "
                            "(overconcentrated), 1e9 Msun (massive) or 1e8 Msun (small) on the "
-                           "mass-concentration relation, or none")
+                           "mass-concentration relation, none, or cdm: a pyHalo-convention "
+                           "CDM population (1e8-1e10 Msun, pyHalo's default abundance) in a "
+                           "disc around each arc, written to subhaloes.ecsv")
     demo.add_argument("--scene", choices=DEMO_SCENES, default="point",
                       help="the mock scene: every star cluster a point (point), or star "
                            "clusters of finite size (realistic), their half-light radii "

@@ -2,7 +2,8 @@
 
 :func:`simulate_demo` builds the lens (the analogue's cluster halo, its two
 members and one of the paper's sub-haloes 2 mas from the L2 image of one
-point source) and the true pairs of a constellation of point sources;
+point source, or a CDM sub-halo population around both arcs) and the true
+pairs of a constellation of point sources;
 :func:`render_demo` renders the two-band mock images that
 :func:`lensdual.pipeline.analyse` takes; :func:`compare_with_truth` compares
 the pipeline's pairs table with the injected truth, which only a simulation
@@ -27,6 +28,9 @@ import numpy as np
 
 __all__ = [
     "DEMO_BANDS",
+    "DEMO_CDM_LOG_MASS",
+    "DEMO_CDM_MARGIN",
+    "DEMO_CDM_THRESHOLD",
     "DEMO_SCENES",
     "DEMO_SUBHALOES",
     "DemoImages",
@@ -37,7 +41,21 @@ __all__ = [
 ]
 
 #: Sub-halo choices of ``lensdual demo --subhalo``.
-DEMO_SUBHALOES = ("none", "massive", "small", "overconcentrated")
+DEMO_SUBHALOES = ("none", "massive", "small", "overconcentrated", "cdm")
+
+#: log10 mass range [Msun] of the "cdm" population: haloes below 1e8 Msun
+#: multiply the run time (every one is a lenstronomy TNFW evaluated on the
+#: solver's grid and the rendered pixels) for a small change of the flux ratios.
+DEMO_CDM_LOG_MASS = (8.0, 10.0)
+
+#: Margin (arcsec) added to each arc's extent for the radius of its disc of
+#: "cdm" sub-haloes.
+DEMO_CDM_MARGIN = 0.3
+
+#: A pair counts as perturbed (``subhalo`` True) when ``|ln(mu_true / mu_macro)|``
+#: exceeds this: 3 times the error of a flux ratio of two 2% fluxes (the
+#: constellation's ``flux_rel_err``), 3 x sqrt(2) x 0.02.
+DEMO_CDM_THRESHOLD = 3 * np.sqrt(2) * 0.02
 
 #: The bands of the demo's mock images.
 DEMO_BANDS = ("F150W", "F200W")
@@ -65,36 +83,129 @@ def _demo_sources(n_sources, rng):
     return beta + rng.uniform(-0.02, 0.02, beta.shape)
 
 
+def _cdm_population(macro, seed):
+    """The "cdm" sub-haloes: their TNFW components and their table.
+
+    A `~lensdual.inference.SubhaloPopulation` (CDM, masses in
+    :data:`DEMO_CDM_LOG_MASS`, pyHalo's default abundance) drawn, with a
+    generator of its own, in one disc per arc: centred on the centroid of
+    the arc's images of ``macro``, of radius the largest distance of an image
+    from it plus :data:`DEMO_CDM_MARGIN`.
+    """
+    import astropy.units as u
+    from astropy.table import QTable
+
+    from ._lens.component import LensComponent
+    from ._pairs_table import arc_xy
+    from .inference import SubhaloPopulation
+    from .inference._population import PYHALO_DEFAULT_SIGMA_SUB
+    from .simulation.scenarios import SMACS0723
+
+    population = SubhaloPopulation(SMACS0723["z_lens"], SMACS0723["z_source"], model="CDM",
+                                   log_mlow=DEMO_CDM_LOG_MASS[0],
+                                   log_mhigh=DEMO_CDM_LOG_MASS[1])
+    rng = np.random.default_rng([seed, 2])
+    parts, discs = [], []
+    for arc in (1, 2):
+        xy = arc_xy(macro, arc)
+        centre = xy.mean(axis=0)
+        radius = float(np.hypot(*(xy - centre).T).max()) + DEMO_CDM_MARGIN
+        halos = population.draw(rng, PYHALO_DEFAULT_SIGMA_SUB, centre, radius)
+        halos["arc"] = np.full(halos["x"].size, f"L{arc}")
+        parts.append(halos)
+        discs.append((float(centre[0]), float(centre[1]), radius))
+    table = QTable()
+    table["index"] = np.arange(sum(p["x"].size for p in parts))
+    table["arc"] = np.concatenate([p["arc"] for p in parts]).astype(str)
+    for name in ("x", "y"):
+        table[name] = np.concatenate([p[name] for p in parts]) * u.arcsec
+    table["mass"] = np.concatenate([p["mass"] for p in parts]) * u.Msun
+    for name in ("rs", "alpha_rs", "r_trunc"):
+        table[name] = np.concatenate([p[name] for p in parts]) * u.arcsec
+    table.meta.update({
+        "model": "CDM", "sigma_sub_kpc-2": PYHALO_DEFAULT_SIGMA_SUB,
+        "log_m_range": list(DEMO_CDM_LOG_MASS), "log_m_host": population.log_m_host,
+        "discs": {f"L{arc}": list(d) for arc, d in zip((1, 2), discs, strict=True)},
+        "expected_number": float(population.number_density(
+            PYHALO_DEFAULT_SIGMA_SUB / u.kpc**2).to_value(u.arcsec**-2)
+            * sum(np.pi * d[2] ** 2 for d in discs)),
+    })
+    components = [
+        LensComponent("TNFW", {"Rs": float(row["rs"].value),
+                               "alpha_Rs": float(row["alpha_rs"].value),
+                               "r_trunc": float(row["r_trunc"].value),
+                               "center_x": float(row["x"].value),
+                               "center_y": float(row["y"].value)},
+                      f"cdm sub-halo {row['index']}", {"mass": row["mass"]})
+        for row in table]
+    return components, table
+
+
+def _nearest_subhaloes(truth, halos):
+    """Per pair and image: the nearest sub-halo of ``halos`` (index, mass, distance)."""
+    import astropy.units as u
+
+    from ._pairs_table import arc_xy
+
+    hx = np.column_stack([halos["x"].to_value(u.arcsec), halos["y"].to_value(u.arcsec)])
+    mass = halos["mass"].to_value(u.Msun)
+    for arc in (1, 2):
+        xy = arc_xy(truth, arc)
+        if len(hx):
+            d = np.hypot(xy[:, None, 0] - hx[None, :, 0], xy[:, None, 1] - hx[None, :, 1])
+            k = np.argmin(d, axis=1)
+            sep, m = d[np.arange(len(xy)), k], mass[k]
+        else:
+            k, sep, m = np.full(len(xy), -1), np.full(len(xy), np.nan), np.full(len(xy), np.nan)
+        truth[f"nearest_subhalo{arc}"] = k
+        truth[f"nearest_mass{arc}"] = m * u.Msun
+        truth[f"nearest_sep{arc}"] = sep * u.arcsec
+
+
 def simulate_demo(*, subhalo="overconcentrated", n_sources=12, seed=0, subhalo_source=None):
-    """The demo's lens: the SMACS0723 analogue, its members and one sub-halo.
+    """The demo's lens: the SMACS0723 analogue, its members and its sub-halo(es).
 
     Parameters
     ----------
-    subhalo : {"overconcentrated", "massive", "small", "none"}
+    subhalo : {"overconcentrated", "massive", "small", "none", "cdm"}
         The paper's sub-haloes (see `lensdual.simulation.SUBHALOES`): 1e8
         Msun with c = 100, 1e9 Msun and 1e8 Msun on the mass-concentration
-        relation. It is put 2 mas from the L2 image of one point source.
+        relation, put 2 mas from the L2 image of one point source; or
+        "cdm": a pyHalo-convention CDM population
+        (`~lensdual.inference.SubhaloPopulation` at pyHalo's default
+        ``sigma_sub`` = 0.025 kpc^-2, masses in :data:`DEMO_CDM_LOG_MASS`)
+        drawn in a disc around each arc, every sub-halo a TNFW component.
+        The population's generator is its own (``[seed, 2]``), so the
+        sources and fluxes are those of the other choices.
     n_sources : int
         Point sources (3-18), on a jittered grid of 3 columns.
     seed : int
-        Seed of the positions and fluxes.
+        Seed of the positions and fluxes (and of the "cdm" population).
     subhalo_source : int, optional
         Which source's L2 image gets the sub-halo; default ``n_sources // 3``.
+        Not allowed with "cdm".
 
     Returns
     -------
     system : `~lensdual.simulation.LensSystem`
-        The lens: the analogue with its members, plus the sub-halo.
+        The lens: the analogue with its members, plus the sub-halo(es).
     truth : `~astropy.table.QTable`
         The true pairs (``system.constellation``) plus ``mu_macro``, the true
-        ``|mu(L1)/mu(L2)|`` without the sub-halo (what ``mu_size`` measures),
-        and ``subhalo`` (True for the perturbed pair).
+        ``|mu(L1)/mu(L2)|`` without the sub-halo(es) (what ``mu_size``
+        measures), and ``subhalo``: True for the perturbed pair, or, with
+        "cdm", for the pairs with ``|ln(mu_true / mu_macro)|`` above
+        :data:`DEMO_CDM_THRESHOLD`. With "cdm" also the nearest sub-halo
+        to each image (``nearest_subhalo1``, ``nearest_mass1``,
+        ``nearest_sep1`` and the same for L2) and ``meta["subhaloes"]``,
+        the population (a QTable: ``index``, ``arc``, ``x``, ``y``,
+        ``mass``, ``rs``, ``alpha_rs``, ``r_trunc``; its meta has the discs
+        and the expected number).
 
     Raises
     ------
     ValueError
-        An unknown ``subhalo``, or ``n_sources`` or ``subhalo_source`` out
-        of range.
+        An unknown ``subhalo``, ``n_sources`` or ``subhalo_source`` out
+        of range, or ``subhalo_source`` with "cdm".
     """
     import astropy.units as u
 
@@ -106,6 +217,9 @@ def simulate_demo(*, subhalo="overconcentrated", n_sources=12, seed=0, subhalo_s
         raise ValueError(f"subhalo must be one of {DEMO_SUBHALOES}, got {subhalo!r}")
     if not 3 <= int(n_sources) <= 18:
         raise ValueError(f"n_sources must be between 3 and 18, got {n_sources}")
+    if subhalo == "cdm" and subhalo_source is not None:
+        raise ValueError("subhalo_source places one sub-halo; the 'cdm' population has no "
+                         "such choice")
     n_sources = int(n_sources)
     k = n_sources // 3 if subhalo_source is None else int(subhalo_source)
     if not 0 <= k < n_sources:
@@ -118,8 +232,11 @@ def simulate_demo(*, subhalo="overconcentrated", n_sources=12, seed=0, subhalo_s
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         macro = base.constellation(beta, intrinsic_flux=flux)
-    system = base
-    if subhalo != "none":
+    system, halos = base, None
+    if subhalo == "cdm":
+        components, halos = _cdm_population(macro, seed)
+        system = base.add(*components) if components else base
+    elif subhalo != "none":
         mass, conc = SUBHALOES[subhalo]
         host = arc_xy(macro, 2)[k]
         sub = tnfw_halo(mass, conc, (host + [0.002, 0.0]) * u.arcsec,
@@ -129,10 +246,20 @@ def simulate_demo(*, subhalo="overconcentrated", n_sources=12, seed=0, subhalo_s
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         truth = system.constellation(beta, intrinsic_flux=flux)
-    truth["mu_macro"] = macro["mu_true"]
-    truth["subhalo"] = np.zeros(n_sources, dtype=bool)
-    if subhalo != "none":
-        truth["subhalo"][k] = True
+    if halos is None:
+        truth["mu_macro"] = macro["mu_true"]
+        truth["subhalo"] = np.zeros(n_sources, dtype=bool)
+        if subhalo != "none":
+            truth["subhalo"][k] = True
+    else:
+        # a source lost from a fold arc by the population has no macro row to match
+        row = {int(s): i for i, s in enumerate(macro["source"])}
+        truth = truth[[int(s) in row for s in truth["source"]]]
+        truth["mu_macro"] = np.asarray(macro["mu_true"])[[row[int(s)] for s in truth["source"]]]
+        shift = np.abs(np.log(np.asarray(truth["mu_true"]) / np.asarray(truth["mu_macro"])))
+        truth["subhalo"] = shift > DEMO_CDM_THRESHOLD
+        _nearest_subhaloes(truth, halos)
+        truth.meta["subhaloes"] = halos
     truth.meta["subhalo"] = subhalo
     return system, truth
 
@@ -215,7 +342,12 @@ def render_demo(system, truth, *, seed=0, scene="point", cluster_radii=None, psf
         # a generator of its own: the noise draws are the point scene's
         r_eff = draw_cluster_radii(len(truth), low=low, high=high,
                                    seed=np.random.default_rng([seed, 1]))
-    mocks = render_mock_images(system, bands=DEMO_BANDS, pairs=truth, seed=seed, r_eff=r_eff,
+    pairs = truth
+    if "subhaloes" in truth.meta:
+        # the population table stays with the truth: the mocks' pairs meta is written as YAML
+        pairs = truth.copy(copy_data=False)
+        del pairs.meta["subhaloes"]
+    mocks = render_mock_images(system, bands=DEMO_BANDS, pairs=pairs, seed=seed, r_eff=r_eff,
                                **parts)
     images = {arc: dict(mocks.arc(arc)) for arc in ("L1", "L2")}
     psf = {band: np.asarray(mocks[("L1", band)].psf) for band in DEMO_BANDS}
@@ -244,10 +376,16 @@ def compare_with_truth(result, truth, sky_center, *, max_separation=0.1):
         One row per measured pair: ``pair_id``, ``source`` (-1 when
         unmatched), ``mu_macro``, ``mu_true``, ``mu_size``, ``size_error``
         (``mu_size / mu_macro - 1``), ``mu_flux``, ``flux_error``
-        (``mu_flux / mu_true - 1``), ``subhalo``, ``anomalous``.
+        (``mu_flux / mu_true - 1``), ``subhalo``, ``anomalous``; with the
+        "cdm" population also the sub-halo nearest to either image of the
+        pair: ``nearest_subhalo`` (its index in ``truth.meta["subhaloes"]``,
+        -1 when unmatched), ``nearest_mass``, ``nearest_sep`` (arcsec) and
+        ``nearest_arc`` (the image it is nearest to).
         ``meta`` holds the summary: ``n_true``, ``n_matched``,
         ``subhalo_flagged`` (None without a sub-halo), ``false_flags``,
-        ``median_abs_size_error``, ``max_abs_size_error``.
+        ``median_abs_size_error``, ``max_abs_size_error``; with "cdm" also
+        ``n_subhaloes``, ``n_subhalo_pairs`` (true pairs marked ``subhalo``)
+        and ``n_subhalo_flagged`` (those of them flagged).
     """
     import astropy.units as u
     from astropy.table import QTable
@@ -279,6 +417,9 @@ def compare_with_truth(result, truth, sky_center, *, max_separation=0.1):
     sub = np.asarray(truth["subhalo"], dtype=bool)
     out["subhalo"] = np.where(ok, sub[idx2], False)
     out["anomalous"] = np.asarray(result["anomalous"], dtype=bool)
+    cdm = "subhaloes" in truth.meta
+    if cdm:
+        _nearest_columns(out, truth, ok, idx2)
     errors = np.abs(np.asarray(out["size_error"], dtype=float))
     errors = errors[np.isfinite(errors)]
     distinct = len(set(source[ok].tolist()))
@@ -292,7 +433,27 @@ def compare_with_truth(result, truth, sky_center, *, max_separation=0.1):
         "max_abs_size_error": float(np.max(errors)) if errors.size else np.nan,
         "n_pairs": n,
     })
+    if cdm:
+        flagged = out["anomalous"] & out["subhalo"]
+        out.meta.update({"n_subhaloes": len(truth.meta["subhaloes"]),
+                         "n_subhalo_pairs": int(sub.sum()),
+                         "n_subhalo_flagged": len(set(source[flagged].tolist()))})
     return out
+
+
+def _nearest_columns(out, truth, ok, idx2):
+    """The nearest sub-halo to either image of each matched pair, into ``out``."""
+    import astropy.units as u
+
+    sep = np.column_stack([truth[f"nearest_sep{a}"].to_value(u.arcsec) for a in (1, 2)])
+    which = np.argmin(sep, axis=1)
+    rows = np.arange(len(truth))
+    index = np.column_stack([truth[f"nearest_subhalo{a}"] for a in (1, 2)])[rows, which]
+    mass = np.column_stack([truth[f"nearest_mass{a}"].to_value(u.Msun) for a in (1, 2)])
+    out["nearest_subhalo"] = np.where(ok, index[idx2], -1)
+    out["nearest_mass"] = np.where(ok, mass[rows, which][idx2], np.nan) * u.Msun
+    out["nearest_sep"] = np.where(ok, sep[rows, which][idx2], np.nan) * u.arcsec
+    out["nearest_arc"] = np.where(ok, np.array(["L1", "L2"])[which][idx2], "")
 
 
 def truth_paragraph(comparison):
@@ -316,7 +477,9 @@ def truth_paragraph(comparison):
             f"|mu(L1)/mu(L2)| of the smooth lens to {meta['median_abs_size_error']:.1%} "
             f"(median; worst {meta['max_abs_size_error']:.1%}). ")
     flagged = meta["subhalo_flagged"]
-    if flagged is None:
+    if "n_subhaloes" in meta:
+        text += _cdm_sentences(comparison)
+    elif flagged is None:
         text += "No sub-halo was injected. "
     else:
         sub = comparison[np.asarray(comparison["subhalo"], dtype=bool)]
@@ -324,4 +487,25 @@ def truth_paragraph(comparison):
         text += (f"The sub-haloed pair ({which}) was "
                  f"{'flagged' if flagged else 'NOT flagged'}. ")
     text += f"False flags: {meta['false_flags']}."
+    return text
+
+
+def _cdm_sentences(comparison):
+    """The "cdm" part of :func:`truth_paragraph`: the marked pairs and the flagged ones,
+    each with its nearest sub-halo."""
+    meta = comparison.meta
+    lo, hi = DEMO_CDM_LOG_MASS
+    text = (f"A CDM population of {meta['n_subhaloes']} sub-haloes (1e{lo:g}-1e{hi:g} Msun, "
+            f"pyHalo's default abundance) was injected; {meta['n_subhalo_pairs']} true "
+            f"pair(s) depart from the smooth lens by more than "
+            f"{DEMO_CDM_THRESHOLD:.3f} in |ln(mu_true/mu_macro)|, "
+            f"{meta['n_subhalo_flagged']} of them flagged. ")
+    rows = comparison[np.asarray(comparison["anomalous"], dtype=bool)]
+    if len(rows):
+        parts = [f"pair {r['pair_id']} ({'' if r['subhalo'] else 'not perturbed; '}"
+                 f"{r['nearest_mass'].to_value('Msun'):.1e} Msun, "
+                 f"{r['nearest_sep'].to_value('arcsec'):.3f} arcsec from its {r['nearest_arc']} "
+                 f"image)" if r["source"] >= 0 else f"pair {r['pair_id']} (unmatched)"
+                 for r in rows]
+        text += "Flagged, with the nearest sub-halo: " + "; ".join(parts) + ". "
     return text

@@ -17,7 +17,11 @@ from astropy.utils.exceptions import AstropyDeprecationWarning
 
 from .._validation import as_cosmology, as_real, as_redshifts
 
-__all__ = ["SubhaloPopulation", "MODELS"]
+__all__ = ["SubhaloPopulation", "MODELS", "PYHALO_DEFAULT_SIGMA_SUB"]
+
+#: pyHalo's default sigma_sub (kpc^-2): the demo's "cdm" population and the
+#: orientation line of the inference figure.
+PYHALO_DEFAULT_SIGMA_SUB = 0.025
 
 #: Dark-matter models: ``"CDM"`` (pyHalo's ``CDM`` preset: power-law mass
 #: function, LUDLOW2016 concentrations) and ``"WDM"`` (its ``WDM`` preset:
