@@ -360,7 +360,8 @@ def test_lenstool_system_in_the_model_s_frame(tmp_path):
         xy = u.Quantity([result[f"x{k}"], result[f"y{k}"]]).T
         result[f"sky{k}"] = SkyCoord(model.to_sky(xy))
     result.write(tmp_path / "pairs.ecsv", format="ascii.ecsv")
-    cfg = write_config(tmp_path / "lt.toml", {**SMALL, "weight": 1},
+    cfg = write_config(tmp_path / "lt.toml", {**SMALL, "weight": 1, "n_sigma_sub": 2,
+                                               "sigma_sub": [0.001, 0.01]},
                        [{"pairs": "pairs.ecsv", "lenstool": str(par),
                          "z_source": info["z_source"]}])
     config = load_inference_config(cfg)
