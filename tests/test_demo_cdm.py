@@ -151,7 +151,8 @@ def test_subhalo_source_is_refused_with_cdm():
 
 
 def test_the_default_demo_is_unchanged():
-    """The default demo's true pairs, as before the "cdm" choice (seed 0, 12 sources)."""
+    """The default demo (seed 0, 12 sources) has no population, and one sub-haloed pair
+    with its reference anomaly."""
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         _, truth = simulate_demo(seed=0)

@@ -115,12 +115,17 @@ def _flux(value, name, bands, unit=u.nJy):
             raise ValueError(f"{label} must be finite and >= 0, got {v}")
         return x
 
+    return per_band(value, bands, name, one)
+
+
+def per_band(value, bands, name, convert):
+    """``{band: convert(value_for_band, label)}`` from a scalar or a dict per band."""
     if isinstance(value, Mapping):
         missing = [b for b in bands if b not in value]
         if missing:
             raise ValueError(f"{name} lacks band(s) {missing}")
-        return {b: one(value[b], f"{name}[{b!r}]") for b in bands}
-    return {b: one(value, name) for b in bands}
+        return {b: convert(value[b], f"{name}[{b!r}]") for b in bands}
+    return {b: convert(value, name) for b in bands}
 
 
 def _arc(value, name):

@@ -266,16 +266,6 @@ def _tan_wcs(sky_center, scale, origin):
 # ---------------------------------------------------------------------------
 
 
-def _per_band(value, bands, name, convert):
-    """``{band: convert(value_for_band, label)}`` from a scalar or a dict per band."""
-    if isinstance(value, Mapping):
-        missing = [b for b in bands if b not in value]
-        if missing:
-            raise ValueError(f"{name} lacks band(s) {missing}")
-        return {b: convert(value[b], f"{name}[{b!r}]") for b in bands}
-    return {b: convert(value, name) for b in bands}
-
-
 def _as_quantity_scalar(value, name, unit, *, allow_zero=True):
     if not isinstance(value, u.Quantity):
         raise TypeError(f"{name} must be a scalar Quantity in units of {unit}, got {value!r}")
@@ -387,7 +377,7 @@ def _host_params(host, bands):
     if p is None:
         return None
     out = {
-        "flux": _per_band(p["flux"], bands, "host['flux']",
+        "flux": _scene.per_band(p["flux"], bands, "host['flux']",
                           lambda v, n: _as_quantity_scalar(v, n, _IMAGE_UNIT)),
         "R_sersic": as_angle_scalar(p["R_sersic"], "host['R_sersic']", allow_zero=False),
         "n_sersic": as_real(p["n_sersic"], "host['n_sersic']", minimum=0.2, maximum=8.0),
@@ -570,11 +560,11 @@ def _check_render_settings(*, bands, pixel_scale, cutout_size, psf, exposure_tim
     if not isinstance(sky_center, SkyCoord) or not sky_center.isscalar:
         raise TypeError(f"sky_center must be a scalar SkyCoord, got {sky_center!r}")
     t = _as_quantity_scalar(exposure_time, "exposure_time", u.s, allow_zero=False)
-    sky_sb = _per_band(sky_background, bands, "sky_background",
+    sky_sb = _scene.per_band(sky_background, bands, "sky_background",
                        lambda v, nm: _as_quantity_scalar(v, nm, u.MJy / u.sr))
-    rn = _per_band(read_noise, bands, "read_noise",
+    rn = _scene.per_band(read_noise, bands, "read_noise",
                    lambda v, nm: _as_quantity_scalar(v, nm, u.electron))
-    zp = _per_band(zero_point, bands, "zero_point",
+    zp = _scene.per_band(zero_point, bands, "zero_point",
                    lambda v, nm: as_real(v, nm, minimum=0.0, maximum=40.0))
     return _RenderSettings(bands=bands, scale=scale, n=n, supersampling=ss, noise=noise,
                            sky_center=sky_center.icrs, exposure_time=t, sky_background=sky_sb,
