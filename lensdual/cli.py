@@ -28,6 +28,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 # The pipeline and the demo live in lensdual.pipeline and lensdual.demo.
+from . import _precompile as precompile
 from ._outputs import (
     ANALYSIS_OUTPUTS,
     INFERENCE_OUTPUTS,
@@ -160,6 +161,8 @@ def _cmd_demo(args):
     steps = ["simulate", "render", "detect L1", "detect L2", "pair", "photometry", "mu_size",
              "write"] + (["parametric"] if args.parametric else [])
     progress = _Progress(steps, args, desc="lensdual demo")
+    if args.estimator == "adaptive":
+        precompile.start(args.test, null_calibration=args.null_realisations > 0)
     try:
         with progress.step("simulate the lens"):
             system, truth = simulate_demo(subhalo=args.subhalo, n_sources=args.n_sources,
@@ -233,6 +236,8 @@ def _cmd_run(args):
     if par is not None:
         steps.append("parametric")
     progress = _Progress(steps, args, desc="lensdual run")
+    if config.estimator == "adaptive":
+        precompile.start(config.test, null_calibration=config.null_realisations > 0)
     try:
         with progress.step("read images"), warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
@@ -587,6 +592,8 @@ def main(argv=None):
         print(f"\nlensdual {args.command}: interrupted; the output directory was left as it "
               "was", file=sys.stderr)
         return EXIT_INTERRUPTED
+    finally:
+        precompile.cancel()  # a run that stopped before the estimator leaves none running
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 from astropy import units as u
 
+from . import _precompile as precompile
 from ._doubts import add_doubt, no_doubts
 from ._pairs_table import ARCS, POS_ERR_COLUMNS, arc_xy, flux_col, flux_err_col
 from ._report import format_pairs_table, format_report, knot_report, verdict
@@ -269,6 +270,7 @@ def analyse(images, *, psf=None, estimator=DEFAULT_METHOD, sigma_pos="auto",
         step = (f"mu_size ({estimator})" if estimator == "adaptive"
                 else f"mu_size ({estimator}, {n_bootstrap} bootstraps)")
         with progress.step(step):
+            precompile.wait()  # the kernels a second process compiled (see lensdual._precompile)
             if isinstance(sigma_pos, str):
                 sigma = np.vstack([measured[c].to_value(u.arcsec)
                                    for c in POS_ERR_COLUMNS]) * u.arcsec

@@ -56,6 +56,22 @@ ADAPTIVE_UNTESTABLE = 3  # no fit, not even the reported one, is consistent with
 
 _INLINE = {**JIT_OPTIONS, "inline": "always"}
 
+# Most coefficient counts and offsets passed to the helpers below are numpy
+# integers: Numba compiles a jitted callee once per value of a Python-int constant
+# argument (a literal type), and once for all values of an int64. The calls in the
+# loops over neighbourhoods of _store_linear, _two_scale and _cubic_alias pass
+# Python ints, so that their small loops are compiled for the fixed sizes.
+#: Coefficients of a linear fit (1, x, y); the quadratic monomials start here.
+N_LINEAR = np.int64(3)
+#: Coefficients of a quadratic fit; the cubic monomials start here.
+N_QUADRATIC = np.int64(6)
+#: Coefficients of a cubic fit.
+N_CUBIC = np.int64(10)
+#: The cubic monomials (x^3, x^2 y, x y^2, y^3).
+N_CUBIC_TERMS = np.int64(4)
+#: The degree of the quadratic terms.
+DEGREE_2 = np.int64(2)
+
 
 class AdaptiveSettings(NamedTuple):
     """The tuning constants of the adaptive estimator, each with its default.
@@ -181,6 +197,15 @@ def _copy_jacobian(src, out):
 
 
 @njit(**JIT_OPTIONS)
+def _copy_slope_cov(src, out):
+    """``out[:, :] = src`` for (2, 3) slope covariances, element by element (a
+    slice assignment compiles Numba's shape-mismatch error machinery)."""
+    for i in range(2):
+        for j in range(3):
+            out[i, j] = src[i, j]
+
+
+@njit(**JIT_OPTIONS)
 def _order_change(L, pr, scale, work, beta, U, kk, g00, g01, g10, g11, hmax, n_sig, deg,
                   cov_o, grad):
     """The largest change of ln|det J| across a fit's ``kk`` points that its
@@ -261,7 +286,7 @@ def _centre_gradient2(L, pr, scale, work, beta, g00, g01, g10, g11, hmax, cov_o)
     if pr < 6:
         return 0.0  # no second-order terms
     h2 = hmax * hmax
-    _block_covariance(L, pr, scale, 3, 3, work, cov_o)
+    _block_covariance(L, pr, scale, N_LINEAR, N_LINEAR, work, cov_o)
     gx = 0.0
     gy = 0.0
     var = 0.0
@@ -421,7 +446,7 @@ def _two_scale(L, scale, work, beta, U, kk, hmax, h_k, h_sl, h_al, h_cv, n_h, c,
             best_g2 = _centre_gradient2(L, 6, scale, work, beta, g00, g01, g10, g11, hmax,
                                         cov_o)
             _rotate_back(c, s, jr00, jr01, jr10, jr11, jb)
-            cb[:, :] = cv
+            _copy_slope_cov(cv, cb)
     return best_rank, best_sd, best_g2
 
 
@@ -464,10 +489,10 @@ def _cubic_alias_bias2(A, L, scale, rhs, beta, work, cov_o, v3, n_sig):
     for i in range(NCOEF_MAX):
         scale[i] = 1.0  # the row's own radius: the monomials are of u / hmax
     for comp in range(2):
-        if cholesky_factor(A[comp], 10, scale, L[comp], 1e-13) < 10:
+        if cholesky_factor(A[comp], N_CUBIC, scale, L[comp], 1e-13) < N_CUBIC:
             return 0.0
-        factored_solve(L[comp], 10, scale, rhs[comp], beta[comp])
-    _block_covariance(L, 10, scale, 6, 4, work, cov_o)
+        factored_solve(L[comp], N_CUBIC, scale, rhs[comp], beta[comp])
+    _block_covariance(L, N_CUBIC, scale, N_QUADRATIC, N_CUBIC_TERMS, work, cov_o)
     b = 0.0
     var = 0.0
     for comp in range(2):
@@ -716,8 +741,8 @@ def _test_fit(L, scale, rhs, ywy, beta, beta_n, chi2_crit, kk, dt, pt, pr, n_fac
         # the nested test: the chi-square the quadratic terms remove
         passed = chi2 - _nested_chi2(L, pr, scale, rhs, ywy, beta_n) <= st.nest_crit6
     two_passed = passed
-    if passed and bias_fit and n_fac >= _ncoef(3):
-        two_passed = (chi2 - _nested_chi2(L, _ncoef(3), scale, rhs, ywy, beta_n)
+    if passed and bias_fit and n_fac >= N_CUBIC:
+        two_passed = (chi2 - _nested_chi2(L, N_CUBIC, scale, rhs, ywy, beta_n)
                       <= st.two_nest_crit8)
     return passed, two_passed
 
@@ -815,7 +840,7 @@ def _keep_fallback(fb_f, fb_i, jfb, cfb, slot, sdf, ln, kk, dr, dof_r, L, scale,
     fb_f[4, slot] = _centre_gradient2(L, pr, scale, work, beta, g[0], g[1], g[2], g[3], hmax,
                                       cov_o)
     fb_f[3, slot] = _order_change(L, pr, scale, work, beta, U, kk, g[0], g[1], g[2], g[3], hmax,
-                                  st.curv_nsig, 2, cov_o, grad_o)
+                                  st.curv_nsig, DEGREE_2, cov_o, grad_o)
     _rotate_back(c, s, jr[0], jr[1], jr[2], jr[3], jfb[slot])
 
 
@@ -854,7 +879,7 @@ def _winner_error(jb, cb, best_sd, best_g2, best_lin, v3, A, L, scale, rhs, beta
     _copy_jacobian(jb, jac_out)
     _rotate_cov(c, s, cb, hmax, jcov_out)
     bias2 = 0.0
-    if best_lin and n >= _ncoef(3) + st.min_extra:
+    if best_lin and n >= N_CUBIC + st.min_extra:
         bias2 = _cubic_alias_bias2(A, L, scale, rhs, beta, work, cov_o, v3, st.cubic_nsig)
     return np.sqrt(best_sd * best_sd + v_centre * best_g2 + bias2)
 
@@ -1043,7 +1068,7 @@ def adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, k_dense, st, order, 
                     best_rank, best_sd, found = rank, np.sqrt(var_ln), True
                     best_g2, best_lin = _accept(L, scale, work, beta, A, cov_o, rhs_al6, sol_al6,
                                                 v3, jb, c, s, jr, g, hmax, dt, pr)
-                    cb[:, :] = cov
+                    _copy_slope_cov(cov, cb)
             if not found:
                 dr = dt + st.report_extra
                 sdf, consistent, dof_r = _fallback_fit(U, W, Yr, L, scale, beta, work,

@@ -19,6 +19,12 @@ from .._numba import JIT_OPTIONS
 __all__ = []
 
 
+# numpy integers: Numba compiles a callee once per value of a Python-int constant
+# argument, and once for every value of an int64
+_SLOPE_X = np.int64(1)
+_SLOPE_Y = np.int64(2)
+
+
 @njit(**JIT_OPTIONS)
 def _equilibrate(A, ncol, scale):
     """Scale the columns of ``A[:, :ncol]`` to unit norm (norms into ``scale``).
@@ -207,6 +213,6 @@ def slope_covariance(L, p, scale, work, out):
     The same arithmetic as three :func:`inverse_entry` calls, with the solve
     for ``e_2`` made once for both entries that need it.
     """
-    out[0] = inverse_entry(L, p, scale, 1, 1, work)
-    out[2] = inverse_entry(L, p, scale, 2, 2, work)
+    out[0] = inverse_entry(L, p, scale, _SLOPE_X, _SLOPE_X, work)
+    out[2] = inverse_entry(L, p, scale, _SLOPE_Y, _SLOPE_Y, work)
     out[1] = work[1] * scale[1] * scale[2]

@@ -1,0 +1,71 @@
+"""The second process that compiles the duality test's kernels ahead of need."""
+
+import subprocess
+import sys
+
+import pytest
+
+from lensdual import _precompile as precompile
+
+
+@pytest.fixture
+def nothing_pending():
+    precompile.cancel()
+    yield
+    precompile.cancel()
+
+
+def test_compile_kernels_leaves_the_estimator_in_the_cache(nothing_pending, monkeypatch):
+    monkeypatch.setattr(precompile, "_n_cores", lambda: 2)
+    precompile.compile_kernels("geometric", null_calibration=False)
+    assert precompile._cached()
+    assert not precompile.wanted()  # nothing left to compile ahead
+
+
+@pytest.mark.parametrize("why", ["switched off", "one core", "cached"])
+def test_nothing_starts_where_it_cannot_help(nothing_pending, monkeypatch, why):
+    monkeypatch.setattr(precompile, "_cached", lambda: why == "cached")
+    monkeypatch.setattr(precompile, "_n_cores", lambda: 1 if why == "one core" else 2)
+    if why == "switched off":
+        monkeypatch.setenv(precompile.ENVIRONMENT, "0")
+    else:
+        monkeypatch.delenv(precompile.ENVIRONMENT, raising=False)
+    assert not precompile.wanted()
+    precompile.start()
+    assert precompile._pending is None
+    assert precompile.wait() is None
+
+
+def test_a_started_process_compiles_and_is_waited_for(nothing_pending, monkeypatch):
+    monkeypatch.delenv(precompile.ENVIRONMENT, raising=False)
+    monkeypatch.setattr(precompile, "_cached", lambda: False)
+    monkeypatch.setattr(precompile, "_n_cores", lambda: 2)
+    precompile.start("geometric", null_calibration=False)
+    proc = precompile._pending
+    assert isinstance(proc, subprocess.Popen)
+    precompile.start()  # one at a time
+    assert precompile._pending is proc
+    assert precompile.wait() == 0  # the kernels ran in that process without an error
+    assert precompile._pending is None
+    assert precompile.wait() is None
+
+
+def test_cancel_stops_a_running_process(nothing_pending, monkeypatch):
+    monkeypatch.delenv(precompile.ENVIRONMENT, raising=False)
+    monkeypatch.setattr(precompile, "_cached", lambda: False)
+    monkeypatch.setattr(precompile, "_n_cores", lambda: 2)
+    precompile.start("joint")
+    proc = precompile._pending
+    precompile.cancel()
+    assert precompile._pending is None
+    assert proc.poll() is not None  # stopped, not left running
+
+
+def test_a_process_past_its_time_is_stopped(nothing_pending, monkeypatch):
+    monkeypatch.setattr(precompile, "TIMEOUT_S", 0.01)
+    monkeypatch.setattr(precompile, "_pending", subprocess.Popen(
+        [sys.executable, "-c", "import time; time.sleep(30)"]))
+    proc = precompile._pending
+    status = precompile.wait()
+    assert status is not None and status != 0
+    assert proc.poll() is not None
