@@ -117,3 +117,19 @@ def test_joint_status_numbers_are_read_from_the_tables():
     head = (folder / "calibration_dev.txt").read_text().split("\n", 1)[0].split()
     ffr = [float(r[head.index("ffr")]) for r in rows]
     assert sub["jt_cells_ok"] == str(sum(f <= 0.005 for f in ffr))
+
+
+def test_the_demo_times_quoted_are_the_benchmark_s():
+    """README, tutorial and ``lensdual --help`` quote the figures that
+    ``benchmarks/bench_demo_time.py --output`` stored."""
+    from lensdual.cli import build_parser
+
+    text = (STATIC / "performance" / "demo_time.txt").read_text()
+    first, low, high = re.search(r"summary: first (\d+) s, warm (\d+)-(\d+) s", text).groups()
+    warm = f"{low}-{high} s"
+    readme = " ".join((ROOT / "README.md").read_text().split())
+    assert f"({warm}; about {first} s the first time" in readme
+    tutorial = " ".join((ROOT / "docs" / "tutorial.rst").read_text().split())
+    assert f"takes {warm} with a warm Numba cache and about {first} s the first time" in tutorial
+    epilog = " ".join(build_parser().epilog.split())
+    assert f"takes {warm} on 2 cores (about {first} s the first time)" in epilog
