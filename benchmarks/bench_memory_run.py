@@ -27,7 +27,7 @@ Printed per case: the peak resident set size of the whole process
 (``VmHWM`` after resetting it once the inputs are built, i.e. inputs
 included; ``ru_maxrss`` where that reset is unavailable), the size of the
 inputs (data arrays only, and data + error maps), the ratio of the peak to
-the data arrays (the issue's measure), the extra memory above the resident
+the data arrays (the measure its target is set in), the extra memory above the resident
 size once the inputs were built, and the wall time of the case (the Numba
 kernels are compiled or loaded from their cache before the clock starts).
 """

@@ -4,7 +4,7 @@ Run on demand::
 
     python benchmarks/bench_null_calibration.py
 
-The issue's target is <= 10 s on 2 cores after compilation. Reported: the
+The target is <= 10 s on 2 cores after compilation. Reported: the
 default (threads over the available cores; the Numba kernel releases the
 GIL) against a serial run in the same process (an executor that maps in the
 caller's thread), with identical results. Then the cost of the reverse map

@@ -375,17 +375,10 @@ def test_demo_parametric(tmp_path, monkeypatch):
 
 
 def test_demo_table_matches_the_stored_reference(demo_dir):
-    """Refactors must not move the demo's results: the pairs table of the FAST demo
-    against tests/data/demo_fast_pairs.ecsv (written at commit 65a9f82, after the pipeline
-    left the CLI with byte-identical outputs; regenerated for the adaptive estimator's
-    curvature term of misfit errors, an intended change: the errors of its misfit
-    pairs grew by up to 37 %, no flag changed; and again for the mean-excess model
-    spread and the de-noised curvature term: the errors of its misfit pairs grew
-    by 4-85 %, no flag changed; and again for the pair's own position noise in
-    the adaptive errors: up to +0.17 %, no flag changed; and for the truncation
-    term pooled into the mean of the model error: its misfit errors 4-22 %
-    smaller, no flag changed; regenerate it only for an intended change of
-    results)."""
+    """The pairs table of the FAST demo equals the stored reference
+    tests/data/demo_fast_pairs.ecsv: every float column to a relative 1e-6, so
+    a refactor cannot move the demo's results. Regenerate the reference only
+    for an intended change of results (and say so in CHANGES.rst)."""
     ref = QTable.read(Path(__file__).parent / "data" / "demo_fast_pairs.ecsv",
                       format="ascii.ecsv")
     table = QTable.read(demo_dir / "pairs.ecsv", format="ascii.ecsv")

@@ -133,3 +133,27 @@ def test_the_demo_times_quoted_are_the_benchmark_s():
     assert f"takes {warm} with a warm Numba cache and about {first} s the first time" in tutorial
     epilog = " ".join(build_parser().epilog.split())
     assert f"takes {warm} on 2 cores (about {first} s the first time)" in epilog
+
+
+def test_calibration_numbers_are_read_from_the_tables(tmp_path):
+    """The calibration page's prose quotes what docs/scripts/calibration_numbers.py
+    writes from the stored benchmark tables (regenerated here into a temporary
+    folder), and no number the script does not define."""
+    module = load_script("calibration_numbers")
+    sub = module.main(tmp_path)
+    folder = STATIC / "calibration"
+    written = {p.name: p.read_text() for p in tmp_path.iterdir()}
+    assert set(written) == {"numbers.inc"}
+    assert_files_match(written, folder, "docs/scripts/calibration_numbers.py")
+    page = (ROOT / "docs" / "calibration.rst").read_text()
+    assert ".. include:: _static/calibration/numbers.inc" in page
+    used = substitutions_used(page, "cal")
+    assert used
+    assert used <= set(sub)
+    # an independent read of the galaxy group's false flags with 8 sources at 1 mas
+    lines = (folder / "heldout_new.txt").read_text().splitlines()
+    head = lines[0].split()
+    row = next(ln.split() for ln in lines[1:]
+               if ln.split()[:4] == ["group_fold", "8", "adaptive", "1"])
+    assert sub["cal_group8_ffr1"] == f"{100 * float(row[head.index('ffr')]):.1f}"
+

@@ -1,8 +1,9 @@
 """Derived lensing quantities of a model with lenstronomy's ``LensModel`` interface."""
 
 import numpy as np
+from astropy import units as u
 
-__all__ = ["LensModelBase"]
+__all__ = ["LensModelBase", "plain_positions"]
 
 # The Parameters section every method of the interface shares; ``{ignored}`` names
 # the lenstronomy arguments the method takes and ignores.
@@ -25,6 +26,33 @@ def _interface(returns, ignored="kwargs, k"):
 
 
 _OF_X = "\n            Of the shape of ``x``."
+
+
+def plain_positions(x, y):
+    """``x`` and ``y`` as float64 arrays of their common broadcast shape.
+
+    The lens models take lenstronomy's interface: plain float arrays in
+    arcsec; `~lensdual.simulation.LensSystem` is the one that takes Quantities.
+
+    Parameters
+    ----------
+    x, y : array_like
+        Image-plane positions, arcsec.
+
+    Returns
+    -------
+    x, y : `~numpy.ndarray`
+        float64 broadcast views of ``x`` and ``y``.
+
+    Raises
+    ------
+    TypeError
+        If ``x`` or ``y`` is a `~astropy.units.Quantity`.
+    """
+    if isinstance(x, u.Quantity) or isinstance(y, u.Quantity):
+        raise TypeError("x and y are plain float arrays in arcsec (lenstronomy's "
+                        "interface); use LensSystem for Quantities")
+    return np.broadcast_arrays(np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64))
 
 
 class LensModelBase:

@@ -31,7 +31,7 @@ Python on arrays.
 import numpy as np
 from astropy import units as u
 
-from .._lens.model import LensModelBase
+from .._lens.model import LensModelBase, plain_positions
 from .._validation import as_int
 
 __all__ = []
@@ -121,11 +121,7 @@ class LenstoolMultiPlaneLensModel(LensModelBase):
 
     def _trace(self, x, y, jacobian):
         """Ray positions in the source plane and, if asked, ``A = d beta / d theta``."""
-        if isinstance(x, u.Quantity) or isinstance(y, u.Quantity):
-            raise TypeError("x and y are plain float arrays in arcsec (lenstronomy's "
-                            "interface); use LensSystem for Quantities")
-        x, y = np.broadcast_arrays(np.asarray(x, dtype=np.float64),
-                                   np.asarray(y, dtype=np.float64))
+        x, y = plain_positions(x, y)
         r = self.ratios
         n = len(self.planes)
         alphas = []

@@ -68,7 +68,7 @@ from astropy.cosmology import FlatLambdaCDM, LambdaCDM, w0waCDM
 from astropy.table import QTable
 
 from .._frames import ARCSEC_PER_RAD as _ARCSEC_PER_RAD
-from .._lens.model import LensModelBase
+from .._lens.model import LensModelBase, plain_positions
 from .._validation import DEFAULT_COSMOLOGY, as_cosmology, as_int, as_positions, as_real
 from ..exceptions import LenstoolKeywordWarning
 from . import _kernels
@@ -1286,11 +1286,7 @@ class LenstoolLensModel(LensModelBase):
         return out
 
     def _run(self, kernels, x, y):
-        if isinstance(x, u.Quantity) or isinstance(y, u.Quantity):
-            raise TypeError("x and y are plain float arrays in arcsec (lenstronomy's "
-                            "interface); use LensSystem for Quantities")
-        xb, yb = np.broadcast_arrays(np.asarray(x, dtype=np.float64),
-                                     np.asarray(y, dtype=np.float64))
+        xb, yb = plain_positions(x, y)
         shape = xb.shape
         xf = np.ascontiguousarray(xb.ravel())
         yf = np.ascontiguousarray(yb.ravel())

@@ -1,0 +1,185 @@
+"""Write docs/_static/calibration/numbers.inc: the numbers the calibration page quotes
+from the stored benchmark outputs.
+
+They are read from the tables the page and its neighbours include, so the prose
+cannot drift from them:
+
+- ``calibration/heldout_new.txt``: ``benchmarks/calibration.py --methods
+  adaptive --families macs1149_s5_lenstool,group_fold`` (the two families no
+  choice has looked at); the cells that miss a target are those of
+  ``benchmarks/calibration_tables.py --targets``;
+- ``null_map/spline.txt``, ``spline_heldout.txt`` and ``demo_spline.txt``:
+  ``benchmarks/null_map_calibration.py`` (the null calibration's spline map on
+  four families, the two held-out ones and the demo's scenario);
+- ``joint/calibration_heldout.txt``: ``benchmarks/joint_calibration.py
+  --masking`` on the held-out families (the geometric test's false flags,
+  ``ffr_geo``, on the compact galaxy-scale fold at 20 mas).
+
+The calibration page's tables of the validation suite (seed 0) are not
+generated: no output of that run is stored. Run from the repository root after
+rerunning a benchmark::
+
+    python docs/scripts/calibration_numbers.py
+"""
+
+import importlib.util
+import re
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+STATIC = ROOT / "docs" / "_static"
+OUT = STATIC / "calibration"
+
+#: The null map's runs: the development families, the held-out ones, the demo.
+NULL_TABLES = ("spline.txt", "spline_heldout.txt", "demo_spline.txt")
+#: The fraction of empirical p-values at or below this level (%) is judged.
+NULL_LEVEL = 5.0
+#: Columns of the null map's tables.
+NULL_RATE = "null's rate"
+FLAGS = "flags at SNR 3"
+#: The first line of a null map's table: its settings.
+NULL_HEADER = re.compile(r"null map: .*?; (\d+) constellations per cell")
+
+
+def _targets_module():
+    """``benchmarks/calibration_tables.py``: the reader and the targets of ``--targets``."""
+    path = ROOT / "benchmarks" / "calibration_tables.py"
+    spec = importlib.util.spec_from_file_location("calibration_tables", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def read_cells(path):
+    """``{(family, n_sources, method, noise): {column: value}}`` of a calibration.py output."""
+    return _targets_module().read(path)
+
+
+def missed_targets(cells):
+    """The cells of the adaptive estimator that miss a target, with the reasons."""
+    return _targets_module().missed_targets(cells)
+
+
+def _number(text):
+    """The leading number of a cell such as ``0.4 % [0.0, 2.4]``."""
+    return float(text.split()[0])
+
+
+def _interval(text):
+    """The bracketed interval of a cell such as ``0.4 % [0.0, 2.4]``."""
+    lo, hi = text[text.index("[") + 1:text.index("]")].split(",")
+    return float(lo), float(hi)
+
+
+def read_null_table(path):
+    """The rows of a null_map_calibration.py table as dicts of the cells' text."""
+    lines = [ln for ln in Path(path).read_text().splitlines() if "|" in ln]
+    head = [h.strip() for h in lines[0].split("|")]
+    return [dict(zip(head, (c.strip() for c in ln.split("|")), strict=True))
+            for ln in lines[1:]]
+
+
+def read_joint_table(path):
+    """The rows of a joint_calibration.py table as dicts (numbers as floats)."""
+    lines = [ln.split() for ln in Path(path).read_text().splitlines() if ln.strip()]
+    head = lines[0]
+    return [{k: (v if k == "family" else float(v)) for k, v in zip(head, parts, strict=True)}
+            for parts in lines[1:]]
+
+
+def _pct(x, digits=2):
+    return f"{100 * x:.{digits}f}"
+
+
+def _and(items):
+    items = list(items)
+    return items[0] if len(items) == 1 else ", ".join(items[:-1]) + " and " + items[-1]
+
+
+def _null_row(rows, family, n_sources):
+    return next(r for r in rows if r["family"] == family and r["sources"] == str(n_sources))
+
+
+def heldout_numbers(cells):
+    """The substitutions read from the run on the two families no choice has looked at."""
+    sub = {}
+    group = {(k[1], k[3]): r for k, r in cells.items()
+             if k[0] == "group_fold" and k[2] == "adaptive"}
+    for noise in (1, 2):
+        r = group[(8, noise)]
+        sub[f"cal_group8_w{noise}"] = f"{r['pull_w']:.1f}"
+        sub[f"cal_group8_gw{noise}"] = f"{r['pull_gw']:.1f}"
+    sub["cal_group8_ffr1"] = _pct(group[(8, 1)]["ffr"], 1)
+    sub["cal_group8_tested1"] = _pct(group[(8, 1)]["tested"], 0)
+    rest = [r["ffr"] for (n, noise), r in group.items() if n >= 20 or noise >= 5]
+    sub["cal_group_ffr_rest"] = _pct(max(rest))
+    m1149 = [r for k, r in cells.items() if k[0] == "macs1149_s5_lenstool"]
+    sub["cal_m1149s5_ffr_max"] = _pct(max(r["ffr"] for r in m1149))
+    missed = missed_targets(cells)
+    sub["cal_heldout_missed"] = "; ".join(
+        f"``{fam}`` with {n} sources at {noise:g} mas ({', '.join(why)})"
+        for (fam, n, noise), why in missed.items()) or "none"
+    return sub
+
+
+def null_numbers(dev, heldout, demo, first_lines):
+    """The substitutions read from the null calibration's runs of its spline map
+    (``first_lines``: the tables' first lines, which say their settings)."""
+    p5 = f"p_emp <= {NULL_LEVEL:g} % [95 %]"
+    sub = {}
+    held = [r for r in dev if _interval(r[p5])[0] <= NULL_LEVEL]
+    sub["cal_null_held"] = f"{len(held)} of the {len(dev)}"
+    sub["cal_null_n_const"] = NULL_HEADER.match(first_lines[0]).group(1)
+    sub["cal_null_gal8_warned"] = _null_row(dev, "galaxy_fold", 8)["warned"]
+    sub["cal_null_a370_8_warned"] = _null_row(dev, "a370_lenstool", 8)["warned"]
+    sub["cal_null_gal12_p5"] = f"{_number(_null_row(dev, 'galaxy_fold', 12)[p5]):.1f}"
+    a370 = [_null_row(dev, "a370_lenstool", n) for n in (12, 20)]
+    null_rates = _and(f"{_number(r[NULL_RATE]):.1f}" for r in a370)
+    flags = _and(f"{_number(r[FLAGS]):.2f}" for r in a370)
+    sub["cal_null_a370_rates"] = f"{null_rates} % against the {flags} %"
+    compact = [r for r in heldout if r["family"] == "galaxy_sie_compact"]
+    flags = _and(f"{_number(r[FLAGS]):.2f}" for r in compact)
+    sources = _and(r["sources"] for r in compact)
+    sub["cal_compact_flags"] = f"{flags} % of the clean pairs with {sources} sources"
+    sub["cal_compact_warned"] = _and(r["warned"] for r in compact[:2])
+    sub["cal_compact_p5_20"] = f"{_number(_null_row(heldout, 'galaxy_sie_compact', 20)[p5]):.1f}"
+    sub["cal_demo_chi2"] = demo[0]["map chi2/dof"]
+    sub["cal_demo_warned"] = demo[0]["warned"]
+    return sub
+
+
+def joint_numbers(rows):
+    """The geometric test's false flags on the compact fold at 20 mas with 20-40
+    sources, both flux errors (the joint-test page's held-out table)."""
+    ffr = [r["ffr_geo"] for r in rows
+           if r["family"] == "galaxy_sie_compact" and r["noise_mas"] == 20]
+    return {"cal_compact_geo20": f"{_pct(min(ffr))}-{_pct(max(ffr))}"}
+
+
+def compute(folder=STATIC):
+    """The substitutions (name -> text) from the stored tables under ``folder``."""
+    sub = heldout_numbers(read_cells(folder / "calibration" / "heldout_new.txt"))
+    paths = [folder / "null_map" / name for name in NULL_TABLES]
+    sub |= null_numbers(*(read_null_table(p) for p in paths),
+                        [p.read_text().split("\n", 1)[0] for p in paths])
+    sub |= joint_numbers(read_joint_table(folder / "joint" / "calibration_heldout.txt"))
+    return sub
+
+
+def include_files(sub):
+    """``{"numbers.inc": text}``: one reST substitution per number."""
+    text = "".join(f".. |{k}| replace:: {v}\n" for k, v in sub.items())
+    return {"numbers.inc": text}
+
+
+def main(out=OUT):
+    """Write the include files into ``out`` (the docs' folder by default)."""
+    sub = compute()
+    for name, text in include_files(sub).items():
+        (Path(out) / name).write_text(text)
+        print(text, end="")
+    return sub
+
+
+if __name__ == "__main__":
+    main()
