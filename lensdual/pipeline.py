@@ -29,7 +29,14 @@ import numpy as np
 from astropy import units as u
 
 from ._doubts import add_doubt, no_doubts
-from ._pairs_table import ARCS, POS_ERR_COLUMNS, arc_xy, flux_col, flux_err_col
+from ._pairs_table import (
+    ARCS,
+    POS_ERR_COLUMNS,
+    arc_xy,
+    check_distinct_arcs,
+    flux_col,
+    flux_err_col,
+)
 from ._report import format_pairs_table, format_report, knot_report, verdict
 from ._report import parametric_paragraph as parametric_paragraph  # re-exported
 from ._validation import as_angle_scalar, as_real
@@ -254,7 +261,7 @@ def analyse(images, *, psf=None, estimator=DEFAULT_METHOD, sigma_pos="auto",
                 raise PipelineError(
                     f"only {len(pairs)} pair(s) found: the {estimator} estimator needs at "
                     f"least {n_min}{_MIN_PAIRS_WHY.get(estimator, '')}")
-            _check_distinct_arcs(pairs)
+            check_distinct_arcs(pairs)
         with progress.step("PSF photometry of the pairs"):
             measured = measure_pairs(images["L1"], images["L2"], pairs, psf=psf, bands=bands,
                                      oversampling=oversampling or None)
@@ -297,25 +304,6 @@ def _doubt_missing_position_errors(measured, doubt):
         err = measured[name].to_value(u.arcsec)
         add_doubt(doubt, ~(np.isfinite(err) & (err > 0)),
                   f"no position error from the PSF fit on arc L{arc} (is there a point source?)")
-
-
-#: Pairs whose two images are closer than this on the sky are the same image.
-_SAME_IMAGE_SEPARATION = 1.0 * u.mas
-
-
-def _check_distinct_arcs(pairs):
-    """PipelineError when every pair's two images are the same point of the sky:
-    arcs L1 and L2 are then one image (the same files, or copies of them), and
-    every size magnification and flux ratio would be 1 by construction."""
-    if not {"sky1", "sky2"} <= set(pairs.colnames) or len(pairs) == 0:
-        return
-    sep = pairs["sky1"].separation(pairs["sky2"])
-    if np.all(sep < _SAME_IMAGE_SEPARATION):
-        raise PipelineError(
-            f"arcs L1 and L2 are the same image: all {len(pairs)} pairs have their two images "
-            f"within {_SAME_IMAGE_SEPARATION:g} of each other on the sky (the same files or "
-            "copies of them?). The two arcs must be two different images of the source; no "
-            "test of duality is possible here")
 
 
 #: A pair is a doubtful pairing when another partner fits about as well (confidence
