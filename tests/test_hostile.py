@@ -151,6 +151,29 @@ def test_zero_error_pixels_are_masked_with_a_warning_naming_the_file(demo_dir, t
     assert np.all(e_new < 4 * e_old)
 
 
+@pytest.mark.parametrize("shift", [1, 2])
+def test_an_off_centre_psf_is_refused_naming_it(demo_dir, tmp_path, capsys, shift):
+    """A PSF image whose peak is 1-2 pixels off its central pixel made nearly every pair
+    untestable, and the message blamed the constellation or sigma_pos: the
+    configuration is refused (exit 2, before any work), naming the band's PSF file and
+    the offset."""
+    cfg = absolute_config(demo_dir)
+    spec = cfg["bands"]["F200W"]
+
+    def roll(hdul):
+        hdul[0].data = np.roll(hdul[0].data, (shift, shift), axis=(0, 1))
+
+    spec["psf"] = str(copy_fits(spec["psf"], tmp_path / "psf.fits", roll))
+    out = tmp_path / "out"
+    assert main(["run", str(write(tmp_path / "c.toml", cfg)), "--outdir", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert (f"[bands.F200W] psf: the PSF image in {tmp_path / 'psf.fits'} is not centred on "
+            f"its central pixel (7, 7): its core (the pixels above half its peak) is centred "
+            f"(+{shift}.00, +{shift}.00) detector pixels (x, y) away") in err
+    assert "sigma_pos" not in err and "constellation" not in err
+    no_leftovers(tmp_path, out)
+
+
 def test_unit_typo_on_one_band_is_refused(demo_dir, tmp_path, capsys):
     cfg = absolute_config(demo_dir)
     cfg["arcs"]["L2"]["F200W"]["unit"] = "Jy"

@@ -324,9 +324,10 @@ def _offset_warning(per_arc, bands):
     if not parts:
         return None
     return ("; ".join(parts) + ". A point source has one position in every band: the images' "
-            "WCS disagree (registration). The offsets were removed before the bands' "
-            "positions were combined (meta['photometry']['band_offsets']); register the "
-            "images to be sure.")
+            "WCS disagree (registration), or the bands' PSF images are not centred alike "
+            "(by less than the half pixel that refuses a PSF image). The offsets were removed "
+            "before the bands' positions were combined (meta['photometry']['band_offsets']); "
+            "register the images, or recentre the PSF images, to be sure.")
 
 
 def _write_positions(out, per_arc, reference):
