@@ -685,6 +685,77 @@ def test_constellation_figure_circles_every_pair_on_both_arcs(demo_dir):
         assert ax.coords[1].get_axislabel() == "Dec"
 
 
+def _demo_analysis(demo_dir):
+    """The demo's analysis as the figures read it (result, pairing, catalogues) and its
+    F150W images."""
+    from types import SimpleNamespace
+
+    from astropy.nddata import CCDData
+
+    result = QTable.read(demo_dir / "pairs.ecsv", format="ascii.ecsv")
+    cats = {arc: QTable.read(demo_dir / f"catalog_{arc}.ecsv", format="ascii.ecsv")
+            for arc in ("L1", "L2")}
+    images = {arc: {"F150W": CCDData.read(demo_dir / "images" / f"{arc}_F150W.fits", hdu=0)}
+              for arc in ("L1", "L2")}
+    return SimpleNamespace(result=result, pairs=result, catalogs=cats), images
+
+
+def test_constellation_figure_is_readable(demo_dir):
+    """constellation.png: its title clears the panel titles ('arc L2' was drawn over),
+    the pair numbers and circles have a dark outline (green on grey was hard to read),
+    and it holds the two arcs only: the mapped view is pairing_map.png's one panel, not
+    repeated as a third."""
+    from types import SimpleNamespace
+
+    import matplotlib
+
+    matplotlib.use("agg")
+    from matplotlib.colors import to_rgb
+    from matplotlib.image import AxesImage
+    from matplotlib.patches import Circle
+
+    from lensdual.visualization._run import constellation_figure, pairing_map_figure
+
+    def luminance(colour):  # WCAG relative luminance
+        c = np.asarray(to_rgb(colour))
+        c = np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+        return float(np.dot(c, [0.2126, 0.7152, 0.0722]))
+
+    def contrast(a, b):  # WCAG contrast ratio, at least 3 for graphics
+        la, lb = sorted((luminance(a), luminance(b)))
+        return (lb + 0.05) / (la + 0.05)
+
+    analysis, images = _demo_analysis(demo_dir)
+    # the whole constellation, and its eastern column on L2: a tall L2 panel that
+    # reaches the top of the figure (the case where the titles collided)
+    px, _ = images["L2"]["F150W"].wcs.world_to_pixel(analysis.result["sky2"])
+    for result in (analysis.result, analysis.result[px > np.median(px) + 5]):
+        fig = constellation_figure(SimpleNamespace(result=result), images, "demo")
+        fig.canvas.draw()
+        renderer = fig.canvas.get_renderer()
+        title = fig._suptitle.get_window_extent(renderer)
+        assert fig.bbox.contains(title.x0, title.y0) and fig.bbox.contains(title.x1, title.y1)
+        with_images = [ax for ax in fig.axes if any(isinstance(a, AxesImage)
+                                                    for a in ax.get_children())]
+        assert [ax.get_title() for ax in fig.axes] == ["arc L1", "arc L2"] and \
+            len(with_images) == 2
+        for ax in fig.axes:
+            assert not title.overlaps(ax.title.get_window_extent(renderer)), ax.get_title()
+            assert not title.overlaps(ax.get_tightbbox(renderer)), ax.get_title()
+            labels = [t for t in ax.texts if t.get_text().isdigit()]
+            circles = [p for p in ax.patches if isinstance(p, Circle)]
+            assert len(labels) == len(circles) == len(result)
+            for artist in labels + circles:
+                colour = artist.get_color() if artist in labels else artist.get_edgecolor()
+                strokes = [e for e in artist.get_path_effects()
+                           if getattr(e, "_gc", {}).get("foreground") is not None]
+                assert strokes, "no outline"
+                assert contrast(colour, strokes[0]._gc["foreground"]) >= 3
+    fig = pairing_map_figure(analysis, "demo")
+    assert len(fig.axes) == 1 and "pairing" in fig.axes[0].get_title()
+    matplotlib.pyplot.close("all")
+
+
 def test_figures_and_regions_skip_unmeasured_pairs(demo_dir):
     import matplotlib
 
