@@ -21,7 +21,7 @@ from astropy import units as u
 from astropy.coordinates import SkyCoord
 from astropy.table import QTable, Table
 
-from .exceptions import MissingValuesWarning
+from .exceptions import MissingValuesWarning, SameImageError
 
 __all__ = [
     "ARCS",
@@ -30,10 +30,12 @@ __all__ = [
     "PAIR_ID",
     "POSITION_COLUMNS",
     "POS_ERR_COLUMNS",
+    "SAME_IMAGE_SEPARATION",
     "SKY_COLUMNS",
     "arc_xy",
     "band_flux_cols",
     "band_fluxes",
+    "check_distinct_arcs",
     "check_pairs_table",
     "flags_col",
     "flux_col",
@@ -367,6 +369,39 @@ def check_unique_pair_ids(pairs, name="pairs table"):
     if repeated:
         raise ValueError(f"{name}: pair_id must identify one pair, but {repeated} occur more "
                          f"than once (rows {rows}); renumber the pairs or drop the duplicates")
+
+
+#: Pairs whose two images are closer than this on the sky are the same image.
+SAME_IMAGE_SEPARATION = 1.0 * u.mas
+
+
+def check_distinct_arcs(pairs):
+    """Raise `~lensdual.exceptions.SameImageError` when arcs L1 and L2 are one image.
+
+    They are when every pair with both positions known (``x1, y1, x2, y2``)
+    has its two images within :data:`SAME_IMAGE_SEPARATION` of each other: an
+    identity map with zero residuals, from the same files (or copies of
+    them) given for both arcs or the L1 positions copied into the L2
+    columns. Every size magnification and flux ratio would be 1 by
+    construction. The pipeline (on the pairing, before any photometry) and
+    :func:`~lensdual.duality.check_duality` apply this one rule.
+
+    Parameters
+    ----------
+    pairs : `~astropy.table.Table`
+        A pairs table with the position columns (angles, one common frame).
+    """
+    theta1, theta2 = positions(pairs)
+    sep = np.hypot(*(theta1 - theta2).to_value(u.mas).T)
+    known = np.isfinite(sep)
+    if known.any() and np.all(sep[known] < SAME_IMAGE_SEPARATION.to_value(u.mas)):
+        raise SameImageError(
+            f"arcs L1 and L2 are the same image: all {int(known.sum())} pairs with both "
+            f"positions have their two images within {SAME_IMAGE_SEPARATION:g} of each other "
+            "(an identity map: the same files, copies of them, or the L1 positions given "
+            "for L2?). The two arcs must be two different images of the source; no test of "
+            "duality is possible here: every size magnification and flux ratio would be 1 "
+            "by construction")
 
 
 def _check_ids(pairs):

@@ -127,7 +127,9 @@ def verdict(result, sigma_pos):
     threshold = meta.get("snr_threshold", 3.0)
     sig = np.asarray(u.Quantity(sigma_pos, u.arcsec).to_value(u.mas))
     if sig.size > 1:
-        sig_text = f"positional errors from the PSF fits (median {np.median(sig):.1f} mas)"
+        known = sig[np.isfinite(sig)]  # a pair not measured has no position error
+        median = f"{np.median(known):.1f} mas" if known.size else "unknown"
+        sig_text = f"positional errors from the PSF fits (median {median})"
     else:
         sig_text = f"sigma_pos = {float(sig):.1f} mas"
     method = meta.get("method", "?")

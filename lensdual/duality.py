@@ -512,6 +512,9 @@ def check_duality(
         Missing columns, a repeated ``pair_id``, non-positive fluxes or flux
         errors, mismatched flux units, and the bad inputs listed in
         :func:`~lensdual.estimators.relative_jacobian`.
+    lensdual.exceptions.SameImageError
+        Arcs L1 and L2 are one image: every pair's two positions within 1 mas
+        of each other (an identity map). It is a ``ValueError``.
 
     Notes
     -----
@@ -566,6 +569,7 @@ def check_duality(
         raise ValueError("snr_definition='profile' needs method 'adaptive' (the covariance of "
                          f"its Jacobian), got method {method!r}")
     theta1, theta2 = _positions(tab)
+    _pairs_table.check_distinct_arcs(tab)
     flux = flux_ratios(tab)  # validates the flux columns before the bootstrap runs
     doubt = _doubts(tab, theta1, theta2, flux, chromatic_alpha)
     keep = doubt == ""

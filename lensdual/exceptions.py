@@ -5,9 +5,10 @@ Every warning lensdual emits is a `LensdualWarning` (an astropy
 also the builtin error it has always been (`ConfigError` a ``ValueError``,
 `OutputConflictError` a ``FileExistsError``, `PipelineError` a
 ``RuntimeError``), so ``except ValueError`` and ``except LensdualError``
-both catch a `ConfigError`. The classes are importable from here and from
-the modules that raise them (``lensdual.config``, ``lensdual.pipeline``,
-``lensdual.parametric``).
+both catch a `ConfigError`. `SameImageError` is a `PipelineError` and a
+``ValueError``: the pipeline and `~lensdual.duality.check_duality` raise
+it. The classes are importable from here and from the modules that raise
+them (``lensdual.config``, ``lensdual.pipeline``, ``lensdual.parametric``).
 """
 
 from pathlib import Path
@@ -25,6 +26,7 @@ __all__ = [
     "HDUError",
     "OutputConflictError",
     "PipelineError",
+    "SameImageError",
 ]
 
 
@@ -138,3 +140,16 @@ class OutputConflictError(LensdualError, FileExistsError):
 
 class PipelineError(LensdualError, RuntimeError):
     """The analysis cannot go on (no detections, too few pairs, ...)."""
+
+
+class SameImageError(PipelineError, ValueError):
+    """Arcs L1 and L2 are one image: every pair's two images are one point of the sky.
+
+    Raised by :func:`~lensdual.duality.check_duality` and by the pipeline when
+    all pairs have their two positions within
+    ``lensdual._pairs_table.SAME_IMAGE_SEPARATION`` (1 mas) of each other: an
+    identity map, from the same files (or copies of them) given for both
+    arcs, or from the L1 positions copied into the L2 columns. Every size
+    magnification and flux ratio would be 1 by construction, and "no
+    sub-halo" would be a statement about nothing.
+    """

@@ -30,7 +30,15 @@ from astropy import units as u
 
 from . import _precompile as precompile
 from ._doubts import add_doubt, no_doubts
-from ._pairs_table import ARCS, POS_ERR_COLUMNS, arc_xy, flux_col, flux_err_col
+from ._lost_pairs import with_lost_pairs
+from ._pairs_table import (
+    ARCS,
+    POS_ERR_COLUMNS,
+    arc_xy,
+    check_distinct_arcs,
+    flux_col,
+    flux_err_col,
+)
 from ._report import format_pairs_table, format_report, knot_report, verdict
 from ._report import parametric_paragraph as parametric_paragraph  # re-exported
 from ._validation import as_angle_scalar, as_real
@@ -255,12 +263,17 @@ def analyse(images, *, psf=None, estimator=DEFAULT_METHOD, sigma_pos="auto",
                 raise PipelineError(
                     f"only {len(pairs)} pair(s) found: the {estimator} estimator needs at "
                     f"least {n_min}{_MIN_PAIRS_WHY.get(estimator, '')}")
-            _check_distinct_arcs(pairs)
+            check_distinct_arcs(pairs)
+            to_measure, lost = (pairs, {}) if manual_pairs is not None else \
+                with_lost_pairs(pairs, to_pair, images)
         with progress.step("PSF photometry of the pairs"):
-            measured = measure_pairs(images["L1"], images["L2"], pairs, psf=psf, bands=bands,
-                                     oversampling=oversampling or None)
-        doubt = pairing_doubts(pairs)
+            measured = measure_pairs(images["L1"], images["L2"], to_measure, psf=psf,
+                                     bands=bands, oversampling=oversampling or None)
+        doubt = pairing_doubts(to_measure)
+        for row, reason in lost.items():
+            add_doubt(doubt, np.arange(len(doubt)) == row, reason)
         _drop_non_positive(measured, bands, doubt)
+        _doubt_faint(measured, bands, doubt)
         if "measured" in measured.colnames:
             add_doubt(doubt, ~np.asarray(measured["measured"], dtype=bool),
                       lambda k: f"not measured ({measured['photometry_note'][k]})")
@@ -299,25 +312,6 @@ def _doubt_missing_position_errors(measured, doubt):
         err = measured[name].to_value(u.arcsec)
         add_doubt(doubt, ~(np.isfinite(err) & (err > 0)),
                   f"no position error from the PSF fit on arc L{arc} (is there a point source?)")
-
-
-#: Pairs whose two images are closer than this on the sky are the same image.
-_SAME_IMAGE_SEPARATION = 1.0 * u.mas
-
-
-def _check_distinct_arcs(pairs):
-    """PipelineError when every pair's two images are the same point of the sky:
-    arcs L1 and L2 are then one image (the same files, or copies of them), and
-    every size magnification and flux ratio would be 1 by construction."""
-    if not {"sky1", "sky2"} <= set(pairs.colnames) or len(pairs) == 0:
-        return
-    sep = pairs["sky1"].separation(pairs["sky2"])
-    if np.all(sep < _SAME_IMAGE_SEPARATION):
-        raise PipelineError(
-            f"arcs L1 and L2 are the same image: all {len(pairs)} pairs have their two images "
-            f"within {_SAME_IMAGE_SEPARATION:g} of each other on the sky (the same files or "
-            "copies of them?). The two arcs must be two different images of the source; no "
-            "test of duality is possible here")
 
 
 #: A pair is a doubtful pairing when another partner fits about as well (confidence
@@ -371,23 +365,30 @@ def pairing_doubts(pairs):
     return doubt
 
 
-#: Automatic pairing uses only candidates whose PSF flux is at least this many sigma
-#: in some band: blank-sky detections would otherwise drown the constellation's
-#: triangles (and become spurious pairs).
+#: A point source is a candidate whose PSF flux is at least this many sigma in some
+#: band. Automatic pairing uses only those (blank-sky detections would otherwise drown
+#: the constellation's triangles and become spurious pairs), and a measured pair whose
+#: image on an arc is fainter in every band is doubtful (a manual candidate on blank sky).
 _MIN_CANDIDATE_SNR = 3.0
+
+
+def _best_snr(table, columns):
+    """Per row, the largest flux / flux error of the (flux, error) ``columns`` (0 where
+    none is finite)."""
+    snr = np.zeros(len(table))
+    for f_name, e_name in columns:
+        f = np.asarray(getattr(table[f_name], "value", table[f_name]), float)
+        e = np.asarray(getattr(table[e_name], "value", table[e_name]), float)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            snr = np.fmax(snr, np.where(np.isfinite(f / e), f / e, 0.0))
+    return snr
 
 
 def _significant(cat, bands, arc):
     """The rows of a catalogue significant in at least one band (warning for the rest)."""
     from .exceptions import LensdualWarning
 
-    snr = np.zeros(len(cat))
-    for band in bands:
-        f = np.asarray(getattr(cat[f"flux_{band}"], "value", cat[f"flux_{band}"]), float)
-        e = np.asarray(getattr(cat[f"flux_err_{band}"], "value", cat[f"flux_err_{band}"]),
-                       float)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            snr = np.fmax(snr, np.where(np.isfinite(f / e), f / e, 0.0))
+    snr = _best_snr(cat, [(f"flux_{band}", f"flux_err_{band}") for band in bands])
     keep = snr >= _MIN_CANDIDATE_SNR
     if not keep.all():
         warnings.warn(f"arc {arc}: {int((~keep).sum())} candidate(s) below {_MIN_CANDIDATE_SNR:g} "
@@ -412,6 +413,22 @@ def _drop_non_positive(measured, bands, doubt):
             if bad.any():
                 for col in (flux_col(arc, band), flux_err_col(arc, band)):
                     measured[col][bad] = np.nan * getattr(measured[col], "unit", 1)
+
+
+def _doubt_faint(measured, bands, doubt):
+    """A pair whose image on an arc was measured but is below ``_MIN_CANDIDATE_SNR``
+    sigma in every band is no point source there (blank sky, a spurious candidate):
+    doubtful (in place), so that it is left out of the others' size magnifications."""
+    for arc in ARCS:
+        columns = [(flux_col(arc, band), flux_err_col(arc, band)) for band in bands]
+        snr = _best_snr(measured, columns)
+        seen = np.zeros(len(measured), bool)
+        for name, _ in columns:
+            seen |= np.isfinite(np.asarray(getattr(measured[name], "value", measured[name]),
+                                           dtype=float))
+        add_doubt(doubt, seen & (snr < _MIN_CANDIDATE_SNR), lambda k, arc=arc, snr=snr: (
+            f"no point source on L{arc}: its PSF flux is below {_MIN_CANDIDATE_SNR:g} sigma "
+            f"in every band (at most {snr[k]:.1f} sigma): blank sky or a spurious candidate"))
 
 
 def _add_null_calibration(result, measured, sigma, n_realisations, snr_threshold, seed,

@@ -276,6 +276,31 @@ def test_not_a_table():
         check_duality({"x1": [1, 2, 3]})
 
 
+def test_an_identity_map_is_refused():
+    """The L1 positions given for L2 (an identity map with zero residuals: every
+    mu_size and flux ratio 1 by construction) are refused, and so are positions
+    within 1 mas of each other (the pipeline's rule for copies of one image); a
+    translation by 1.5 mas is a map like any other."""
+    from lensdual.exceptions import PipelineError, SameImageError
+
+    pairs = make_pairs()
+    pairs["x2"], pairs["y2"] = pairs["x1"], pairs["y1"]
+    with pytest.raises(SameImageError, match="arcs L1 and L2 are the same image: all 15 "
+                                             "pairs with both positions have their two "
+                                             "images within 1 mas"):
+        _check_duality(pairs)  # the adaptive default
+    assert issubclass(SameImageError, ValueError) and issubclass(SameImageError, PipelineError)
+    rng = np.random.default_rng(1)
+    jitter = rng.uniform(-0.6, 0.6, (2, len(pairs))) * u.mas
+    pairs["x2"], pairs["y2"] = pairs["x1"] + jitter[0], pairs["y1"] + jitter[1]
+    pairs["x2"][0] = np.nan * u.arcsec  # a pair without its L2 position changes nothing
+    with pytest.raises(SameImageError, match="all 14 pairs with both positions"):
+        check_duality(pairs, n_bootstrap=5)
+    pairs["x2"], pairs["y2"] = pairs["x1"] + 1.5 * u.mas, pairs["y1"]
+    res = check_duality(pairs, n_bootstrap=5, sigma_pos=0.1 * u.mas)
+    np.testing.assert_allclose(res["mu_size"], 1.0, rtol=1e-6)
+
+
 def test_verdict_says_which_flags_the_null_calibration_confirms():
     """A flag the null calibration confirms (empirical p at most the threshold's p)
     is counted as confirmed; the verdict says when the realisations are too few to

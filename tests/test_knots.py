@@ -344,6 +344,40 @@ def test_read_macro_images(tmp_path):
         read_macro_images(path, ["1.1", "1.3"])
 
 
+def test_a_byte_order_mark_is_not_part_of_the_first_line(tmp_path):
+    """A Lenstool catalogue saved with a UTF-8 byte-order mark (as some Windows editors
+    write it) reads as the same file without one, whatever its first line holds: a
+    commented macro-image centre (read_macro_images, pairs_from_knots) or the
+    #REFERENCE header of relative positions (read_lenstool_images)."""
+    from lensdual.parametric import read_lenstool_images
+
+    rows, centres, _ = synthetic(n_knots=9, seed=4)
+    names = {"1.1": centres["A"], "1.2": centres["B"], "1.3": centres["C"]}
+    plain = write_mul(tmp_path / "plain.mul", rows, names)
+    rel = tmp_path / "rel.mul"
+    rel.write_text("#REFERENCE 3 150.0 2.0\n" + "".join(
+        f"{i} {-x:.6f} {y:.6f} 0.2 0.2 0.0 1.5 25\n" for i, (x, y) in rows.items()))
+    for path in (plain, rel):
+        bom = path.with_name("bom_" + path.name)
+        bom.write_bytes(b"\xef\xbb\xbf" + path.read_bytes())
+        a = read_lenstool_images(path, reference=REF)
+        b = read_lenstool_images(bom, reference=REF)
+        assert list(b["id"]) == list(a["id"]) == list(rows)
+        assert np.all(b["sky"].separation(a["sky"]) < 1e-6 * u.arcsec)
+    bom = tmp_path / "bom_plain.mul"
+    centres_a, centres_b = (read_macro_images(p, list(names)) for p in (plain, bom))
+    assert list(centres_b) == list(names)
+    for name in names:
+        assert centres_b[name].separation(centres_a[name]) < 1e-6 * u.arcsec
+    kp_a = pairs_from_knots(plain, centres_a)
+    kp_b = pairs_from_knots(bom, centres_b)
+    assert list(kp_b.pairs) == list(kp_a.pairs) == [("1.1", "1.2"), ("1.1", "1.3"),
+                                                    ("1.2", "1.3")]
+    for key, tab in kp_a.pairs.items():
+        assert list(kp_b.pairs[key]["knot"]) == list(tab["knot"])
+        np.testing.assert_array_equal(kp_b.pairs[key]["x2"], tab["x2"])
+
+
 # ---------------------------------------------------------------- real data
 
 MACS1149 = HFF / "macs1149_v4"

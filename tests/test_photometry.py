@@ -6,6 +6,7 @@ n = 1 away from the crest) with a steep gradient on its flanks, blurred by the
 PSF, with read noise plus photon noise and an exact StdDevUncertainty.
 """
 
+import re
 import warnings
 
 import numpy as np
@@ -724,6 +725,28 @@ def test_neighbouring_groups_without_single_source(kind):
     assert np.all(np.abs(pull) < 3)
 
 
+def test_an_off_centre_psf_image_is_refused():
+    """A PSF image whose core is 1-2 detector pixels from its central pixel would move
+    every position of its band and fail fits, and the bands' disagreement would be
+    blamed on the constellation: it is refused, naming the PSF and the offset, in
+    psf_photometry and measure_pairs. An oversampled PSF a quarter pixel off (one of
+    its own pixels) is accepted."""
+    image, xy, _ = close_groups()
+    native, over = psf_images()
+    for shift, psf, oversampling in ((1, native, None), (-2, native, None), (4, over, 4)):
+        moved = np.roll(psf, shift, axis=1)
+        dx = shift / (oversampling or 1)
+        said = re.escape(f"is centred ({dx:+.2f}, +0.00) detector pixels (x, y) away")
+        with pytest.raises(ValueError, match=r"psf \(a PSF image\) is not centred on its "
+                                             rf"central pixel \(\d+, \d+\): its core .* {said}"):
+            psf_photometry(image, xy, psf=moved, oversampling=oversampling)
+    res = psf_photometry(image, xy, psf=np.roll(over, 1, axis=0), oversampling=4)
+    assert np.all(np.isfinite(res["flux"]))
+    l1, l2, pairs = _band_images(0.0)
+    with pytest.raises(ValueError, match="is not centred on its central pixel"):
+        measure_pairs(l1, l2, pairs, psf={"F150W": 2.5, "F200W": np.roll(native, 2, axis=0)})
+
+
 def test_oversampled_psf_matches_native(runs):
     """A 4x oversampled PSF image gives the fluxes and positions of the detector-sampled
     one (and of the analytic PRF) on the same data, within a fraction of their errors."""
@@ -1246,7 +1269,8 @@ def test_a_band_offset_is_measured_removed_and_named():
         warnings.simplefilter("always")
         out = measure_pairs(l1, l2, pairs, psf=2.5, background="constant")
     texts = [str(w.message) for w in caught if issubclass(w.category, LensdualWarning)]
-    assert any("on arc L2, band F200W is offset from F150W" in t for t in texts)
+    assert any("on arc L2, band F200W is offset from F150W" in t
+               and "or the bands' PSF images are not centred alike" in t for t in texts)
     offsets = out.meta["photometry"]["band_offsets"]
     assert offsets["L1"] == {}
     dx, dy = offsets["L2"]["F200W"]

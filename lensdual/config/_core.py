@@ -19,6 +19,7 @@ from astropy.nddata.utils import NoOverlapError
 from astropy.table import Table
 
 from .._pairs_table import repeated_pair_ids
+from .._psf_image import check_psf_centred
 from ..exceptions import ConfigError, HDUError
 from . import _schema
 from ._fits import (
@@ -628,13 +629,19 @@ class _Validator:
                          "(a Gaussian FWHM), not both")
             if "psf_hdu" in spec and "psf" not in spec:
                 self.add(f"[{sec}] psf_hdu: given without psf")
+            image = None
             if psf is not None and psf is not _BAD and psf_hdu is not _BAD:
                 if self.inspect_fits(psf, psf_hdu, sec, "psf", "psf_hdu") is not None:
                     try:
-                        _read_psf(psf, psf_hdu)
+                        image = _read_psf(psf, psf_hdu, check_centre=False)
                     except Exception as exc:
                         self.add(f"[{sec}] psf: {exc}")
             over = self.oversampling(spec, sec, psf, psf_hdu)
+            if image is not None and over is not _BAD:
+                try:
+                    check_psf_centred(image, over, f"the PSF image in {psf}")
+                except ValueError as exc:
+                    self.add(f"[{sec}] psf: {exc}")
             bands[name] = BandSpec(name=name, psf=psf, psf_hdu=psf_hdu, psf_fwhm=fwhm,
                                    psf_oversampling=over)
         return bands
@@ -1338,7 +1345,7 @@ def load_images(config):
     for name, band in config.bands.items():
         if band.psf is not None:
             try:
-                psfs[name] = _read_psf(band.psf, band.psf_hdu)
+                psfs[name] = _read_psf(band.psf, band.psf_hdu, band.psf_oversampling)
             except (OSError, ValueError) as exc:
                 problems.append(f"[{_sec('bands', name)}] psf: {exc}")
     out = {}
@@ -1380,7 +1387,7 @@ def band_psfs(config):
             out[name] = band.psf_fwhm
         elif band.psf is not None:
             try:
-                out[name] = _read_psf(band.psf, band.psf_hdu)
+                out[name] = _read_psf(band.psf, band.psf_hdu, band.psf_oversampling)
             except (OSError, ValueError) as exc:
                 problems.append(f"[{_sec('bands', name)}] psf: {exc}")
         else:

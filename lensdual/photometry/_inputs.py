@@ -15,6 +15,7 @@ from astropy.table import Table
 from astropy.wcs.wcsapi import BaseHighLevelWCS, BaseLowLevelWCS, HighLevelWCSWrapper
 
 from .._frames import tangent_xy
+from .._psf_image import check_psf_centred
 from .._validation import as_int, split_image
 from ..exceptions import LensdualWarning
 
@@ -328,6 +329,7 @@ def _array_psf(psf, name, oversampling):
     if not total > 0:
         raise ValueError(f"{name} must have a positive sum, got {total}")
     os_ = (1, 1) if oversampling is None else oversampling
+    check_psf_centred(arr, os_, f"{name} (a PSF image)")
     # photutils' convention: an oversampled image sums to oy * ox
     return "image", ImagePSF(arr * (os_[0] * os_[1] / total), oversampling=os_)
 

@@ -190,7 +190,8 @@ class _Troubles:
         if bad.any():
             self.flagged.append(f"L{arc} {band}: pairs {ids[bad].tolist()[:10]}")
         for i in np.flatnonzero(bad):
-            src = "" if src_ids is None else f" (source id {src_ids[i]})"
+            known = src_ids is not None and src_ids[i] is not np.ma.masked
+            src = f" (source id {src_ids[i]})" if known else ""
             where = f"L{arc} {band}" + ("" if path is None else f" [{path}]")
             self.notes[i].append(
                 f"pair {ids[i]}{src}, {where}: {describe_flags(flags[i], unusable_only=True)}"
@@ -323,9 +324,10 @@ def _offset_warning(per_arc, bands):
     if not parts:
         return None
     return ("; ".join(parts) + ". A point source has one position in every band: the images' "
-            "WCS disagree (registration). The offsets were removed before the bands' "
-            "positions were combined (meta['photometry']['band_offsets']); register the "
-            "images to be sure.")
+            "WCS disagree (registration), or the bands' PSF images are not centred alike "
+            "(by less than the half pixel that refuses a PSF image). The offsets were removed "
+            "before the bands' positions were combined (meta['photometry']['band_offsets']); "
+            "register the images, or recentre the PSF images, to be sure.")
 
 
 def _write_positions(out, per_arc, reference):
@@ -571,7 +573,8 @@ def measure_pairs(
     troubles = _Troubles(np.asarray(out[PAIR_ID]))
     per_arc = {}
     for arc, images, sky_init in (("1", images_l1, sky1_init), ("2", images_l2, sky2_init)):
-        src_ids = np.asarray(out[id_col(arc)]) if id_col(arc) in out.colnames else None
+        # a masked id (a partner that was never detected) is named by its pair only
+        src_ids = np.ma.asarray(out[id_col(arc)]) if id_col(arc) in out.colnames else None
         per_arc[arc] = _measure_arc(
             arc, images, sky_init, bands, phot_of, reference, troubles, src_ids
         )
