@@ -443,7 +443,7 @@ def build_parser():
                     "of each point-source pair of two lens arcs with its model-independent "
                     "size magnification.",
         epilog="Run 'lensdual demo' first: it needs no files and takes 11-12 s on 2 cores "
-               "(about 27 s the first time).")
+               "(about 30 s the first time).")
     parser.add_argument("--version", action="version", version=f"lensdual {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
 
