@@ -15,6 +15,14 @@ def nothing_pending():
     precompile.cancel()
 
 
+@pytest.fixture
+def uncached(nothing_pending, monkeypatch):
+    """Two cores, the switch on and nothing cached: a second process is wanted."""
+    monkeypatch.delenv(precompile.ENVIRONMENT, raising=False)
+    monkeypatch.setattr(precompile, "_cached", lambda: False)
+    monkeypatch.setattr(precompile, "_n_cores", lambda: 2)
+
+
 def test_compile_kernels_leaves_the_estimator_in_the_cache(nothing_pending, monkeypatch):
     monkeypatch.setattr(precompile, "_n_cores", lambda: 2)
     precompile.compile_kernels("geometric", null_calibration=False)
@@ -36,10 +44,8 @@ def test_nothing_starts_where_it_cannot_help(nothing_pending, monkeypatch, why):
     assert precompile.wait() is None
 
 
-def test_a_started_process_compiles_and_is_waited_for(nothing_pending, monkeypatch):
-    monkeypatch.delenv(precompile.ENVIRONMENT, raising=False)
-    monkeypatch.setattr(precompile, "_cached", lambda: False)
-    monkeypatch.setattr(precompile, "_n_cores", lambda: 2)
+def test_a_started_process_compiles_and_is_waited_for(uncached):
+    assert precompile.wanted()
     precompile.start("geometric", null_calibration=False)
     proc = precompile._pending
     assert isinstance(proc, subprocess.Popen)
@@ -50,10 +56,7 @@ def test_a_started_process_compiles_and_is_waited_for(nothing_pending, monkeypat
     assert precompile.wait() is None
 
 
-def test_cancel_stops_a_running_process(nothing_pending, monkeypatch):
-    monkeypatch.delenv(precompile.ENVIRONMENT, raising=False)
-    monkeypatch.setattr(precompile, "_cached", lambda: False)
-    monkeypatch.setattr(precompile, "_n_cores", lambda: 2)
+def test_cancel_stops_a_running_process(uncached):
     precompile.start("joint")
     proc = precompile._pending
     precompile.cancel()
