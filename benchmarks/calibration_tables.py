@@ -11,11 +11,24 @@ main table (reStructuredText list-table rows of every family but
 the untuned ones) and one table per untuned family present (MACS J1149,
 Abell 2744, Abell 370, Abell S1063: false flags with noisy fluxes / pull width
 (Gaussian-equivalent width) / power at a 25 % anomaly, and ``quad2``'s false
-flags), to paste into
-``docs/calibration.rst``.
+flags). With ``--csv DIR`` it writes them instead as the CSV files that
+``docs/calibration.rst`` includes (``main.csv`` and ``<family>.csv``); the
+page's tables are those of the stored suite output
+``docs/_static/calibration/suite_seed0.txt``, written by::
+
+    python benchmarks/calibration.py --seed 0 --families cluster_fold,cluster_cusp,\
+        galaxy_fold,smacs_analog,smacs_lenstool,macs1149_lenstool,a2744_lenstool,\
+        a370_lenstool,as1063_lenstool,as1063_s13_lenstool \
+        > docs/_static/calibration/suite_seed0.txt
+    python benchmarks/calibration_tables.py docs/_static/calibration/suite_seed0.txt \
+        --csv docs/_static/calibration/tables
+
+and ``tests/test_docs_numbers.py`` checks that the committed files are
+what the stored output gives.
 """
 
 import argparse
+from pathlib import Path
 
 #: The families added as lenses the estimator was not developed on (their own
 #: tables; the calibration page says which later choices looked at them).
@@ -84,6 +97,46 @@ def untuned_rows(cells, family):
     return lines
 
 
+def main_csv(cells):
+    """The main table as the CSV rows of the page (one line per cell)."""
+    rows = main_rows(cells)
+    out = []
+    for k in range(0, len(rows), 11):
+        cells_of_row = [r.split("- ", 1)[1] for r in rows[k:k + 11]]
+        out.append(", ".join(cells_of_row))
+    return out
+
+
+def untuned_csv(cells, family):
+    """A family's own table as the CSV rows of the page (one line per number of
+    sources, one column per noise level)."""
+    out = []
+    for line in untuned_rows(cells, family):
+        value = line.split("- ", 1)[1]
+        if line.startswith("   * - "):
+            out.append(value)
+        else:
+            out[-1] += ", " + value
+    return out
+
+
+def write_csv(cells, folder):
+    """Write ``main.csv`` and one ``<family>.csv`` per untuned family present into
+    ``folder``; returns ``{name: text}``."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    texts = {"main.csv": main_csv(cells)}
+    for family in UNTUNED:
+        rows = untuned_csv(cells, family)
+        if rows:
+            texts[f"{family}.csv"] = rows
+    written = {}
+    for name, rows in texts.items():
+        written[name] = "\n".join(rows) + "\n"
+        (folder / name).write_text(written[name])
+    return written
+
+
 def missed_targets(cells, method="adaptive"):
     """The cells of ``method`` that miss a calibration target, with the reasons.
 
@@ -127,8 +180,14 @@ def main(argv=None):
     parser.add_argument("output", help="the output of benchmarks/calibration.py")
     parser.add_argument("--targets", action="store_true",
                         help="list the cells that miss a calibration target instead")
+    parser.add_argument("--csv", metavar="DIR", default=None,
+                        help="write the tables as the page's CSV files into DIR instead")
     args = parser.parse_args(argv)
     cells = read(args.output)
+    if args.csv is not None:
+        for name in write_csv(cells, args.csv):
+            print(Path(args.csv) / name)
+        return
     if args.targets:
         missed = missed_targets(cells)
         for (fam, n_src, noise), why in missed.items():

@@ -157,3 +157,29 @@ def test_calibration_numbers_are_read_from_the_tables(tmp_path):
                if ln.split()[:4] == ["group_fold", "8", "adaptive", "1"])
     assert sub["cal_group8_ffr1"] == f"{100 * float(row[head.index('ffr')]):.1f}"
 
+
+
+def test_calibration_tables_are_the_stored_suite_output(tmp_path):
+    """The calibration page's tables are the CSV files that
+    ``benchmarks/calibration_tables.py --csv`` writes from the stored output of
+    ``benchmarks/calibration.py`` (regenerated here into a temporary folder)."""
+    spec = importlib.util.spec_from_file_location(
+        "calibration_tables", ROOT / "benchmarks" / "calibration_tables.py")
+    tables = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tables)
+    folder = STATIC / "calibration"
+    cells = tables.read(folder / "suite_seed0.txt")
+    written = tables.write_csv(cells, tmp_path)
+    assert set(written) == {"main.csv", *(f"{f}.csv" for f in tables.UNTUNED)}
+    assert_files_match(written, folder / "tables", "benchmarks/calibration_tables.py --csv")
+    page = (ROOT / "docs" / "calibration.rst").read_text()
+    for name in written:
+        assert f":file: _static/calibration/tables/{name}" in page
+    # an independent read of one cell: cluster_fold, 20 sources, 5 mas
+    row = next(ln.split() for ln in (folder / "suite_seed0.txt").read_text().splitlines()
+               if ln.split()[:4] == ["cluster_fold", "20", "adaptive", "5"])
+    head = (folder / "suite_seed0.txt").read_text().splitlines()[0].split()
+    ffr = 100 * float(row[head.index("ffr")])
+    line = next(ln for ln in written["main.csv"].splitlines()
+                if ln.startswith("cluster_fold, 20, 5,"))
+    assert line.split(", ")[4].startswith(f"{ffr:.2f} / ")
