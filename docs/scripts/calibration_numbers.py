@@ -11,13 +11,17 @@ cannot drift from them:
 - ``null_map/spline.txt``, ``spline_heldout.txt`` and ``demo_spline.txt``:
   ``benchmarks/null_map_calibration.py`` (the null calibration's spline map on
   four families, the two held-out ones and the demo's scenario);
+- ``calibration/suite_seed100.txt``: the validation suite on 10 other
+  constellations per cell (``benchmarks/calibration.py --seed 100`` over the
+  families of ``suite_seed0.txt``);
 - ``joint/calibration_heldout.txt``: ``benchmarks/joint_calibration.py
   --masking`` on the held-out families (the geometric test's false flags,
   ``ffr_geo``, on the compact galaxy-scale fold at 20 mas).
 
-The calibration page's tables of the validation suite (seed 0) are not
-generated: no output of that run is stored. Run from the repository root after
-rerunning a benchmark::
+The calibration page's tables of the validation suite are the CSV files that
+``benchmarks/calibration_tables.py --csv`` writes from its stored seed-0 run,
+``calibration/suite_seed0.txt``. Run from the repository root after rerunning a
+benchmark::
 
     python docs/scripts/calibration_numbers.py
 """
@@ -122,6 +126,40 @@ def heldout_numbers(cells):
     return sub
 
 
+def _range(values, scale=100.0, digits=2):
+    return f"{scale * min(values):.{digits}f}-{scale * max(values):.{digits}f}"
+
+
+def other_seed_numbers(cells):
+    """The substitutions read from the validation suite on other constellations
+    (seeds 100-109): false flags with 20-40 sources per family group, the
+    8-source cells that fail, and the cells that miss a target."""
+    def cell(family, n_sources, noise):
+        return cells[(family, n_sources, "adaptive", float(noise))]
+
+    def many(families, column="ffr"):
+        return [r[column] for k, r in cells.items()
+                if k[0] in families and k[1] >= 20 and k[2] == "adaptive"]
+
+    sub = {"cal_s100_folds": _range(many(("cluster_fold", "smacs_analog"))),
+           "cal_s100_smacs": _range(many(("smacs_lenstool",))),
+           "cal_s100_cusp": _range(many(("cluster_cusp",))),
+           "cal_s100_m1149": _range(many(("macs1149_lenstool",))),
+           "cal_s100_galaxy": _range(many(("galaxy_fold",))),
+           "cal_s100_galaxy_gw": _range(many(("galaxy_fold",), "pull_gw"), 1.0)}
+    sub["cal_s100_galaxy8_gw"] = " / ".join(
+        f"{cell('galaxy_fold', 8, noise)['pull_gw']:.2f}" for noise in (5, 10))
+    tested = [cell("galaxy_fold", 8, noise)["tested"] for noise in (5, 10)]
+    sub["cal_s100_galaxy8_tested"] = _range(tested, digits=0)
+    sub["cal_s100_cusp8_gw"] = " / ".join(
+        f"{cell('cluster_cusp', 8, noise)['pull_gw']:.2f}" for noise in (1, 20))
+    sub["cal_s100_cusp8_20"] = f"{cell('cluster_cusp', 8, 20)['pull_gw']:.2f}"
+    sub["cal_s100_m1149_8"] = _pct(cell("macs1149_lenstool", 8, 1)["ffr"])
+    sub["cal_s100_galaxy20_10"] = _pct(cell("galaxy_fold", 20, 10)["ffr"])
+    sub["cal_s100_missed"] = str(len(missed_targets(cells)))
+    return sub
+
+
 def null_numbers(dev, heldout, demo, first_lines):
     """The substitutions read from the null calibration's runs of its spline map
     (``first_lines``: the tables' first lines, which say their settings)."""
@@ -163,6 +201,9 @@ def compute(folder=STATIC):
     sub |= null_numbers(*(read_null_table(p) for p in paths),
                         [p.read_text().split("\n", 1)[0] for p in paths])
     sub |= joint_numbers(read_joint_table(folder / "joint" / "calibration_heldout.txt"))
+    sub |= other_seed_numbers(read_cells(folder / "calibration" / "suite_seed100.txt"))
+    sub["cal_s0_missed"] = str(len(missed_targets(
+        read_cells(folder / "calibration" / "suite_seed0.txt"))))
     return sub
 
 
