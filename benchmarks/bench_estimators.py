@@ -2,7 +2,7 @@
 
 Run on demand (not part of the test suite)::
 
-    python benchmarks/bench_estimators.py [--n-pairs 30] [--n-bootstrap 1000]
+    python benchmarks/bench_estimators.py [--n-pairs 30] [--n-bootstrap 1000] [--output FILE]
 
 Both paths do the same work in the same process: the relative Jacobian of
 every pair on the measured positions, then ``n_bootstrap`` realisations of
@@ -27,6 +27,7 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent / "tests"))
 
 import _reference as ref  # noqa: E402
+from _output import Record, add_output_argument  # noqa: E402
 
 from lensdual.estimators import size_magnification  # noqa: E402
 
@@ -77,7 +78,9 @@ def main(argv=None):
     parser.add_argument("--n-pairs", type=int, default=30)
     parser.add_argument("--n-bootstrap", type=int, default=1000)
     parser.add_argument("--repeat", type=int, default=5)
+    add_output_argument(parser)
     args = parser.parse_args(argv)
+    rec = Record()
 
     t1, t2 = constellation(args.n_pairs)
     sigma = 0.06
@@ -101,13 +104,14 @@ def main(argv=None):
         rows.append((method, t_fast, t_slow, t_slow / t_fast))
 
     first = {m: first_call_seconds(m) for m in (("quad",), ("quad", "2v", "quad2"))}
-    print(f"size_magnification, N = {args.n_pairs} pairs, n_bootstrap = {args.n_bootstrap}")
-    print(f"{'method':<8}{'numba [ms]':>12}{'numpy ref [ms]':>16}{'speed-up':>10}")
+    rec.say(f"size_magnification, N = {args.n_pairs} pairs, n_bootstrap = {args.n_bootstrap}")
+    rec.say(f"{'method':<8}{'numba [ms]':>12}{'numpy ref [ms]':>16}{'speed-up':>10}")
     for method, t_fast, t_slow, ratio in rows:
-        print(f"{method:<8}{1e3 * t_fast:>12.1f}{1e3 * t_slow:>16.0f}{ratio:>9.0f}x")
+        rec.say(f"{method:<8}{1e3 * t_fast:>12.1f}{1e3 * t_slow:>16.0f}{ratio:>9.0f}x")
     for methods, (cold, warm) in first.items():
-        print(f"import + first call of {', '.join(methods)}: {cold:.1f} s with an empty Numba "
-              f"cache, {warm:.1f} s with a warm cache")
+        rec.say(f"import + first call of {', '.join(methods)}: {cold:.1f} s with an empty Numba "
+                f"cache, {warm:.1f} s with a warm cache")
+    rec.write(args.output)
     return rows
 
 

@@ -2,7 +2,7 @@
 
 Run on demand::
 
-    python benchmarks/bench_joint.py
+    python benchmarks/bench_joint.py [--output FILE]
 
 For clean constellations of 20 and 40 sources (SMACS0723 analogue, 5 mas
 position noise), the median wall time of ``check_duality`` with
@@ -11,10 +11,12 @@ after a warm-up call of each (Numba compilation), and their ratio. The joint
 test's target is at most 2x.
 """
 
+import argparse
 import time
 import warnings
 
 import numpy as np
+from _output import Record, add_output_argument
 from astropy import units as u
 
 from lensdual.duality import check_duality
@@ -31,21 +33,27 @@ def _noisy(n, seed):
     return t
 
 
-def main(repeats=15):
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=15)
+    add_output_argument(parser)
+    args = parser.parse_args(argv)
+    rec = Record()
     warnings.simplefilter("ignore")
-    print("n_sources geometric_ms joint_ms ratio")
+    rec.say("n_sources geometric_ms joint_ms ratio")
     for n in (20, 40):
         t = _noisy(n, 1)
         times = {"geometric": [], "joint": []}
         for test in times:
             check_duality(t, sigma_pos=SIGMA * u.arcsec, test=test)
-        for _ in range(repeats):
+        for _ in range(args.repeats):
             for test in times:
                 t0 = time.perf_counter()
                 check_duality(t, sigma_pos=SIGMA * u.arcsec, test=test)
                 times[test].append(time.perf_counter() - t0)
         geo, joint = (1e3 * float(np.median(times[k])) for k in ("geometric", "joint"))
-        print(f"{n} {geo:.1f} {joint:.1f} {joint / geo:.2f}")
+        rec.say(f"{n} {geo:.1f} {joint:.1f} {joint / geo:.2f}")
+    rec.write(args.output)
 
 
 if __name__ == "__main__":

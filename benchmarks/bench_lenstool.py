@@ -3,6 +3,7 @@
 Run on demand (not part of the test suite)::
 
     python benchmarks/bench_lenstool.py [--grid 1000] [--half-width 60] [--quick]
+                                      [--output FILE]
 
 The 149 dPIE potentials of ``best.par`` (Mahler et al. 2023) are evaluated
 (deflection and Hessian) on a ``grid x grid`` square of the model frame, in
@@ -34,6 +35,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from _output import Record, add_output_argument
 
 HERE = Path(__file__).resolve().parent
 DATA = HERE.parents[1] / "shared" / "data" / "smacs0723_mahler2022"
@@ -82,7 +84,9 @@ def main():
     parser.add_argument("--repeat", type=int, default=3, help="best of, lensdual only")
     parser.add_argument("--quick", action="store_true",
                         help="lenstronomy on a 1/10 subset of the grid, scaled up")
+    add_output_argument(parser)
     args = parser.parse_args()
+    rec = Record()
     if not (DATA / "best.par").is_file():
         print(f"SMACS0723 model not found in {DATA}; nothing to do")
         return 0
@@ -97,8 +101,8 @@ def main():
     xx, yy = np.meshgrid(side, side)
     x, y = xx.ravel(), yy.ravel()
     params = model.kernel_parameters(args.z_source, profile=81)
-    print(f"{model}\nz_source = {args.z_source}, grid {n} x {n} = {x.size} points over "
-          f"+-{args.half_width} arcsec, {len(params)} potentials, {os.cpu_count()} cores")
+    rec.say(f"{model}\nz_source = {args.z_source}, grid {n} x {n} = {x.size} points over "
+            f"+-{args.half_width} arcsec, {len(params)} potentials, {os.cpu_count()} cores")
 
     lm1 = model.lens_model(args.z_source)
     lmn = model.lens_model(args.z_source, n_threads=os.cpu_count() or 1)
@@ -130,18 +134,19 @@ def main():
         rows.append((label, (time.perf_counter() - start) * scale))
         if "NIE" in label:
             diff = max(np.abs(lax - ax[sub]).max(), np.abs(lay - ay[sub]).max())
-            print(f"max |alpha_lensdual - alpha_NIE| = {diff:.2e} arcsec "
-                  f"(max |alpha| = {np.hypot(ax, ay).max():.1f} arcsec)")
+            rec.say(f"max |alpha_lensdual - alpha_NIE| = {diff:.2e} arcsec "
+                    f"(max |alpha| = {np.hypot(ax, ay).max():.1f} arcsec)")
 
-    print(f"\n{'':48s} {'time [s]':>9s}  {'lenstronomy / lensdual':>22s}")
-    print(f"{'':48s} {'':9s}  {'1 thread':>10s} {'all cores':>10s}")
+    rec.say()
+    rec.say(f"{'':48s} {'time [s]':>9s}  {'lenstronomy / lensdual':>22s}")
+    rec.say(f"{'':48s} {'':9s}  {'1 thread':>10s} {'all cores':>10s}")
     for label, t in rows:
         if label.startswith("lenstronomy"):
-            print(f"{label:48s} {t:9.2f}  {t / t_sep:9.1f}x {t / t_all:9.1f}x")
+            rec.say(f"{label:48s} {t:9.2f}  {t / t_sep:9.1f}x {t / t_all:9.1f}x")
         else:
-            print(f"{label:48s} {t:9.2f}")
+            rec.say(f"{label:48s} {t:9.2f}")
     if args.quick:
-        print("(lenstronomy timed on every 10th point and scaled by 10)")
+        rec.say("(lenstronomy timed on every 10th point and scaled by 10)")
 
     # one elliptical NFW: r_s = 30 arcsec, b0 = 20 arcsec, epsilon = 0.2 (potential)
     from lensdual.parametric import LenstoolLensModel
@@ -160,10 +165,12 @@ def main():
     lm.hessian(x[sub], y[sub], kw)
     t_lt = (time.perf_counter() - start) * scale
     diff = max(np.abs(lax - nax[sub]).max(), np.abs(lay - nay[sub]).max())
-    print(f"\none elliptical NFW, deflection and Hessian, {x.size} points: lensdual "
-          f"{t_nfw:.3f} s ({1e9 * t_nfw / x.size:.0f} ns per point), lenstronomy "
-          f"NFW_ELLIPSE_POTENTIAL {t_lt:.2f} s ({t_lt / t_nfw:.1f}x); max |delta alpha| = "
-          f"{diff:.1e} arcsec")
+    rec.say()
+    rec.say(f"one elliptical NFW, deflection and Hessian, {x.size} points: lensdual "
+            f"{t_nfw:.3f} s ({1e9 * t_nfw / x.size:.0f} ns per point), lenstronomy "
+            f"NFW_ELLIPSE_POTENTIAL {t_lt:.2f} s ({t_lt / t_nfw:.1f}x); max |delta alpha| = "
+            f"{diff:.1e} arcsec")
+    rec.write(args.output)
     return 0
 
 

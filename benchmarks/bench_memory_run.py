@@ -3,7 +3,7 @@
 Run on demand (not part of the test suite)::
 
     python benchmarks/bench_memory_run.py [--size 4096] [--cases detect,photometry,run]
-                                          [--no-error]
+                                          [--no-error] [--output FILE]
 
 Builds, in process and without FITS files, what ``lensdual run`` hands to
 :func:`lensdual.pipeline.analyse`: two arcs x two bands of ``size x size`` float64
@@ -41,6 +41,7 @@ import sys
 import time
 
 import numpy as np
+from _output import Record, add_output_argument
 
 N_SOURCES = 20
 FWHM = {"F150W": 2.0, "F200W": 2.4}
@@ -222,12 +223,14 @@ def main():
     parser.add_argument("--cases", default="detect,photometry,run")
     parser.add_argument("--no-error", action="store_true", help="no error maps")
     parser.add_argument("--child", help=argparse.SUPPRESS)
+    add_output_argument(parser)
     args = parser.parse_args()
     if args.child:
         print(json.dumps(child(args.child, args.size, not args.no_error)))
         return
-    print(f"# size {args.size}, error maps: {not args.no_error}")
-    print(
+    rec = Record()
+    rec.say(f"# size {args.size}, error maps: {not args.no_error}")
+    rec.say(
         f"{'case':<11}{'data MiB':>9}{'inputs MiB':>11}{'peak MiB':>9}{'peak/data':>10}"
         f"{'peak/inputs':>12}{'extra MiB':>10}{'time s':>8}  found"
     )
@@ -237,15 +240,16 @@ def main():
             cmd.append("--no-error")
         out = subprocess.run(cmd, capture_output=True, text=True, check=False)
         if out.returncode:
-            print(f"{case}: failed\n{out.stderr[-3000:]}")
+            rec.say(f"{case}: failed\n{out.stderr[-3000:]}")
             continue
         r = json.loads(out.stdout.strip().splitlines()[-1])
-        print(
+        rec.say(
             f"{case:<11}{r['data_MiB']:9.0f}{r['inputs_MiB']:11.0f}{r['peak_MiB']:9.0f}"
             f"{r['peak_over_data']:10.2f}{r['peak_over_inputs']:12.2f}{r['extra_MiB']:10.0f}"
             f"{r['time_s']:8.1f}  {r['found']}"
             + ("" if r["peak_reset"] else "  (ru_maxrss: peak since start)")
         )
+    rec.write(args.output)
 
 
 if __name__ == "__main__":

@@ -2,7 +2,7 @@
 
 Run on demand::
 
-    python benchmarks/bench_null_calibration.py
+    python benchmarks/bench_null_calibration.py [--output FILE]
 
 The target is <= 10 s on 2 cores after compilation. Reported: the
 default (threads over the available cores; the Numba kernel releases the
@@ -13,10 +13,12 @@ on a galaxy-scale fold at 1 mas, where many forward fits are untestable:
 the default against the forward map only, in the same process.
 """
 
+import argparse
 import time
 import warnings
 
 import numpy as np
+from _output import Record, add_output_argument
 from astropy import units as u
 from astropy.table import QTable
 
@@ -44,7 +46,11 @@ class Serial:
         return map(fn, tasks)
 
 
-def main():
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    add_output_argument(parser)
+    args = parser.parse_args(argv)
+    rec = Record()
     pairs = pairs_table()
     sig = 0.005 * u.arcsec
     with warnings.catch_warnings():
@@ -58,16 +64,17 @@ def main():
         default = null_calibration(pairs, sigma_pos=sig, n_realisations=1000, seed=1)
         t_default = time.perf_counter() - t0
     assert np.array_equal(serial["null_snr"], default["null_snr"], equal_nan=True)
-    print(f"30 pairs x 1000 realisations: default (threads) {t_default:.2f} s, serial "
-          f"{t_serial:.2f} s (x{t_serial / t_default:.2f}); identical results")
-    print(f"null false-alarm rate at SNR 3: {serial.meta['false_alarm_rate']:.4f} "
-          f"(nominal {serial.meta['nominal_false_alarm_rate']:.4f}); null map: "
-          f"{serial.meta['map_dof']:.1f} degrees of freedom, chi2/dof "
-          f"{serial.meta['map_chi2_dof']:.2f}")
-    reverse_cost()
+    rec.say(f"30 pairs x 1000 realisations: default (threads) {t_default:.2f} s, serial "
+            f"{t_serial:.2f} s (x{t_serial / t_default:.2f}); identical results")
+    rec.say(f"null false-alarm rate at SNR 3: {serial.meta['false_alarm_rate']:.4f} "
+            f"(nominal {serial.meta['nominal_false_alarm_rate']:.4f}); null map: "
+            f"{serial.meta['map_dof']:.1f} degrees of freedom, chi2/dof "
+            f"{serial.meta['map_chi2_dof']:.2f}")
+    reverse_cost(rec)
+    rec.write(args.output)
 
 
-def reverse_cost(n=20, sigma=0.001, n_realisations=300):
+def reverse_cost(rec, n=20, sigma=0.001, n_realisations=300):
     """The null calibration with and without the reverse map, galaxy fold at 1 mas."""
     from lensdual.estimators import _adaptive
 
@@ -87,9 +94,9 @@ def reverse_cost(n=20, sigma=0.001, n_realisations=300):
             finally:
                 _adaptive.SETTINGS = _adaptive.AdaptiveSettings()
     (t_on, n_on), (t_off, n_off) = times[True], times[False]
-    print(f"galaxy fold, {n} pairs at {sigma * 1000:g} mas, {n_realisations} realisations: "
-          f"with the reverse map {t_on:.2f} s ({n_on} null pairs tested), forward only "
-          f"{t_off:.2f} s ({n_off}); cost x{t_on / t_off:.2f}")
+    rec.say(f"galaxy fold, {n} pairs at {sigma * 1000:g} mas, {n_realisations} realisations: "
+            f"with the reverse map {t_on:.2f} s ({n_on} null pairs tested), forward only "
+            f"{t_off:.2f} s ({n_off}); cost x{t_on / t_off:.2f}")
 
 
 if __name__ == "__main__":

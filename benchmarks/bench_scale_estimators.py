@@ -3,7 +3,7 @@
 Run on demand (not part of the test suite)::
 
     python benchmarks/bench_scale_estimators.py [--sizes 1000 10000 100000]
-        [--uncapped-max 10000] [--adaptive-uncapped-max 300]
+        [--uncapped-max 10000] [--adaptive-uncapped-max 300] [--output FILE]
 
 On a smooth, mildly curved map with 5 mas position noise and a constant
 density of pairs (the field grows with N), each method is timed with the
@@ -20,6 +20,7 @@ import time
 import warnings
 
 import numpy as np
+from _output import Record, add_output_argument
 from astropy import units as u
 
 from lensdual.estimators import size_magnification
@@ -54,13 +55,15 @@ def main(argv=None):
     parser.add_argument("--methods", nargs="+", default=["adaptive", "quad", "2v", "quad2"])
     parser.add_argument("--uncapped-max", type=int, default=10000)
     parser.add_argument("--adaptive-uncapped-max", type=int, default=300)
+    add_output_argument(parser)
     args = parser.parse_args(argv)
+    rec = Record()
     t1, t2 = constellation(100)
     for m in args.methods:  # compile
         timed(t1, t2, m, 64)
         timed(t1, t2, m, None)
-    print(f"{'N':>7} {'method':>8} {'capped [s]':>10} {'uncapped [s]':>12} {'speed-up':>8} "
-          f"{'median, max |dmu|/mu':>22}")
+    rec.say(f"{'N':>7} {'method':>8} {'capped [s]':>10} {'uncapped [s]':>12} {'speed-up':>8} "
+            f"{'median, max |dmu|/mu':>22}")
     for n in args.sizes:
         t1, t2 = constellation(n)
         for m in args.methods:
@@ -74,7 +77,8 @@ def main(argv=None):
                 tu = f"{tu:12.3f}"
             else:
                 tu, ratio, diff = f"{'--':>12}", f"{'--':>8}", f"{'--':>22}"
-            print(f"{n:7d} {m:>8} {tc:10.3f} {tu} {ratio} {diff}", flush=True)
+            rec.say(f"{n:7d} {m:>8} {tc:10.3f} {tu} {ratio} {diff}")
+    rec.write(args.output)
 
 
 if __name__ == "__main__":

@@ -3,7 +3,7 @@
 Run on demand (not part of the test suite)::
 
     python benchmarks/bench_scale_pairing.py [--spurious 0 100 300 500] [--seeds 3]
-        [--fluxes with|without|both]
+        [--fluxes with|without|both] [--output FILE]
 
 Each case is ``crowded_system`` of ``tests/test_pairing.py``: the
 ``make_system`` construction (``--pairs`` true pairs related by a random
@@ -24,6 +24,8 @@ import json
 import subprocess
 import sys
 import textwrap
+
+from _output import Record, add_output_argument
 
 CHILD = textwrap.dedent("""
     import json, resource, sys, time
@@ -71,18 +73,21 @@ def main(argv=None):
     parser.add_argument("--timeout", type=float, default=300.0)
     parser.add_argument("--fluxes", choices=["with", "without", "both"], default="both",
                         help="give flux_columns (two bands) to the pairing")
+    add_output_argument(parser)
     args = parser.parse_args(argv)
+    rec = Record()
     modes = {"with": [True], "without": [False], "both": [False, True]}[args.fluxes]
-    print(f"{'fluxes':>6} {'spurious':>8} {'seed':>4} {'time [s]':>9} {'peak [MB]':>9} "
-          f"{'found':>7} {'wrong':>5}  note")
+    rec.say(f"{'fluxes':>6} {'spurious':>8} {'seed':>4} {'time [s]':>9} {'peak [MB]':>9} "
+            f"{'found':>7} {'wrong':>5}  note")
     for fluxes in modes:
         for n_spur in args.spurious:
             for seed in range(args.seeds):
                 r = run(seed, args.pairs, n_spur, fluxes, args.timeout)
-                print(f"{'yes' if fluxes else 'no':>6} {n_spur:8d} {seed:4d} "
-                      f"{r['time_s']:9.2f} {r['peak_mb']:9.0f} "
-                      f"{r['correct']:3d}/{r['true']:<3d} {r['wrong']:5d}  "
-                      f"{r['error'] or ''}", flush=True)
+                rec.say(f"{'yes' if fluxes else 'no':>6} {n_spur:8d} {seed:4d} "
+                        f"{r['time_s']:9.2f} {r['peak_mb']:9.0f} "
+                        f"{r['correct']:3d}/{r['true']:<3d} {r['wrong']:5d}  "
+                        f"{r['error'] or ''}")
+    rec.write(args.output)
 
 
 if __name__ == "__main__":

@@ -3,7 +3,7 @@
 Run on demand (not part of the test suite)::
 
     python benchmarks/bench_sensitivity.py [--n-lenstronomy 60] [--workers 2] [--repeat 3]
-                                           [--no-dask]
+                                           [--no-dask] [--output FILE]
 
 The map: 20 masses (1e7-1e10 Msun) x 24 r_eff (0.125-3) x 36 angles x 2
 concentration models (the mass-concentration relation and 5 times it) =
@@ -44,6 +44,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import astropy.units as u
 import numpy as np
+from _output import Record, add_output_argument
 from lenstronomy.LensModel.lens_model import LensModel
 from lenstronomy.LensModel.Solver.lens_equation_solver import LensEquationSolver
 
@@ -128,7 +129,9 @@ def main():
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--no-dask", action="store_true")
+    add_output_argument(parser)
     args = parser.parse_args()
+    rec = Record()
 
     system = smacs0723_analog(seed=0)
     pairs = system.constellation()
@@ -136,17 +139,17 @@ def main():
     theta_l1 = u.Quantity([pairs["x1"][0], pairs["y1"][0]])
     jacobian = system.jacobian(theta0[None, :])[0]
     n_place = MASSES.size * R_EFF.size * N_ANGLES * len(MODELS)
-    print(f"map: {MASSES.size} masses x {R_EFF.size} r_eff x {N_ANGLES} angles x "
-          f"{len(MODELS)} concentration models = {n_place} placements")
+    rec.say(f"map: {MASSES.size} masses x {R_EFF.size} r_eff x {N_ANGLES} angles x "
+            f"{len(MODELS)} concentration models = {n_place} placements")
 
     detection_snr_map(MASSES[:2], R_EFF[:2], jacobian=jacobian, sigma_rel=0.1, n_angles=2)
     serial, t_serial = timed(lensdual_map, jacobian, repeat=args.repeat)
     per = t_serial / n_place
-    print(f"lensdual serial:           {t_serial:7.2f} s  ({1e6 * per:.0f} us per placement)")
+    rec.say(f"lensdual serial:           {t_serial:7.2f} s  ({1e6 * per:.0f} us per placement)")
     with ThreadPoolExecutor(args.workers) as ex:
         threads, t_threads = timed(lensdual_map, jacobian, repeat=args.repeat, executor=ex)
-    print(f"lensdual, {args.workers} threads:       {t_threads:7.2f} s  "
-          f"(speed-up {t_serial / t_threads:.2f}, identical: {same(serial, threads)})")
+    rec.say(f"lensdual, {args.workers} threads:       {t_threads:7.2f} s  "
+            f"(speed-up {t_serial / t_threads:.2f}, identical: {same(serial, threads)})")
     if not args.no_dask:
         from distributed import Client, LocalCluster
 
@@ -158,28 +161,29 @@ def main():
             t_up = time.perf_counter() - t_start
             dask_maps, t_dask = timed(lensdual_map, jacobian, repeat=args.repeat,
                                       client=client)
-        print(f"lensdual, dask {args.workers} workers:  {t_dask:7.2f} s  "
-              f"(speed-up {t_serial / t_dask:.2f}, identical: {same(serial, dask_maps)}; "
-              f"cluster start + warm-up {t_up:.1f} s, not timed)")
+        rec.say(f"lensdual, dask {args.workers} workers:  {t_dask:7.2f} s  "
+                f"(speed-up {t_serial / t_dask:.2f}, identical: {same(serial, dask_maps)}; "
+                f"cluster start + warm-up {t_up:.1f} s, not timed)")
 
     rows, per_lt = lenstronomy_sample(system, theta0, theta_l1, jacobian, args.n_lenstronomy)
-    print(f"lenstronomy, {args.n_lenstronomy} random placements: {per_lt:.3f} s per placement "
-          f"-> {per_lt * n_place / 3600:.1f} h for the map")
-    print(f"speed-up per placement (serial lensdual): {per_lt / per:.0f}x")
+    rec.say(f"lenstronomy, {args.n_lenstronomy} random placements: {per_lt:.3f} s per placement "
+            f"-> {per_lt * n_place / 3600:.1f} h for the map")
+    rec.say(f"speed-up per placement (serial lensdual): {per_lt / per:.0f}x")
     mass, fe, n_ld, fe_lt, n_lt = rows[:, 0], rows[:, 3], rows[:, 4], rows[:, 5], rows[:, 6]
     same_n = n_ld == n_lt
-    print(f"image counts: equal in {same_n.sum()} of {len(rows)}; lenstronomy found fewer in "
-          f"{(n_lt < n_ld).sum()}, lensdual fewer in {(n_ld < n_lt).sum()}")
+    rec.say(f"image counts: equal in {same_n.sum()} of {len(rows)}; lenstronomy found fewer in "
+            f"{(n_lt < n_ld).sum()}, lensdual fewer in {(n_ld < n_lt).sum()}")
     rel = np.abs(fe_lt / fe - 1)
     light = mass <= 1.01e9
     for name, sel in (("M <= 1e9", same_n & light), ("M > 1e9", same_n & ~light)):
         if sel.any():
-            print(f"  |f_lenstronomy / f_lensdual - 1|, {name} ({sel.sum()}): median "
-                  f"{np.median(rel[sel]):.1e}, max {rel[sel].max():.1e}")
+            rec.say(f"  |f_lenstronomy / f_lensdual - 1|, {name} ({sel.sum()}): median "
+                    f"{np.median(rel[sel]):.1e}, max {rel[sel].max():.1e}")
     for row in rows[np.argsort(-np.where(same_n, rel, -1.0))[:3]]:
-        print(f"  M = {row[0]:.2e}, c = {row[1]:6.1f}, r_eff = {row[2]:.3f}: "
-              f"lensdual f = {row[3]:.5f} ({row[4]:.0f} images), "
-              f"lenstronomy f = {row[5]:.5f} ({row[6]:.0f} images)")
+        rec.say(f"  M = {row[0]:.2e}, c = {row[1]:6.1f}, r_eff = {row[2]:.3f}: "
+                f"lensdual f = {row[3]:.5f} ({row[4]:.0f} images), "
+                f"lenstronomy f = {row[5]:.5f} ({row[6]:.0f} images)")
+    rec.write(args.output)
 
 
 if __name__ == "__main__":

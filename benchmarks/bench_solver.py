@@ -3,6 +3,7 @@
 Run on demand (not part of the test suite)::
 
     python benchmarks/bench_solver.py [--n-sources 30] [--n-lenstronomy 4]
+                                     [--output FILE]
 
 The lens is an elliptical NFW cluster halo (``NFW_ELLIPSE_CSE``, 5e14 Msun,
 c = 4, e1 = 0.1, e2 = 0.05, z = 0.39 / 2.2). ``n_sources`` point sources are
@@ -27,6 +28,7 @@ import argparse
 import time
 
 import numpy as np
+from _output import Record, add_output_argument
 from astropy.cosmology import FlatLambdaCDM
 from lenstronomy.Cosmo.lens_cosmo import LensCosmo
 from lenstronomy.LensModel.lens_model import LensModel
@@ -107,7 +109,9 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--n-sources", type=int, default=30)
     parser.add_argument("--n-lenstronomy", type=int, default=4)
+    add_output_argument(parser)
     args = parser.parse_args()
+    rec = Record()
 
     model, kwargs = cluster_lens()
     beta = fold_sources(model, kwargs, args.n_sources)
@@ -124,38 +128,39 @@ def main():
     lt_counts = [len(t) for t in lt_images]
 
     n = args.n_sources
-    print(f"\nNFW_ELLIPSE_CSE cluster, {n} sources inside a fold of the tangential caustic; "
-          f"field {SEARCH_WINDOW:g}\", precision {PRECISION:g}\"")
-    print(f"lenstronomy LensEquationSolver (search_window={SEARCH_WINDOW:g}, "
-          f"min_distance={MIN_DISTANCE:g}), timed on {m} sources: {lt_time:.3f} s per source")
+    rec.say(f"NFW_ELLIPSE_CSE cluster, {n} sources inside a fold of the tangential caustic; "
+            f"field {SEARCH_WINDOW:g}\", precision {PRECISION:g}\"")
+    rec.say(f"lenstronomy LensEquationSolver (search_window={SEARCH_WINDOW:g}, "
+            f"min_distance={MIN_DISTANCE:g}), timed on {m} sources: {lt_time:.3f} s per source")
     header = (f"{'method':40s} {'points':>8s} {'build s':>8s} {'solve s':>8s} "
               f"{'s/source':>9s} {'ratio':>7s} {'amort. s/src':>12s} {'ratio':>7s}")
-    print(header)
-    print("-" * len(header))
-    print(f"{'lenstronomy (per call)':40s} {'':>8s} {'':>8s} {'':>8s} {lt_time:9.4f} "
-          f"{1.0:7.1f} {lt_time:12.4f} {1.0:7.1f}")
+    rec.say(header)
+    rec.say("-" * len(header))
+    rec.say(f"{'lenstronomy (per call)':40s} {'':>8s} {'':>8s} {'':>8s} {lt_time:9.4f} "
+            f"{1.0:7.1f} {lt_time:12.4f} {1.0:7.1f}")
     for name, (finder, _, build, solve) in results.items():
         per = solve / n
         amortised = (build + solve) / n
-        print(f"{name:40s} {finder.n_points:8d} {build:8.3f} {solve:8.4f} {per:9.5f} "
-              f"{lt_time / per:7.0f} {amortised:12.5f} {lt_time / amortised:7.0f}")
+        rec.say(f"{name:40s} {finder.n_points:8d} {build:8.3f} {solve:8.4f} {per:9.5f} "
+                f"{lt_time / per:7.0f} {amortised:12.5f} {lt_time / amortised:7.0f}")
 
-    print("\nimages found per source:")
+    rec.say("images found per source:")
     for name, (_, out, _, _) in results.items():
         counts = np.bincount(out["source"], minlength=n)
         values, times = np.unique(counts, return_counts=True)
         histogram = dict(zip(values.tolist(), times.tolist(), strict=True))
-        print(f"  {name:40s} total {counts.sum():4d}  histogram {histogram}")
-    print(f"  lenstronomy (first {m} sources): {lt_counts}")
+        rec.say(f"  {name:40s} total {counts.sum():4d}  histogram {histogram}")
+    rec.say(f"  lenstronomy (first {m} sources): {lt_counts}")
     for name, (_, out, _, _) in results.items():
         ours = [out["theta"][out["source"] == s] for s in range(m)]
         common = sum(
             sum(len(o) > 0 and np.hypot(*(o - t).T).min() < 1e-6 for t in theirs)
             for o, theirs in zip(ours, lt_images, strict=True))
-        print(f"  {name:40s} on those: {[len(o) for o in ours]}, "
-              f"{common} of lenstronomy's {sum(lt_counts)} images matched within 1e-6\"")
+        rec.say(f"  {name:40s} on those: {[len(o) for o in ours]}, "
+                f"{common} of lenstronomy's {sum(lt_counts)} images matched within 1e-6\"")
     mu = np.abs(results[next(iter(results))][1]["magnification"])
-    print(f"  |mu| range of the images: {mu.min():.3g} - {mu.max():.3g}")
+    rec.say(f"  |mu| range of the images: {mu.min():.3g} - {mu.max():.3g}")
+    rec.write(args.output)
 
 
 if __name__ == "__main__":

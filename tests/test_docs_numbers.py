@@ -183,3 +183,28 @@ def test_calibration_tables_are_the_stored_suite_output(tmp_path):
     line = next(ln for ln in written["main.csv"].splitlines()
                 if ln.startswith("cluster_fold, 20, 5,"))
     assert line.split(", ")[4].startswith(f"{ffr:.2f} / ")
+
+
+def test_performance_numbers_are_the_benchmarks_outputs(tmp_path):
+    """docs/performance.rst quotes what docs/scripts/performance_numbers.py reads from
+    the benchmarks' stored outputs (regenerated here into a temporary folder), and
+    no number the script does not define."""
+    module = load_script("performance_numbers")
+    sub = module.main(tmp_path)
+    folder = STATIC / "performance"
+    written = {p.name: p.read_text() for p in tmp_path.iterdir()}
+    assert set(written) == {"numbers.inc"}
+    assert_files_match(written, folder, "docs/scripts/performance_numbers.py")
+    page = (ROOT / "docs" / "performance.rst").read_text()
+    assert ".. include:: _static/performance/numbers.inc" in page
+    used = substitutions_used(page, "perf")
+    assert used
+    assert used <= set(sub)
+    # every stored output the script reads is named on the page, with its benchmark
+    for name in module.READERS:
+        assert f"_static/performance/{name}" in page
+    # an independent read of the quad estimator's speed-up against the numpy reference
+    line = next(ln.split() for ln in (folder / "estimators.txt").read_text().splitlines()
+                if ln.split()[:1] == ["quad"])
+    assert sub["perf_est_quad_ratio"] == line[-1]
+    assert float(line[2]) / float(line[1]) == pytest.approx(float(line[-1][:-1]), abs=1)
