@@ -35,6 +35,24 @@ def assert_files_match(written, folder, script):
             f"and check the page that includes it")
 
 
+def generated_numbers(tmp_path, script, topic, prefix):
+    """Run ``docs/scripts/<script>.py`` into ``tmp_path``; check that its one include
+    file is the committed ``docs/_static/<topic>/numbers.inc``, that
+    ``docs/<topic>.rst`` includes it and that every ``|<prefix>_...|`` the page
+    uses is defined. Returns the substitutions, the folder and the page's text."""
+    sub = load_script(script).main(tmp_path)
+    folder = STATIC / topic
+    written = {p.name: p.read_text() for p in tmp_path.iterdir()}
+    assert set(written) == {"numbers.inc"}
+    assert_files_match(written, folder, f"docs/scripts/{script}.py")
+    page = (ROOT / "docs" / f"{topic}.rst").read_text()
+    assert f".. include:: _static/{topic}/numbers.inc" in page
+    used = substitutions_used(page, prefix)
+    assert used
+    assert used <= set(sub)
+    return sub, folder, page
+
+
 def substitutions_used(text, prefix):
     """The names ``<prefix>_...`` of the reST substitutions ``text`` uses or defines."""
     return set(re.findall(rf"\|({prefix}_\w+)\|", text))
@@ -139,17 +157,8 @@ def test_calibration_numbers_are_read_from_the_tables(tmp_path):
     """The calibration page's prose quotes what docs/scripts/calibration_numbers.py
     writes from the stored benchmark tables (regenerated here into a temporary
     folder), and no number the script does not define."""
-    module = load_script("calibration_numbers")
-    sub = module.main(tmp_path)
-    folder = STATIC / "calibration"
-    written = {p.name: p.read_text() for p in tmp_path.iterdir()}
-    assert set(written) == {"numbers.inc"}
-    assert_files_match(written, folder, "docs/scripts/calibration_numbers.py")
-    page = (ROOT / "docs" / "calibration.rst").read_text()
-    assert ".. include:: _static/calibration/numbers.inc" in page
-    used = substitutions_used(page, "cal")
-    assert used
-    assert used <= set(sub)
+    sub, folder, page = generated_numbers(tmp_path, "calibration_numbers", "calibration",
+                                          "cal")
     # an independent read of the galaxy group's false flags with 8 sources at 1 mas
     lines = (folder / "heldout_new.txt").read_text().splitlines()
     head = lines[0].split()
@@ -189,19 +198,10 @@ def test_performance_numbers_are_the_benchmarks_outputs(tmp_path):
     """docs/performance.rst quotes what docs/scripts/performance_numbers.py reads from
     the benchmarks' stored outputs (regenerated here into a temporary folder), and
     no number the script does not define."""
-    module = load_script("performance_numbers")
-    sub = module.main(tmp_path)
-    folder = STATIC / "performance"
-    written = {p.name: p.read_text() for p in tmp_path.iterdir()}
-    assert set(written) == {"numbers.inc"}
-    assert_files_match(written, folder, "docs/scripts/performance_numbers.py")
-    page = (ROOT / "docs" / "performance.rst").read_text()
-    assert ".. include:: _static/performance/numbers.inc" in page
-    used = substitutions_used(page, "perf")
-    assert used
-    assert used <= set(sub)
+    sub, folder, page = generated_numbers(tmp_path, "performance_numbers", "performance",
+                                          "perf")
     # every stored output the script reads is named on the page, with its benchmark
-    for name in module.READERS:
+    for name in load_script("performance_numbers").READERS:
         assert f"_static/performance/{name}" in page
     # an independent read of the quad estimator's speed-up against the numpy reference
     line = next(ln.split() for ln in (folder / "estimators.txt").read_text().splitlines()

@@ -26,7 +26,11 @@ Run from the repository root after rerunning a benchmark (each with
 """
 
 import re
+import sys
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _substitutions import write  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 OUT = ROOT / "docs" / "_static" / "performance"
@@ -315,19 +319,9 @@ def compute(folder=OUT):
     return sub
 
 
-def include_files(sub):
-    """``{"numbers.inc": text}``: one reST substitution per number."""
-    text = "".join(f".. |{k}| replace:: {v}\n" for k, v in sub.items())
-    return {"numbers.inc": text}
-
-
 def main(out=OUT):
     """Write the include file into ``out`` (the docs' folder by default)."""
-    sub = compute()
-    for name, text in include_files(sub).items():
-        (Path(out) / name).write_text(text)
-        print(text, end="")
-    return sub
+    return write(compute(), out)
 
 
 if __name__ == "__main__":
