@@ -56,11 +56,9 @@ ADAPTIVE_UNTESTABLE = 3  # no fit, not even the reported one, is consistent with
 
 _INLINE = {**JIT_OPTIONS, "inline": "always"}
 
-# Most coefficient counts and offsets passed to the helpers below are numpy
-# integers: Numba compiles a jitted callee once per value of a Python-int constant
-# argument (a literal type), and once for all values of an int64. The calls in the
-# loops over neighbourhoods of _store_linear, _two_scale and _cubic_alias pass
-# Python ints, so that their small loops are compiled for the fixed sizes.
+# Coefficient counts and offsets passed to the helpers below are numpy integers
+# (see lensdual._numba), except in the loops over neighbourhoods of _store_linear,
+# _two_scale and _cubic_alias, whose small loops are compiled for the fixed sizes.
 #: Coefficients of a linear fit (1, x, y); the quadratic monomials start here.
 N_LINEAR = np.int64(3)
 #: Coefficients of a quadratic fit; the cubic monomials start here.
@@ -190,18 +188,12 @@ def _rotate_cov(c, s, cv, hmax, out):
 
 
 @njit(**JIT_OPTIONS)
-def _copy_jacobian(src, out):
-    for i in range(2):
-        for j in range(2):
-            out[i, j] = src[i, j]
-
-
-@njit(**JIT_OPTIONS)
-def _copy_slope_cov(src, out):
-    """``out[:, :] = src`` for (2, 3) slope covariances, element by element (a
-    slice assignment compiles Numba's shape-mismatch error machinery)."""
-    for i in range(2):
-        for j in range(3):
+def _copy_matrix(src, out):
+    """``out[:, :] = src`` for the small matrices of a pair (Jacobians, slope
+    covariances), element by element: a slice assignment compiles Numba's
+    shape-mismatch error machinery."""
+    for i in range(out.shape[0]):
+        for j in range(out.shape[1]):
             out[i, j] = src[i, j]
 
 
@@ -446,7 +438,7 @@ def _two_scale(L, scale, work, beta, U, kk, hmax, h_k, h_sl, h_al, h_cv, n_h, c,
             best_g2 = _centre_gradient2(L, 6, scale, work, beta, g00, g01, g10, g11, hmax,
                                         cov_o)
             _rotate_back(c, s, jr00, jr01, jr10, jr11, jb)
-            _copy_slope_cov(cv, cb)
+            _copy_matrix(cv, cb)
     return best_rank, best_sd, best_g2
 
 
@@ -855,7 +847,7 @@ def _fallback_error(fb_f, fb_i, jfb, cfb, cand_f, cand_i, cand_ok, n_cand, n_con
     and its covariance, scaled as its error, into ``jcov_out``."""
     for slot in range(2):
         if fb_f[0, slot] < np.inf:
-            _copy_jacobian(jfb[slot], jac_out)
+            _copy_matrix(jfb[slot], jac_out)
             _rotate_cov(c, s, cfb[slot], hmax, jcov_out)
             model = _model_error(cand_f[0], cand_f[1], cand_i[0], cand_i[1], cand_ok, n_cand,
                                  fb_f[1, slot], fb_i[0, slot], fb_i[1, slot], st.lookahead,
@@ -876,7 +868,7 @@ def _winner_error(jb, cb, best_sd, best_g2, best_lin, v3, A, L, scale, rhs, beta
     licensed by a linear test, the cubic alias bias of the whole row
     (:func:`_cubic_alias_bias2`). Its Jacobian goes into ``jac_out`` and the
     covariance of the Jacobian's own estimate into ``jcov_out``."""
-    _copy_jacobian(jb, jac_out)
+    _copy_matrix(jb, jac_out)
     _rotate_cov(c, s, cb, hmax, jcov_out)
     bias2 = 0.0
     if best_lin and n >= N_CUBIC + st.min_extra:
@@ -1068,7 +1060,7 @@ def adaptive_pair(t1, t2, s1, s2, a, row, pilot, chi2_crit, k_dense, st, order, 
                     best_rank, best_sd, found = rank, np.sqrt(var_ln), True
                     best_g2, best_lin = _accept(L, scale, work, beta, A, cov_o, rhs_al6, sol_al6,
                                                 v3, jb, c, s, jr, g, hmax, dt, pr)
-                    _copy_slope_cov(cov, cb)
+                    _copy_matrix(cov, cb)
             if not found:
                 dr = dt + st.report_extra
                 sdf, consistent, dof_r = _fallback_fit(U, W, Yr, L, scale, beta, work,

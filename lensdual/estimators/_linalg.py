@@ -19,8 +19,7 @@ from .._numba import JIT_OPTIONS
 __all__ = []
 
 
-# numpy integers: Numba compiles a callee once per value of a Python-int constant
-# argument, and once for every value of an int64
+# the slope columns as numpy integers (see lensdual._numba)
 _SLOPE_X = np.int64(1)
 _SLOPE_Y = np.int64(2)
 
