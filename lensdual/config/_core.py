@@ -633,7 +633,7 @@ class _Validator:
             if psf is not None and psf is not _BAD and psf_hdu is not _BAD:
                 if self.inspect_fits(psf, psf_hdu, sec, "psf", "psf_hdu") is not None:
                     try:
-                        image = _read_psf(psf, psf_hdu, check_centre=False)
+                        image = _read_psf(psf, psf_hdu)
                     except Exception as exc:
                         self.add(f"[{sec}] psf: {exc}")
             over = self.oversampling(spec, sec, psf, psf_hdu)
@@ -1345,7 +1345,7 @@ def load_images(config):
     for name, band in config.bands.items():
         if band.psf is not None:
             try:
-                psfs[name] = _read_psf(band.psf, band.psf_hdu, band.psf_oversampling)
+                psfs[name] = _read_psf(band.psf, band.psf_hdu)
             except (OSError, ValueError) as exc:
                 problems.append(f"[{_sec('bands', name)}] psf: {exc}")
     out = {}
@@ -1387,7 +1387,7 @@ def band_psfs(config):
             out[name] = band.psf_fwhm
         elif band.psf is not None:
             try:
-                out[name] = _read_psf(band.psf, band.psf_hdu, band.psf_oversampling)
+                out[name] = _read_psf(band.psf, band.psf_hdu)
             except (OSError, ValueError) as exc:
                 problems.append(f"[{_sec('bands', name)}] psf: {exc}")
         else:

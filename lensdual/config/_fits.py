@@ -14,7 +14,6 @@ from astropy.nddata import CCDData, Cutout2D, StdDevUncertainty
 from astropy.nddata.utils import NoOverlapError
 from astropy.wcs import WCS, FITSFixedWarning
 
-from .._psf_image import check_psf_centred
 from ..exceptions import HDUError, MissingValuesWarning
 from ._values import _suggest
 
@@ -177,10 +176,8 @@ def _grid_mismatch(ref, info):
     return f"its WCS puts the same sky up to {off:.3g} pixels elsewhere"
 
 
-def _read_psf(path, hdu, oversampling=None, check_centre=True):
-    """The PSF image, normalised to unit sum; ValueError if unusable (with
-    ``check_centre``, also when it is not centred on its central pixel, given its
-    ``oversampling``)."""
+def _read_psf(path, hdu):
+    """The PSF image, normalised to unit sum; ValueError if unusable."""
     with fits.open(path, memmap=False) as hdul:
         index = _find_hdu(hdul, hdu, path)
         arr = np.array(hdul[index].data, dtype=np.float64)
@@ -194,8 +191,6 @@ def _read_psf(path, hdu, oversampling=None, check_centre=True):
     total = arr.sum()
     if not total > 0:
         raise ValueError(f"the PSF image in {path} must have a positive sum, got {total}")
-    if check_centre:
-        check_psf_centred(arr, oversampling, f"the PSF image in {path}")
     return arr / total
 
 
