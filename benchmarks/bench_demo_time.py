@@ -24,6 +24,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from _output import Record, add_output_argument
+
 _PROFILE = r"""
 import collections, sys, time
 from numba.core import event
@@ -70,29 +72,21 @@ def _run(args, cache, out):
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=2, help="warm runs (default 2)")
-    parser.add_argument("--output", type=Path, help="also write the figures to this file")
+    add_output_argument(parser)
     args = parser.parse_args(argv)
-    lines = [f"cores: {len(os.sched_getaffinity(0))}"]
-
-    def say(text):
-        print(text)
-        lines.append(text)
-
+    record = Record()
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         cold, profile = _run(["-c", _PROFILE], tmp / "cache", tmp / "cold")
-        say(f"first run (cold Numba cache): {cold:.1f} s; compilation, nested included:")
-        say(profile.rstrip())
+        record.say(f"first run (cold Numba cache): {cold:.1f} s; compilation, nested included:")
+        record.say(profile.rstrip())
         warm = []
         for k in range(args.runs):
             warm.append(_run(["-m", "lensdual", "demo", "--quiet", "--outdir"], tmp / "cache",
                              tmp / f"warm{k}")[0])
-            say(f"warm run {k + 1}: {warm[-1]:.1f} s")
-    if args.output is not None:
-        lines.append(f"summary: first {cold:.0f} s, warm {min(warm):.0f}-{max(warm):.0f} s")
-        args.output.parent.mkdir(parents=True, exist_ok=True)
-        args.output.write_text("\n".join(lines) + "\n")
-
+            record.say(f"warm run {k + 1}: {warm[-1]:.1f} s")
+    record.say(f"summary: first {cold:.0f} s, warm {min(warm):.0f}-{max(warm):.0f} s")
+    record.write(args.output)
 
 if __name__ == "__main__":
     main()
