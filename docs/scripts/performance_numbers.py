@@ -202,8 +202,9 @@ def _pairing_result(runs):
     return text + (f"; {len(refused)} refused" if refused else "")
 
 
-def scale_pairing(path):
-    """``bench_scale_pairing.py``: time, peak memory and result per spurious count."""
+def read_scale_pairing(path):
+    """The runs of ``bench_scale_pairing.py``, one dict per line of its table
+    (``note``: the start of the refusal's message, empty when it paired)."""
     runs = []
     pattern = re.compile(r"^\s*(yes|no)\s+(\d+)\s+(\d+)\s+([\d.]+)\s+([\d.]+)\s+(\d+)/(\d+)\s+"
                          r"(\d+)\s*(.*)$")
@@ -217,6 +218,12 @@ def scale_pairing(path):
                          "note": m.group(9).strip()})
     if not runs:
         raise ValueError(f"{path}: no pairing runs")
+    return runs
+
+
+def scale_pairing(path):
+    """``bench_scale_pairing.py``: time, peak memory and result per spurious count."""
+    runs = read_scale_pairing(path)
     sub = {"perf_pair_seeds": str(len({r["seed"] for r in runs})),
            "perf_pair_true": str(runs[0]["true"])}
     for fluxes, short in ((False, "pos"), (True, "flux")):
