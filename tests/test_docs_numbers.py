@@ -35,15 +35,16 @@ def assert_files_match(written, folder, script):
             f"and check the page that includes it")
 
 
-def generated_numbers(tmp_path, script, topic, prefix):
-    """Run ``docs/scripts/<script>.py`` into ``tmp_path``; check that its one include
-    file is the committed ``docs/_static/<topic>/numbers.inc``, that
-    ``docs/<topic>.rst`` includes it and that every ``|<prefix>_...|`` the page
-    uses is defined. Returns the substitutions, the folder and the page's text."""
+def generated_numbers(tmp_path, script, topic, prefix, files=("numbers.inc",)):
+    """Run ``docs/scripts/<script>.py`` into ``tmp_path``; check that it writes
+    ``files`` (its include file and any tables), that they are the committed
+    ones under ``docs/_static/<topic>/``, that ``docs/<topic>.rst`` includes the
+    numbers and that every ``|<prefix>_...|`` the page uses is defined. Returns
+    the substitutions, the folder and the page's text."""
     sub = load_script(script).main(tmp_path)
     folder = STATIC / topic
     written = {p.name: p.read_text() for p in tmp_path.iterdir()}
-    assert set(written) == {"numbers.inc"}
+    assert set(written) == set(files)
     assert_files_match(written, folder, f"docs/scripts/{script}.py")
     page = (ROOT / "docs" / f"{topic}.rst").read_text()
     assert f".. include:: _static/{topic}/numbers.inc" in page
@@ -167,7 +168,6 @@ def test_calibration_numbers_are_read_from_the_tables(tmp_path):
     assert sub["cal_group8_ffr1"] == f"{100 * float(row[head.index('ffr')]):.1f}"
 
 
-
 def test_calibration_tables_are_the_stored_suite_output(tmp_path):
     """The calibration page's tables are the CSV files that
     ``benchmarks/calibration_tables.py --csv`` writes from the stored output of
@@ -208,3 +208,23 @@ def test_performance_numbers_are_the_benchmarks_outputs(tmp_path):
                 if ln.split()[:1] == ["quad"])
     assert sub["perf_est_quad_ratio"] == line[-1]
     assert float(line[2]) / float(line[1]) == pytest.approx(float(line[-1][:-1]), abs=1)
+
+
+def test_pairing_numbers_are_the_benchmarks_outputs(tmp_path):
+    """docs/pairing.rst's tables and numbers are what docs/scripts/pairing_numbers.py
+    writes from the stored outputs of benchmarks/pairing_accuracy.py and
+    bench_scale_pairing.py (regenerated here into a temporary folder)."""
+    files = ("numbers.inc", "accuracy.csv", "smacs.csv")
+    sub, folder, page = generated_numbers(tmp_path, "pairing_numbers", "pairing", "pair", files)
+    for name in files[1:]:
+        assert f":file: _static/pairing/{name}" in page
+    # an independent count of the systems and refusals over the first table's rows
+    # (columns from the right: ms/system, quadratic, refused, ...; "15 + 15" points)
+    lines = (folder / "accuracy.txt").read_text().splitlines()
+    start = next(i for i, ln in enumerate(lines) if ln.startswith("case ")) + 1
+    end = next(i for i, ln in enumerate(lines) if ln.startswith(("refused:", "SMACS")))
+    rows = [ln.split() for ln in lines[start:end]]
+    assert len(rows) == 11
+    assert sub["pair_refused_total"] == str(sum(int(r[-3]) for r in rows))
+    assert sub["pair_systems_total"] == str(sum(int(r[-10]) for r in rows))
+
