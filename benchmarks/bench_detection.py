@@ -17,12 +17,22 @@ printed too, since fresh memory pages are expensive on some virtual machines:
 * ``find_point_sources`` (filter + photutils segmentation and catalogue).
 
 The target is filter / blurs <= 1.25. The filter's maps are checked against
-the numpy chain before timing.
+the numpy chain before timing. Also reported: where the best
+``PointSourceFilter()`` run spends its time outside the blurs (the two Numba
+passes, the finiteness checks, the noise and low-level estimates), and the
+import plus the first call of ``find_point_sources`` on a small image in a
+fresh interpreter, with an empty and with a warm Numba cache. With
+``--output FILE`` the figures also go to FILE: ``docs/detection.rst`` quotes
+``docs/_static/detection/timings.txt`` through
+``docs/scripts/detection_numbers.py``.
 """
 
 import argparse
+import os
 import resource
+import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -32,9 +42,27 @@ from scipy.ndimage import gaussian_filter
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent / "tests"))
 
+from _output import Record, add_output_argument  # noqa: E402
 from test_detection import numpy_chain  # noqa: E402
 
-from lensdual.detection import PointSourceFilter, find_point_sources  # noqa: E402
+from lensdual.detection import PointSourceFilter, _kernels, core, find_point_sources  # noqa: E402
+
+#: The steps of the filter timed inside a call: (module, attribute, label).
+STEPS = ((_kernels, "band_statistics", "first Numba pass (band statistics, co-add)"),
+         (_kernels, "filter_pixels", "second Numba pass (residuals to candidates)"),
+         (_kernels, "has_nonfinite", "finiteness checks"),
+         (core, "_residual_noise", "noise estimate"),
+         (core, "_low_level", "low-level estimate"))
+
+#: Import plus a first call in a fresh interpreter.
+_FIRST_CALL = """
+import numpy as np
+from lensdual.detection import find_point_sources
+rng = np.random.default_rng(0)
+y, x = np.mgrid[:64, :64]
+star = 50 * np.exp(-0.5 * ((x - 30.3) ** 2 + (y - 31.6) ** 2))
+assert len(find_point_sources({b: star + rng.normal(size=x.shape) for b in "ab"})) == 1
+"""
 
 
 def make_bands(size, n_sources=800, seed=0):
@@ -68,11 +96,55 @@ def make_bands(size, n_sources=800, seed=0):
     return bands, sx.size
 
 
+class StepTimer:
+    """Wrap the steps of ``STEPS`` so that each call adds its wall time to a total."""
+
+    def __init__(self):
+        self.totals = dict.fromkeys((label for _, _, label in STEPS), 0.0)
+        self._saved = []
+
+    def __enter__(self):
+        for module, name, label in STEPS:
+            func = getattr(module, name)
+            self._saved.append((module, name, func))
+            setattr(module, name, self._timed(func, label))
+        return self
+
+    def __exit__(self, *exc):
+        for module, name, func in self._saved:
+            setattr(module, name, func)
+        self._saved = []
+
+    def _timed(self, func, label):
+        def timed(*args, **kwargs):
+            start = time.perf_counter()
+            try:
+                return func(*args, **kwargs)
+            finally:
+                self.totals[label] += time.perf_counter() - start
+        return timed
+
+
+def first_call():
+    """Wall time (s) of import plus a first call, fresh interpreter: empty, then warm cache."""
+    times = []
+    with tempfile.TemporaryDirectory() as cache:
+        env = dict(os.environ, NUMBA_CACHE_DIR=cache)
+        for _ in range(2):
+            start = time.perf_counter()
+            subprocess.run([sys.executable, "-c", _FIRST_CALL], env=env, check=True,
+                           capture_output=True)
+            times.append(time.perf_counter() - start)
+    return times
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--size", type=int, default=4096)
     parser.add_argument("--repeat", type=int, default=5)
+    add_output_argument(parser)
     args = parser.parse_args(argv)
+    rec = Record()
 
     bands, n_sources = make_bands(args.size)
     a, b = bands["F150W"], bands["F200W"]
@@ -98,28 +170,38 @@ def main(argv=None):
         "numpy chain": lambda: numpy_chain([a, b]),
         "find_point_sources": lambda: find_point_sources(bands),
     }
-    best = {}
+    best, steps = {}, None
     for name, func in cases.items():
         func()  # warm-up: the first run of a case also pays for fresh memory pages
         runs = []
         for _ in range(args.repeat):
-            r0 = resource.getrusage(resource.RUSAGE_SELF)
-            start = time.perf_counter()
-            func()
-            wall = time.perf_counter() - start
-            r1 = resource.getrusage(resource.RUSAGE_SELF)
+            with StepTimer() as timer:
+                r0 = resource.getrusage(resource.RUSAGE_SELF)
+                start = time.perf_counter()
+                func()
+                wall = time.perf_counter() - start
+                r1 = resource.getrusage(resource.RUSAGE_SELF)
             runs.append((wall, r1.ru_stime - r0.ru_stime))
+            if name == "PointSourceFilter" and wall == min(runs)[0]:
+                steps = timer.totals
         best[name] = min(runs)
 
     table = find_point_sources(bands)
     ref_time = best["blurs (2 x sigma 5, 1 x sigma 3)"][0]
-    print(
+    rec.say(
         f"two {args.size} x {args.size} float64 bands, {n_sources} injected point sources, "
         f"{len(table)} found; best of {args.repeat}"
     )
-    print(f"{'':<36}{'time [s]':>10}{'/ blurs':>10}{'of it sys [s]':>15}")
+    rec.say(f"{'':<36}{'time [s]':>10}{'/ blurs':>10}{'of it sys [s]':>15}")
     for name, (t, sys_t) in best.items():
-        print(f"{name:<36}{t:>10.3f}{t / ref_time:>10.2f}{sys_t:>15.3f}")
+        rec.say(f"{name:<36}{t:>10.3f}{t / ref_time:>10.2f}{sys_t:>15.3f}")
+    rec.say("steps of the best PointSourceFilter run:")
+    for label, t in steps.items():
+        rec.say(f"  {label:<44}{t:>8.3f} s")
+    cold, warm = first_call()
+    rec.say(f"import and first call of find_point_sources in a fresh interpreter: {cold:.1f} s "
+            f"with an empty Numba cache, {warm:.1f} s with a warm one")
+    rec.write(args.output)
     return best
 
 

@@ -228,3 +228,13 @@ def test_pairing_numbers_are_the_benchmarks_outputs(tmp_path):
     assert sub["pair_refused_total"] == str(sum(int(r[-3]) for r in rows))
     assert sub["pair_systems_total"] == str(sum(int(r[-10]) for r in rows))
 
+
+def test_detection_numbers_are_the_benchmark_s(tmp_path):
+    """docs/detection.rst's timings are what docs/scripts/detection_numbers.py reads
+    from the stored output of benchmarks/bench_detection.py."""
+    sub, folder, page = generated_numbers(tmp_path, "detection_numbers", "detection", "det")
+    assert "_static/detection/timings.txt" in page
+    # the ratio quoted is the quoted filter time over the quoted blur time
+    ratio = float(sub["det_filter_time"]) / float(sub["det_blurs_time"])
+    assert float(sub["det_filter_ratio"]) == pytest.approx(ratio, abs=0.02)
+
