@@ -1,0 +1,180 @@
+"""Write docs/_static/inference/numbers.inc: the numbers the inference page quotes
+from the stored benchmark outputs.
+
+The page includes the outputs themselves; this script reads the numbers its
+prose quotes from them, so the prose cannot drift from the listings:
+
+- ``coverage.txt``: ``benchmarks/inference_coverage.py --n-universes 150
+  --out docs/_static/inference/coverage.txt`` (the SMACS0723 analogue and
+  MACS J1149, the families the composite weight was chosen on);
+- ``coverage_heldout.txt``: the same with ``--families a2744_s3_lenstool
+  --n-universes 100``;
+- ``coverage_heldout_cusp.txt``: the same with ``--families cluster_cusp
+  --n-universes 50 --n-real 200 --n-grid 10 --n-mocks 30``;
+- ``wdm.txt``: ``benchmarks/inference_wdm.py --out
+  docs/_static/inference/wdm.txt``;
+- ``posterior.txt``: ``docs/scripts/inference_figure.py`` (the figure's
+  constellation and its settings).
+
+Run from the repository root after rerunning one of them::
+
+    python docs/scripts/inference_numbers.py
+"""
+
+import ast
+import re
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _substitutions import write  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[2]
+OUT = ROOT / "docs" / "_static" / "inference"
+
+#: The families the composite weight was chosen on (``coverage.txt``).
+DEVELOPMENT = ("smacs_analog", "macs1149_lenstool")
+#: The held-out Lenstool model (``coverage_heldout.txt``).
+HELD_OUT = "a2744_s3_lenstool"
+#: The page's targets: the 95 % intervals' coverage (nominal, tolerance) and
+#: the largest median bias (dex).
+TARGET95 = (0.95, 0.03)
+MAX_BIAS = 0.1
+#: The bins of the truth's position in the prior that the prose describes: the
+#: lowest (next to the prior's lower bound) and the middle one.
+LOW_BIN = "[-3, -2)"
+MID_BIN = "[-2, -1.5)"
+
+_FAMILY = re.compile(r"^(\w+): (\d+) universes, (\d+) sources, ([\d.]+) mas, ([\d.]+) % flux; "
+                     r"forward model (\d+) x (\d+); composite weight from (\d+) mocks; "
+                     r"t_sim=(\d+)s t_weight=(\d+)s")
+_ROW = re.compile(r"^  w=([\d.]+)\s+(.*)$")
+_BIN = re.compile(r"^\s+log10 truth in (\[[^)]*\)): n=\s*(\d+) (.*)$")
+_WDM = re.compile(r"^sigma_pos\s+([\d.]+) mas: weight ([\d.]+); .*N_95 = (\S+) constellations$")
+
+
+def _values(text):
+    """``{name: float}`` of the ``name=value`` fields of a line."""
+    return {k: float(v) for k, v in re.findall(r"(\w+)=([-+\d.]+)", text)}
+
+
+def read_coverage(path):
+    """The runs of an ``inference_coverage.py`` output.
+
+    Returns
+    -------
+    settings : dict
+        The command line's arguments (the file's first line).
+    families : dict
+        Per family: ``head`` (the settings and times of its line) and ``rows``,
+        one per weight (``w`` and the line's statistics, ``bins`` by the
+        truth's position in the prior).
+    """
+    lines = Path(path).read_text().splitlines()
+    settings = ast.literal_eval(lines[0].lstrip("# "))
+    families, rows = {}, None
+    for line in lines[1:]:
+        if m := _FAMILY.match(line):
+            names = ("universes", "sources", "mas", "flux", "n_real", "n_grid", "mocks",
+                     "t_sim", "t_weight")
+            head = dict(zip(names, m.groups()[1:], strict=True))
+            rows = []
+            families[m.group(1)] = {"head": head, "rows": rows}
+        elif m := _ROW.match(line):
+            rows.append({"w": m.group(1), **_values(m.group(2)), "bins": {}})
+        elif m := _BIN.match(line):
+            rows[-1]["bins"][m.group(1)] = {"n": int(m.group(2)), **_values(m.group(3))}
+        elif line.strip():
+            raise ValueError(f"{path}: unexpected line {line!r}")
+    if not families:
+        raise ValueError(f"{path}: no family")
+    return settings, families
+
+
+def weighted(family):
+    """The row of a family's run with its composite weight (the second row)."""
+    rows = family["rows"]
+    if len(rows) != 2 or rows[0]["w"] != "1":
+        raise ValueError("a coverage run has a row with weight 1, then the weighted one")
+    return rows[1]
+
+
+def read_wdm(path):
+    """``{sigma_pos (mas): (weight, N_95)}`` and the first line of ``inference_wdm.py``'s output."""
+    lines = Path(path).read_text().splitlines()
+    runs = {}
+    for line in lines:
+        if m := _WDM.match(line):
+            runs[m.group(1)] = (float(m.group(2)), m.group(3))
+    if not runs:
+        raise ValueError(f"{path}: no astrometry row")
+    return runs, lines[0]
+
+
+def _pct(x):
+    return f"{100 * x:.0f}"
+
+
+def _signed_range(values):
+    lo, hi = sorted((min(values), max(values)), key=abs)
+    return f"{lo:+.2f}" if f"{lo:+.2f}" == f"{hi:+.2f}" else f"{lo:+.2f} to {hi:+.2f}"
+
+
+def coverage_numbers(dev, heldout):
+    """The substitutions read from the coverage runs (development and held out)."""
+    settings, families = dev
+    heads = [families[f]["head"] for f in DEVELOPMENT]
+    keys = ("sources", "mas", "flux", "n_real", "n_grid", "mocks")
+    if any(h[k] != heads[0][k] for h in heads for k in keys):
+        raise ValueError("the development families were run with different settings")
+    head = heads[0]
+    sub = {"inf_cov_sources": head["sources"], "inf_cov_mas": head["mas"],
+           "inf_cov_flux": head["flux"], "inf_cov_mocks": head["mocks"],
+           "inf_cov_real": head["n_real"], "inf_cov_grid": head["n_grid"],
+           "inf_cov_threads": str(settings["threads"])}
+    rows = [weighted(families[f]) for f in DEVELOPMENT]
+    sub["inf_bias_low"] = _signed_range([r["bins"][LOW_BIN]["bias_median"] for r in rows])
+    sub["inf_bias_mid"] = _signed_range([r["bins"][MID_BIN]["bias_median"] for r in rows])
+    sub["inf_bias_all"] = _signed_range([r["bias_median"] for r in rows])
+    a2744 = weighted(heldout[1][HELD_OUT])
+    sub["inf_a2744_w"] = f"{float(a2744['w']):g}"
+    sub["inf_a2744_cov68"] = _pct(a2744["cov68"])
+    sub["inf_a2744_cov95"] = _pct(a2744["cov95"])
+    return sub
+
+
+def wdm_numbers(runs, first_line):
+    """The substitutions read from the CDM-WDM run: N_95 per astrometry, mocks per model."""
+    sub = {f"inf_wdm_n{float(mas):g}": n for mas, (_, n) in runs.items()}
+    sub["inf_wdm_mocks"] = re.search(r"(\d+) mocks per model", first_line).group(1)
+    return sub
+
+
+def posterior_numbers(path):
+    """The figure's constellation: sources, astrometry, flux errors, forward model."""
+    first = Path(path).read_text().split("\n", 1)[0]
+    m = re.match(r"# (\w+): (\d+) sources, ([\d.]+) mas, ([\d.]+) % flux errors, (\d+) "
+                 r"realisations x (\d+) abundances", first)
+    if m is None:
+        raise ValueError(f"{path}: unexpected first line {first!r}")
+    names = ("inf_post_sources", "inf_post_mas", "inf_post_flux", "inf_post_real",
+             "inf_post_grid")
+    return dict(zip(names, m.groups()[1:], strict=True))
+
+
+def compute(folder=OUT):
+    """The substitutions (name -> text) from the stored outputs under ``folder``."""
+    sub = coverage_numbers(read_coverage(folder / "coverage.txt"),
+                           read_coverage(folder / "coverage_heldout.txt"))
+    sub |= wdm_numbers(*read_wdm(folder / "wdm.txt"))
+    sub |= posterior_numbers(folder / "posterior.txt")
+    return sub
+
+
+def main(out=OUT):
+    """Write the include file into ``out`` (the docs' folder by default)."""
+    return write(compute(), out)
+
+
+if __name__ == "__main__":
+    main()
