@@ -267,3 +267,28 @@ def test_inference_numbers_are_the_benchmarks_outputs(tmp_path):
     n95 = [float(runs[mas][1]) for mas in sorted(runs, key=float)]
     assert n95 != sorted(n95) and n95 != sorted(n95, reverse=True)
 
+
+def _included_numbers(page):
+    """The substitutions defined by the ``.inc`` files a docs page includes."""
+    defined = set()
+    for name in re.findall(r"^\.\. include:: (_static/\S+\.inc)$", page, re.MULTILINE):
+        defined |= set(re.findall(r"^\.\. \|(\w+)\| replace::",
+                                  (ROOT / "docs" / name).read_text(), re.MULTILINE))
+    return defined
+
+
+def test_every_generated_number_a_page_uses_is_included():
+    """A page that uses a generated number (a substitution whose prefix one of the
+    scripts' include files defines) includes the file that defines it."""
+    prefixes = set()
+    for inc in STATIC.rglob("*.inc"):
+        prefixes |= {name.split("_", 1)[0] for name in
+                     re.findall(r"^\.\. \|(\w+?_\w+)\| replace::", inc.read_text(),
+                                re.MULTILINE)}
+    assert {"cal", "perf", "pair", "det", "inf"} <= prefixes
+    for path in sorted((ROOT / "docs").glob("*.rst")):
+        page = path.read_text()
+        used = {name for name in re.findall(r"\|(\w+?_\w+)\|", page)
+                if name.split("_", 1)[0] in prefixes}
+        missing = used - _included_numbers(page)
+        assert not missing, f"docs/{path.name} uses {sorted(missing)} without including them"
