@@ -292,3 +292,19 @@ def test_every_generated_number_a_page_uses_is_included():
                 if name.split("_", 1)[0] in prefixes}
         missing = used - _included_numbers(page)
         assert not missing, f"docs/{path.name} uses {sorted(missing)} without including them"
+
+
+@pytest.mark.slow
+def test_validation_tables_are_the_codes(tmp_path):
+    """docs/validation.rst's tables and the numbers its prose quotes are what
+    docs/scripts/validation_numbers.py computes now (benchmarks/validation_tables.py
+    without and with position noise, deterministic; ~15 s)."""
+    files = ("numbers.inc", "analog.inc", "grid.inc", "grid_n.inc", "analog_noise.inc")
+    sub, folder, page = generated_numbers(tmp_path, "validation_numbers", "validation", "val",
+                                          files)
+    for name in files[1:]:
+        assert f".. include:: _static/validation/{name}" in page
+    # an independent read: the Quad estimator's median errors on the analogue
+    analog = (folder / "analog.inc").read_text().splitlines()
+    quad = [float(ln.split()[-6]) for ln in analog if " quad " in ln]
+    assert sub["val_quad_median"] == f"{min(quad):.1f}-{max(quad):.1f}"
