@@ -7,6 +7,10 @@ compared with the model's true magnification ratios of the fold pair.
 Needs the model in ../shared/data/smacs0723_mahler2022::
 
     python benchmarks/real_model_constellation.py [--n-sources 16 30] [--seeds 10]
+        [--output docs/_static/lenstool/real_model.txt]
+
+``docs/scripts/lenstool_numbers.py`` turns the stored output into the table
+and the numbers of the Lenstool page.
 """
 
 import argparse
@@ -15,6 +19,7 @@ from pathlib import Path
 
 import astropy.units as u
 import numpy as np
+from _output import Record, add_output_argument
 from astropy.table import vstack
 
 from lensdual.parametric import read_lenstool, read_lenstool_images
@@ -28,7 +33,9 @@ def main(argv=None):
     parser.add_argument("--n-sources", type=int, nargs="+", default=[16, 30])
     parser.add_argument("--seeds", type=int, default=10)
     parser.add_argument("--sigma", type=float, default=0.06, help="source spread, arcsec")
+    add_output_argument(parser)
     args = parser.parse_args(argv)
+    record = Record()
 
     model = read_lenstool(DATA / "best.par")
     images = read_lenstool_images(DATA / "arcs.dat", reference=model)
@@ -36,7 +43,8 @@ def main(argv=None):
     system = model.lens_system(float(sel["z_model"][0]))
     theta = np.column_stack([sel["x"], sel["y"]])
     centre = system.ray_shoot(theta).to_value(u.arcsec).mean(axis=0)
-    print(f"system 4 at z = {float(sel['z_model'][0]):.3f}, source centre {centre} arcsec")
+    record.say(f"system 4 at z = {float(sel['z_model'][0]):.3f}, source centre {centre} arcsec; "
+               f"sigma = {args.sigma:g} arcsec")
     for n in args.n_sources:
         rows = []
         for seed in range(args.seeds):
@@ -50,12 +58,13 @@ def main(argv=None):
             rows.append(errs)
         table = vstack(rows, metadata_conflicts="silent")
         table.meta["methods"] = ["2v", "quad", "quad2"]
-        print(f"\nN = {n} sources, {args.seeds} constellations, {len(table)} pairs, "
-              f"true ratios {np.min(table['mu_true']):.3f}-{np.max(table['mu_true']):.3f}")
+        record.say(f"\nN = {n} sources, {args.seeds} constellations, {len(table)} pairs, "
+                   f"true ratios {np.min(table['mu_true']):.3f}-{np.max(table['mu_true']):.3f}")
         for r in summarize_errors(table, by=()):
-            print(f"  {r['method']:6s} median |err| {100 * r['median_abs_err']:6.2f} %   "
-                  f"68 % half width {100 * r['half_width_68']:6.2f} %   "
-                  f"95 % |err| {100 * r['abs_err_95']:6.2f} %")
+            record.say(f"  {r['method']:6s} median |err| {100 * r['median_abs_err']:6.2f} %   "
+                       f"68 % half width {100 * r['half_width_68']:6.2f} %   "
+                       f"95 % |err| {100 * r['abs_err_95']:6.2f} %")
+    record.write(args.output)
 
 
 if __name__ == "__main__":

@@ -308,3 +308,31 @@ def test_validation_tables_are_the_codes(tmp_path):
     analog = (folder / "analog.inc").read_text().splitlines()
     quad = [float(ln.split()[-6]) for ln in analog if " quad " in ln]
     assert sub["val_quad_median"] == f"{min(quad):.1f}-{max(quad):.1f}"
+
+
+def test_lenstool_real_model_numbers_are_the_benchmark_s(tmp_path):
+    """The Lenstool page's table of the experiment on the real SMACS0723 model is
+    what docs/scripts/lenstool_numbers.py writes from the stored output of
+    benchmarks/real_model_constellation.py."""
+    files = ("numbers.inc", "real_model.csv")
+    sub, folder, page = generated_numbers(tmp_path, "lenstool_numbers", "lenstool", "lt",
+                                          files)
+    assert ":file: _static/lenstool/real_model.csv" in page
+
+
+def test_lenstool_real_model_output_is_the_code_s(tmp_path, monkeypatch):
+    """The stored output of benchmarks/real_model_constellation.py is what it gives
+    now (3 s; needs the SMACS0723 Lenstool model)."""
+    data = ROOT.parent / "shared" / "data" / "smacs0723_mahler2022"
+    if not (data / "best.par").is_file():
+        pytest.skip("needs the SMACS0723 Lenstool model (../shared/data)")
+    monkeypatch.syspath_prepend(str(ROOT / "benchmarks"))
+    out = tmp_path / "real_model.txt"
+    spec = importlib.util.spec_from_file_location(
+        "real_model_constellation", ROOT / "benchmarks" / "real_model_constellation.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    module.main(["--output", str(out)])
+    # the first two lines are the cores and the load average
+    stored = (STATIC / "lenstool" / "real_model.txt").read_text().splitlines()[2:]
+    assert out.read_text().splitlines()[2:] == stored
