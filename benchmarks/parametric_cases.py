@@ -3,6 +3,7 @@
 Run::
 
     python benchmarks/parametric_cases.py [--sigma-pos 0.06 0.01] [--n-starts 6]
+        [--output docs/_static/parametric/cases.txt]
 
 For each positional uncertainty ``sigma_pos`` and each case
 
@@ -20,7 +21,8 @@ prints one row of the table of ``docs/parametric_fits.rst``: chi2 / dof, the
 median and maximum of ``|mu / mu_true - 1|`` for ``mu_size`` and
 ``mu_model``, the median relative errors ``err / value``, the pairs flagged
 (SNR > 3) against each, and the fit time. Everything is seeded: the numbers
-are reproducible (the fit time is not).
+are reproducible (the fit time is not). ``docs/scripts/parametric_numbers.py``
+turns the stored output of ``--output`` into the page's tables and numbers.
 """
 
 import argparse
@@ -28,6 +30,7 @@ import time
 import warnings
 
 import numpy as np
+from _output import Record, add_output_argument
 from astropy import units as u
 
 from lensdual.duality import check_duality
@@ -86,26 +89,29 @@ def main(argv=None):
     parser.add_argument("--sigma-pos", type=float, nargs="+", default=[0.06, 0.01],
                         help="positional uncertainties in arcsec (default 0.06 0.01)")
     parser.add_argument("--n-starts", type=int, default=6)
+    add_output_argument(parser)
     args = parser.parse_args(argv)
+    record = Record()
     for sig in args.sigma_pos:
         sigma_pos = sig * u.arcsec
-        print(f"\nsigma_pos = {sig} arcsec")
+        record.say(f"\nsigma_pos = {sig} arcsec")
         header = (f"{'case':48s}  {'chi2 / dof':>12s}  {'mu_size dev med / max':>22s}  "
                   f"{'mu_model dev med / max':>22s}  {'rel. err size / model':>21s}  "
                   f"{'flagged size / model':>20s}  {'time':>6s}")
-        print(header)
+        record.say(header)
         for name, kwargs in CASES.items():
             r = run_case(kwargs, sigma_pos, args.n_starts)
-            print(f"{name:48s}  {r['chi2']:.2g} / {r['dof']:<4d}  "
-                  f"{_pct(r['size_median']):>9s} / {_pct(r['size_max']):<10s}  "
-                  f"{_pct(r['model_median']):>9s} / {_pct(r['model_max']):<10s}  "
-                  f"{r['size_relerr']:>9.2g} / {r['model_relerr']:<9.2g}  "
-                  f"{_flags(r['size_flagged']):>9s} / {_flags(r['model_flagged']):<9s}  "
-                  f"{r['time']:5.0f} s", flush=True)
-            print(f"    worst pair: size {r['size_worst']}, model {r['model_worst']}; "
-                  f"SNR of pair 1: size {r['size_snr_pair1']:.2g}, model "
-                  f"{r['model_snr_pair1']:.2g}; best fit: "
-                  + ", ".join(f"{k}={v:.4g}" for k, v in r["best_params"].items()), flush=True)
+            record.say(f"{name:48s}  {r['chi2']:.2g} / {r['dof']:<4d}  "
+                       f"{_pct(r['size_median']):>9s} / {_pct(r['size_max']):<10s}  "
+                       f"{_pct(r['model_median']):>9s} / {_pct(r['model_max']):<10s}  "
+                       f"{r['size_relerr']:>9.2g} / {r['model_relerr']:<9.2g}  "
+                       f"{_flags(r['size_flagged']):>9s} / {_flags(r['model_flagged']):<9s}  "
+                       f"{r['time']:5.0f} s")
+            record.say(f"    worst pair: size {r['size_worst']}, model {r['model_worst']}; "
+                       f"SNR of pair 1: size {r['size_snr_pair1']:.2g}, model "
+                       f"{r['model_snr_pair1']:.2g}; best fit: "
+                       + ", ".join(f"{k}={v:.4g}" for k, v in r["best_params"].items()))
+    record.write(args.output)
 
 
 if __name__ == "__main__":

@@ -35,19 +35,20 @@ def assert_files_match(written, folder, script):
             f"and check the page that includes it")
 
 
-def generated_numbers(tmp_path, script, topic, prefix, files=("numbers.inc",)):
+def generated_numbers(tmp_path, script, topic, prefix, files=("numbers.inc",), folder=None):
     """Run ``docs/scripts/<script>.py`` into ``tmp_path``; check that it writes
     ``files`` (its include file and any tables), that they are the committed
-    ones under ``docs/_static/<topic>/``, that ``docs/<topic>.rst`` includes the
-    numbers and that every ``|<prefix>_...|`` the page uses is defined. Returns
-    the substitutions, the folder and the page's text."""
+    ones in ``folder`` (default ``docs/_static/<topic>/``), that
+    ``docs/<topic>.rst`` includes the numbers and that every ``|<prefix>_...|``
+    the page uses is defined. Returns the substitutions, the folder and the
+    page's text."""
     sub = load_script(script).main(tmp_path)
-    folder = STATIC / topic
+    folder = STATIC / topic if folder is None else folder
     written = {p.name: p.read_text() for p in tmp_path.iterdir()}
     assert set(written) == set(files)
     assert_files_match(written, folder, f"docs/scripts/{script}.py")
     page = (ROOT / "docs" / f"{topic}.rst").read_text()
-    assert f".. include:: _static/{topic}/numbers.inc" in page
+    assert f".. include:: {folder.relative_to(ROOT / 'docs')}/numbers.inc" in page
     used = substitutions_used(page, prefix)
     assert used
     assert used <= set(sub)
@@ -336,3 +337,35 @@ def test_lenstool_real_model_output_is_the_code_s(tmp_path, monkeypatch):
     # the first two lines are the cores and the load average
     stored = (STATIC / "lenstool" / "real_model.txt").read_text().splitlines()[2:]
     assert out.read_text().splitlines()[2:] == stored
+
+
+def test_parametric_cases_are_the_benchmark_s(tmp_path):
+    """The parametric-fits page's tables and numbers are what
+    docs/scripts/parametric_numbers.py writes from the stored output of
+    benchmarks/parametric_cases.py, and its prose's claims about them hold."""
+    files = ("numbers.inc", "cases_006.csv", "cases_001.csv")
+    sub, folder, page = generated_numbers(tmp_path, "parametric_numbers", "parametric_fits",
+                                          "par", files, folder=STATIC / "parametric")
+    for name in files[1:]:
+        assert f":file: _static/parametric/{name}" in page
+    runs = load_script("parametric_numbers").read(folder / "cases.txt")
+    coarse, fine = runs["0.06"], runs["0.01"]
+    # (b): "e1 and gamma1 at their bounds" (+-0.5), "the drift is not flagged"
+    best = coarse["b"]["best"]
+    assert abs(best["e1"]) > 0.499 and abs(best["gamma1"]) > 0.499
+    assert coarse["b"]["flag_model"] == fine["b"]["flag_model"] == "none"
+    assert float(fine["b"]["chi2"]) < int(fine["b"]["dof"])
+    # (c): pair 1 is the worst of both, and neither flags it at 0.06 arcsec
+    assert coarse["c"]["worst_size"] == coarse["c"]["worst_model"] == 1
+    assert coarse["c"]["flag_size"] == coarse["c"]["flag_model"] == "none"
+    # "the best fits and all the ratios are the same as at 0.06 arcsec" (case (a)'s
+    # parametric ratios are exact, to rounding)
+    for case in "abc":
+        assert coarse[case]["best"]["Rs"] == fine[case]["best"]["Rs"]
+        for field in ("size_med", "size_max") + (("model_max",) if case != "a" else ()):
+            assert coarse[case][field] == fine[case][field]
+    # "the parametric errors do not shrink" as mu_size's do
+    for case in "ab":
+        size = float(coarse[case]["relerr_size"]) / float(fine[case]["relerr_size"])
+        model = float(coarse[case]["relerr_model"]) / float(fine[case]["relerr_model"])
+        assert model < size / 2
