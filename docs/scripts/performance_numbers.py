@@ -187,6 +187,8 @@ def sensitivity(path):
         m = _search(rf"{re.escape(name)} \((\d+)\): median ([\d.e+-]+), max ([\d.e+-]+)",
                     lines, path)
         sub[f"perf_sens_{short}_median"], sub[f"perf_sens_{short}_max"] = m.group(2), m.group(3)
+        for stat, value in (("median", m.group(2)), ("max", m.group(3))):
+            sub[f"perf_sens_{short}_{stat}_pct"] = f"{100 * float(value):.2g} %"
     return sub
 
 
