@@ -247,10 +247,15 @@ def test_inference_numbers_are_the_benchmarks_outputs(tmp_path):
     sub, folder, page = generated_numbers(tmp_path, "inference_numbers", "inference", "inf")
     module = load_script("inference_numbers")
     for name in ("coverage.txt", "coverage_heldout.txt", "coverage_heldout_cusp.txt",
-                 "wdm.txt", "posterior.txt"):
+                 "coverage_oracle.txt", "wdm.txt", "posterior.txt"):
         assert f"_static/inference/{name}" in page
     _, dev = module.read_coverage(folder / "coverage.txt")
     _, held = module.read_coverage(folder / "coverage_heldout.txt")
+    # "with oracle noise the coverage came back to nominal" (weight 1)
+    _, oracle = module.read_coverage(folder / "coverage_oracle.txt")
+    row = oracle["smacs_analog"]["rows"][0]
+    for key, target in (("cov68", module.TARGET68), ("cov95", module.TARGET95)):
+        assert abs(row[key] - target[0]) <= target[1]
     # "On Abell 2744 the weight comes out 1, so no correction is applied, and the
     # intervals there are too narrow: the 95 % intervals ... miss their target"
     a2744 = module.weighted(held[module.HELD_OUT])
