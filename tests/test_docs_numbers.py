@@ -374,3 +374,13 @@ def test_parametric_cases_are_the_benchmark_s(tmp_path):
         size = float(coarse[case]["relerr_size"]) / float(fine[case]["relerr_size"])
         model = float(coarse[case]["relerr_model"]) / float(fine[case]["relerr_model"])
         assert model < size / 2
+
+
+def test_inference_page_host_scaling_is_pyhalo_s():
+    """docs/inference.rst: "With it (log_m_host=15), F = 12 at z = 0.39"."""
+    pytest.importorskip("pyHalo")
+    from lensdual.inference import SubhaloPopulation
+
+    pop = SubhaloPopulation(z_lens=0.39, z_source=2.2, log_m_host=15)
+    page = " ".join((ROOT / "docs" / "inference.rst").read_text().split())
+    assert f":math:`F = {round(pop._host_scaling)}` at :math:`z = 0.39`" in page
