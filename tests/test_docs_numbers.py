@@ -169,6 +169,34 @@ def test_calibration_numbers_are_read_from_the_tables(tmp_path):
     assert sub["cal_group8_ffr1"] == f"{100 * float(row[head.index('ffr')]):.1f}"
 
 
+def _suite_rows(path):
+    """``{(family, n_sources, method, noise): {column: value}}`` of a calibration.py output."""
+    lines = [ln.split("#")[0].split() for ln in path.read_text().splitlines()]
+    head = lines[0]
+    return {tuple(w[:4]): dict(zip(head[4:], map(float, w[4:]), strict=True))
+            for w in lines[1:] if w}
+
+
+def test_pooled_suite_is_the_three_runs_pooled(tmp_path):
+    """The 70-constellation table pools the three stored runs cell by cell (its
+    tested pairs are their sums, its false flags their weighted mean), and the
+    page's overall rate is the pooled table's."""
+    sub, folder, _ = generated_numbers(tmp_path, "calibration_numbers", "calibration", "cal")
+    pooled = _suite_rows(folder / "suite_pooled70.txt")
+    runs = [_suite_rows(folder / name) for name in
+            ("suite_seed0.txt", "suite_seed100.txt", "suite_seed2000.txt")]
+    assert len(pooled) == 300 and all(set(r) == set(pooled) for r in runs)
+    for key, cell in pooled.items():
+        n = sum(r[key]["n"] for r in runs)
+        assert cell["n"] == pytest.approx(n, rel=0.01)
+        if n > 0:
+            flags = sum(r[key]["n"] * r[key]["ffr"] for r in runs if r[key]["n"] > 0)
+            assert cell["ffr"] == pytest.approx(flags / n, rel=0.02, abs=2e-5)
+    adaptive = [c for k, c in pooled.items() if k[2] == "adaptive"]
+    n = sum(c["n"] for c in adaptive)
+    assert sub["cal_p70_ffr"] == f"{100 * sum(c['n'] * c['ffr'] for c in adaptive) / n:.2f}"
+
+
 def test_calibration_tables_are_the_stored_suite_output(tmp_path):
     """The calibration page's tables are the CSV files that
     ``benchmarks/calibration_tables.py --csv`` writes from the stored output of

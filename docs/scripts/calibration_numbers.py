@@ -14,6 +14,10 @@ cannot drift from them:
 - ``calibration/suite_seed100.txt``: the validation suite on 10 other
   constellations per cell (``benchmarks/calibration.py --seed 100`` over the
   families of ``suite_seed0.txt``);
+- ``calibration/suite_seed2000.txt``: the same on 50 more constellations per
+  cell (``--seed 2000 --n-const 50``), and ``calibration/suite_pooled70.txt``
+  the three runs pooled, 70 constellations per cell (each run with
+  ``--save-dir``, then ``--from-saves`` on the three folders);
 - ``joint/calibration_heldout.txt``: ``benchmarks/joint_calibration.py
   --masking`` on the held-out families (the geometric test's false flags,
   ``ffr_geo``, on the compact galaxy-scale fold at 20 mas).
@@ -198,6 +202,81 @@ def joint_numbers(rows):
     return {"cal_compact_geo20": f"{_pct(min(ffr))}-{_pct(max(ffr))}"}
 
 
+#: How the pooled-run prose names the families.
+FAMILY_NAMES = {"cluster_fold": "the cluster fold", "cluster_cusp": "the cusp",
+                "galaxy_fold": "the galaxy fold", "smacs_analog": "the SMACS0723 analogue",
+                "smacs_lenstool": "SMACS0723", "macs1149_lenstool": "MACS J1149",
+                "a2744_lenstool": "Abell 2744", "a370_lenstool": "Abell 370",
+                "as1063_lenstool": "Abell S1063", "as1063_s13_lenstool": "Abell S1063 system 13"}
+#: The runs pooled into ``suite_pooled70.txt``, as the prose labels them.
+SEED_SETS = (("suite_seed0.txt", "seeds 0-9"), ("suite_seed100.txt", "seeds 100-109"),
+             ("suite_seed2000.txt", "seeds 2000-2049"))
+#: A comment of a pooled cell that the test declines (benchmarks/calibration.py).
+DECLINED = re.compile(r"^(\S+) (\d+) adaptive (\S+) .*# declined (\d+) pairs: width (\S+), "
+                      r"beyond 3 sigma (\S+)$")
+
+
+def _cell_name(fam, n_src, noise):
+    return f"{FAMILY_NAMES.get(fam, fam)} with {n_src} sources at {noise:g} mas"
+
+
+def _per_set(sets, key, column="ffr"):
+    """A cell's value on each seed set, ``a / b / c`` in per cent."""
+    return " / ".join(_pct(cells[key][column]) for cells in sets)
+
+
+def pooled_numbers(pooled, sets, declined_lines):
+    """The substitutions read from the validation suite pooled over 70
+    constellations per cell (``sets``: the three runs pooled, in the order of
+    :data:`SEED_SETS`; ``declined_lines``: the pooled table's lines)."""
+    adaptive = {k: r for k, r in pooled.items() if k[2] == "adaptive"}
+    n = sum(r["n"] for r in adaptive.values())
+    sub = {"cal_p70_pairs": f"{n / 1e6:.1f}",
+           "cal_p70_ffr": _pct(sum(r["n"] * r["ffr"] for r in adaptive.values()) / n),
+           "cal_p70_cells": str(len(adaptive))}
+    missed = missed_targets(pooled)
+    sub["cal_p70_missed"] = str(len(missed))
+    sig = [k for k, why in missed.items() if any("significant" in w for w in why)]
+    sub["cal_p70_nsig"] = str(len(sig))
+    sub["cal_p70_sig"] = _and(
+        f"{_cell_name(*k)}, {_pct(adaptive[(k[0], k[1], 'adaptive', k[2])]['ffr'])} % "
+        f"(lower limit {_pct(adaptive[(k[0], k[1], 'adaptive', k[2])]['ffr_l95'])} %)"
+        for k in sig) if sig else "none"
+    labels = " / ".join(label for _, label in SEED_SETS)
+    nonsig = [k for k, why in missed.items()
+              if any(w.startswith("false flags") for w in why) and k not in sig]
+    sub["cal_p70_nonsig"] = _and(
+        f"{_cell_name(*k)}, {_pct(adaptive[(k[0], k[1], 'adaptive', k[2])]['ffr'])} % "
+        f"({labels}: {_per_set(sets, (k[0], k[1], 'adaptive', float(k[2])))} %)"
+        for k in nonsig) if nonsig else "none"
+    declined = [m.groups() for m in map(DECLINED.match, declined_lines) if m]
+    sub["cal_p70_declined_n"] = str(len(declined))
+    sub["cal_p70_declined"] = _and(f"{FAMILY_NAMES.get(d[0], d[0])} at {float(d[2]):g} mas"
+                                   for d in declined)
+    sub["cal_p70_declined_gw"] = _range([float(d[4]) for d in declined], 1.0)
+    sub["cal_p70_declined_out"] = _range([float(d[5]) for d in declined], digits=1)
+    widths = [(k, adaptive[(k[0], k[1], "adaptive", k[2])]["pull_gw"])
+              for k, why in missed.items() if any(w.startswith("width") for w in why)]
+    sub["cal_p70_widths"] = _and(f"{_cell_name(*k)} ({w:.2f})" for k, w in widths)
+    bias = [(k, adaptive[(k[0], k[1], "adaptive", k[2])]) for k, why in missed.items()
+            if any(w.startswith("bias") for w in why)]
+    sub["cal_p70_bias"] = _and(f"{_cell_name(*k)}, {_pct(r['bias'], 1)} % against a third "
+                               f"of its median error, {_pct(r['sig'] / 3, 1)} %"
+                               for k, r in bias) if bias else "none"
+    fold = ("cluster_fold", "adaptive", 5.0)
+    sub["cal_p70_fold_pow"] = " / ".join(
+        f"{100 * pooled[(fold[0], n_src, fold[1], fold[2])]['pow25']:.1f}" for n_src in (20, 40))
+    sub["cal_p70_fold20_pow"] = f"{100 * pooled[(fold[0], 20, fold[1], fold[2])]['pow25']:.1f}"
+    sub["cal_sets_fold20_pow"] = _and(
+        f"{100 * cells[(fold[0], 20, fold[1], fold[2])]['pow25']:.1f}" for cells in sets)
+    for n_src, noises in ((40, (10, 20)), (20, (5, 10))):
+        for (_, label), cells in zip(SEED_SETS, sets, strict=True):
+            sub[f"cal_as1063_{n_src}_{label.split()[1].split('-')[0]}"] = " / ".join(
+                _pct(cells[("as1063_lenstool", n_src, "adaptive", float(x))]["ffr"])
+                for x in noises)
+    return sub
+
+
 def compute(folder=STATIC):
     """The substitutions (name -> text) from the stored tables under ``folder``."""
     sub = heldout_numbers(read_cells(folder / "calibration" / "heldout_new.txt"))
@@ -208,6 +287,10 @@ def compute(folder=STATIC):
     sub |= other_seed_numbers(read_cells(folder / "calibration" / "suite_seed100.txt"))
     sub["cal_s0_missed"] = str(len(missed_targets(
         read_cells(folder / "calibration" / "suite_seed0.txt"))))
+    pooled = folder / "calibration" / "suite_pooled70.txt"
+    sub |= pooled_numbers(read_cells(pooled),
+                          [read_cells(folder / "calibration" / name) for name, _ in SEED_SETS],
+                          pooled.read_text().splitlines())
     return sub
 
 
