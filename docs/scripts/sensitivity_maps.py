@@ -26,7 +26,11 @@ matplotlib.use("agg")
 import matplotlib.pyplot as plt  # noqa: E402
 from matplotlib.patches import Ellipse  # noqa: E402
 
-from lensdual.abundance import einstein_radius  # noqa: E402
+from lensdual.abundance import (  # noqa: E402
+    detection_probability_limit,
+    einstein_radius,
+    surface_density_limit,
+)
 from lensdual.sensitivity import (  # noqa: E402
     detection_snr_map,
     effective_radius,
@@ -161,6 +165,36 @@ def reference_numbers(errors):
             f"{v:.2f}" if v >= 0.5 else f"{v:.3f}" for (sp, m), v in errors.items()}
 
 
+def joint_reference_error(sigma_pos_mas):
+    """The joint test's ``sigma_rel`` at ``sigma_pos_mas`` from the stored
+    ``docs/_static/joint/reference_sigma.txt``."""
+    lines = (STATIC / "joint" / "reference_sigma.txt").read_text().split("\n")
+    head = lines[0].split()
+    for line in lines[1:]:
+        words = line.split()
+        if words and float(words[0]) == sigma_pos_mas:
+            return float(words[head.index("sigma_rel_joint")])
+    raise ValueError(f"no joint reference error at {sigma_pos_mas} mas")
+
+
+def binomial_bounds(reaches, mass=1e8 * u.Msun):
+    """The paper's binomial bound on the sub-halo surface density (12 sources
+    on each of two arcs, none flagged, 95 %) for ``mass``, with ``zeta`` the
+    reach of each setting on the over-concentrated map (the median over masses
+    of the largest ``r_eff`` whose median or 95th-percentile SNR over the
+    angles exceeds 5); "none" where nothing is detectable."""
+    p_det = detection_probability_limit(12, n_arcs=2, confidence=0.95)
+    out = {}
+    for name, reach in reaches.items():
+        zeta = float(reach)
+        if zeta > 0:
+            bound = surface_density_limit(p_det, mass, z_lens=0.39, z_source=2.2, zeta=zeta)
+            out[f"bound_{name}"] = f"{bound.to_value(u.kpc**-2):.2f} kpc\\ :sup:`-2`"
+        else:
+            out[f"bound_{name}"] = "none"
+    return out
+
+
 def substitutions(values):
     """reST substitution definitions, ``|sens_<name>|``, one a line."""
     return "".join(f".. |sens_{k}| replace:: {v}\n" for k, v in values.items())
@@ -207,6 +241,13 @@ def main():
         numbers.update({f"cal{_mas(sp)}_{k}": v for k, v in p.items()})
         rows.append((f"sigma_rel = {cal['sigma_rel']:.3f} (calibrated, {sp:g} arcsec; "
                      f"Quad {qd['sigma_rel']:.3f})", stats(p)))
+    # the joint test's reference error at 0.06 arcsec (docs/scripts/joint_reference_errors.py)
+    joint = joint_reference_error(60)
+    p = parts(base, 0.10 / joint)
+    numbers.update({f"joint60_{k}": v for k, v in p.items()})
+    rows.append((f"sigma_rel = {joint:.3f} (joint test, 0.06 arcsec)", stats(p)))
+    numbers.update(binomial_bounds({f"{name}_{q}": numbers[f"{name}_reach{q}"]
+                                    for name in ("cal60", "joint60") for q in ("50", "95")}))
     head = ["setting", "mean SNR, r_eff < 1 (cells > 10)", "max p95, r_eff 0.75-1.25",
             "reach p95 / p50 > 5", "MCR: max p50",
             "MCR: cells p95 > 5 / reach"]
