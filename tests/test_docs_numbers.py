@@ -8,6 +8,7 @@ read again.
 """
 
 import importlib.util
+import math
 import os
 import re
 from pathlib import Path
@@ -412,3 +413,25 @@ def test_inference_page_host_scaling_is_pyhalo_s():
     pop = SubhaloPopulation(z_lens=0.39, z_source=2.2, log_m_host=15)
     page = " ".join((ROOT / "docs" / "inference.rst").read_text().split())
     assert f":math:`F = {round(pop._host_scaling)}` at :math:`z = 0.39`" in page
+
+
+def test_mock_images_numbers_are_the_benchmarks_outputs(tmp_path):
+    """docs/mock_images.rst quotes what docs/scripts/mock_images_numbers.py reads from
+    the stored outputs of benchmarks/finite_size_bias.py and acceptance_pixels.py,
+    and its prose's claims about them hold."""
+    sub, folder, page = generated_numbers(tmp_path, "mock_images_numbers", "mock_images",
+                                          "mock", folder=STATIC / "scenes")
+    assert ".. literalinclude:: _static/scenes/finite_size_bias.txt" in page
+    assert "_static/scenes/acceptance.txt" in page
+    rows = load_script("mock_images_numbers").read_bias_rows(folder / "finite_size_bias.txt")
+    # "more on the more stretched arc L2", "L2, more stretched, loses more"
+    assert all(row["stretch2"] > row["stretch1"] for row in rows.values())
+    for r in (20, 40, 80):
+        assert rows[r]["ln2"] < rows[r]["ln1"] < 0
+        assert rows[r]["ratio"] > 0
+    # "the flux ratios scatter a little more" on the realistic scene
+    assert float(sub["mock_ratio_err_real"]) > float(sub["mock_ratio_err_point"])
+    # an independent read of the loss at 80 pc on L2, in whole per cent
+    line = next(ln.split() for ln in (folder / "finite_size_bias.txt").read_text().splitlines()
+                if ln.split()[:1] == ["80"])
+    assert sub["mock_loss80"].endswith(f"-{100 * (1 - math.exp(float(line[6]))):.0f}")
