@@ -198,6 +198,30 @@ def test_pooled_suite_is_the_three_runs_pooled(tmp_path):
     assert sub["cal_p70_ffr"] == f"{100 * sum(c['n'] * c['ffr'] for c in adaptive) / n:.2f}"
 
 
+def test_calibration_suite_claims_hold():
+    """The claims the calibration and method pages make about the stored seed-0
+    suite, beside the numbers they quote from it."""
+    module = load_script("calibration_numbers")
+    cells = module.read_cells(STATIC / "calibration" / "suite_seed0.txt")
+    method = (ROOT / "docs" / "method.rst").read_text()
+    assert ".. include:: _static/calibration/numbers.inc" in method
+    assert substitutions_used(method, "cal")
+    # quad2 over-flags the galaxy fold "at every noise level" (target: 0.5 %)
+    galaxy = {k: r for k, r in cells.items() if k[0] == "galaxy_fold"}
+    assert all(r["ffr"] > 0.005 for k, r in galaxy.items() if k[2] == "quad2")
+    # the folds: "absolute bias below sigma/3"
+    for k, r in cells.items():
+        if k[0] in module.FOLDS and k[2] == "adaptive":
+            assert abs(r["bias"]) < r["sig"] / 3
+    # the galaxy fold with 8 sources below 10 mas: "none of those is falsely flagged"
+    assert all(not r["ffr"] > 0 for k, r in galaxy.items()
+               if k[1] == 8 and k[2] == "adaptive" and k[3] < 10)
+    # "the honest error costs no sensitivity against quad2" with 20-40 sources
+    for n in (20, 40):
+        assert (cells[("cluster_fold", n, "adaptive", 5.0)]["pow25"]
+                >= cells[("cluster_fold", n, "quad2", 5.0)]["pow25"])
+
+
 def test_calibration_tables_are_the_stored_suite_output(tmp_path):
     """The calibration page's tables are the CSV files that
     ``benchmarks/calibration_tables.py --csv`` writes from the stored output of
