@@ -127,8 +127,9 @@ def test_joint_status_numbers_are_read_from_the_tables():
     the calibration tables the page includes, and nothing it does not define."""
     module = load_script("joint_status")
     folder = STATIC / "joint"
-    sub = module.compute(module.read_table(folder / "calibration_dev.txt"),
-                         module.held_out_rows(folder))
+    sub = (module.compute(module.read_table(folder / "calibration_dev.txt"),
+                          module.held_out_rows(folder))
+           | module.history_numbers(folder))
     assert_files_match(module.include_files(sub), folder, "docs/scripts/joint_status.py")
     page = (ROOT / "docs" / "joint_test.rst").read_text()
     assert ".. include:: _static/joint/status.inc" in page
@@ -138,6 +139,11 @@ def test_joint_status_numbers_are_read_from_the_tables():
     head = (folder / "calibration_dev.txt").read_text().split("\n", 1)[0].split()
     ffr = [float(r[head.index("ffr")]) for r in rows]
     assert sub["jt_cells_ok"] == str(sum(f <= 0.005 for f in ffr))
+    # the tables the history quotes are on the page, and the gate's example rose
+    for name in ("calibration_heldout_v1.txt", "calibration_dev_strict_gate.txt"):
+        assert f".. literalinclude:: _static/joint/{name}" in page
+    assert int(sub["jt_gate_field_now"]) > int(sub["jt_gate_field_strict"])
+    assert int(sub["jt_gate_pow_now"]) > int(sub["jt_gate_pow_strict"])
 
 
 def test_the_demo_times_quoted_are_the_benchmark_s():
