@@ -270,6 +270,19 @@ def test_performance_numbers_are_the_benchmarks_outputs(tmp_path):
     assert float(line[2]) / float(line[1]) == pytest.approx(float(line[-1][:-1]), abs=1)
 
 
+def test_compile_times_quoted_are_the_benchmark_s():
+    """docs/install.rst and docs/lenstool.rst quote the compile times that
+    benchmarks/bench_compile.py stored (CPU seconds, cold minus warm cache)."""
+    sub = load_script("performance_numbers").compute()
+    rows = {ln.split()[0]: ln.split() for ln in
+            (STATIC / "performance" / "compile.txt").read_text().splitlines()[3:]}
+    for page, case in (("install", "adaptive"), ("lenstool", "lenstool")):
+        text = (ROOT / "docs" / f"{page}.rst").read_text()
+        assert f"|perf_compile_{case}|" in text
+        assert "_static/performance/compile.txt" in text
+        assert sub[f"perf_compile_{case}"] == f"{float(rows[case][-1]):.0f}"
+
+
 def test_pairing_numbers_are_the_benchmarks_outputs(tmp_path):
     """docs/pairing.rst's tables and numbers are what docs/scripts/pairing_numbers.py
     writes from the stored outputs of benchmarks/pairing_accuracy.py and

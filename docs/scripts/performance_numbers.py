@@ -17,7 +17,10 @@ files, so the page cannot drift from them:
 - ``joint.txt``: ``benchmarks/bench_joint.py``;
 - ``memory_2048.txt``, ``memory_4096.txt`` and ``memory_4096_noerror.txt``:
   ``benchmarks/bench_memory_run.py --size 2048``, ``--size 4096`` and ``--size
-  4096 --no-error --cases run``.
+  4096 --no-error --cases run``;
+- ``compile.txt``: ``benchmarks/bench_compile.py`` (CPU times, quoted by the
+  install and Lenstool pages; its load average is not part of the performance
+  page's, whose figures are wall times).
 
 Run from the repository root after rerunning a benchmark (each with
 ``--output docs/_static/performance/<file>``)::
@@ -303,6 +306,17 @@ def memory_run(path):
     return sub
 
 
+def compile_times(path):
+    """``bench_compile.py``: CPU time to compile the kernels of each case."""
+    lines = _lines(path)
+    sub = {}
+    for case in ("adaptive", "lenstool"):
+        m = _search(rf"^{case}\s+([\d.]+) \(\s*[\d.]+\)\s+([\d.]+) \(\s*[\d.]+\)\s+([\d.]+)$",
+                    lines, path)
+        sub[f"perf_compile_{case}"] = f"{float(m.group(3)):.0f}"
+    return sub
+
+
 #: The stored outputs and the reader of each.
 READERS = {"estimators.txt": estimators, "null_calibration.txt": null_calibration,
            "solver.txt": solver, "lenstool.txt": lenstool, "sensitivity.txt": sensitivity,
@@ -325,7 +339,7 @@ def compute(folder=OUT):
                          f"{sorted(cores)}")
     sub["perf_cores"] = cores.pop()
     sub["perf_load"] = _range(loads, "{:.1f}")
-    return sub
+    return sub | compile_times(folder / "compile.txt")
 
 
 def main(out=OUT):
