@@ -478,3 +478,40 @@ def test_mock_images_numbers_are_the_benchmarks_outputs(tmp_path):
     line = next(ln.split() for ln in (folder / "finite_size_bias.txt").read_text().splitlines()
                 if ln.split()[:1] == ["80"])
     assert sub["mock_loss80"].endswith(f"-{100 * (1 - math.exp(float(line[6]))):.0f}")
+
+
+def test_abundance_prose_is_the_functions():
+    """docs/abundance.rst's comparison with the paper quotes what lensdual.abundance
+    gives for the paper's configuration (the doctest above it prints the same), and
+    the paper's numbers relate to them as the prose says."""
+    import astropy.units as u
+
+    from lensdual.abundance import (
+        detection_probability_limit,
+        einstein_radius,
+        einstein_radius_physical,
+        surface_density_limit,
+    )
+
+    page = " ".join((ROOT / "docs" / "abundance.rst").read_text().split())
+    start = page.index("How these numbers relate to the paper's")
+    prose = page[start:]
+    mass = 1e8 * u.Msun
+    theta = einstein_radius(mass, 0.39, 2.2).to_value(u.arcsec)
+    radius = einstein_radius_physical(mass, 0.39, 2.2).to_value(u.kpc)
+    p_det = detection_probability_limit(12, n_arcs=2, confidence=0.95)
+    sigma = {zeta: surface_density_limit(p_det, mass, z_lens=0.39, z_source=2.2,
+                                         zeta=zeta).to_value(u.kpc ** -2)
+             for zeta in (3, 1)}
+    assert f":math:`\\theta_E = {theta:.4f}` arcsec" in prose
+    assert f":math:`p_{{\\rm det}} < {p_det:.3f}`" in prose
+    assert f"one arcsec is {radius / theta:.3f} kpc, so {theta:.4f} arcsec is {radius:.4f} kpc" \
+        in prose
+    assert f":math:`\\zeta = 3` is {sigma[3]:.3f} kpc" in prose
+    assert f":math:`3 \\times {radius:.4f} \\approx {3 * radius:.3f}` kpc" in prose
+    assert f"For :math:`\\zeta = 1` it is {sigma[1]:.1f} kpc" in prose
+    # the paper's 0.388 kpc is the Einstein radius of 1e9 Msun, and its 0.300 kpc^-2
+    # is 0.142 / (pi 0.388^2)
+    paper_radius = einstein_radius_physical(1e9 * u.Msun, 0.39, 2.2).to_value(u.kpc)
+    assert f"{paper_radius:.3f} kpc is the Einstein radius of a :math:`10^9 M_\\odot`" in prose
+    assert f"{0.142 / (math.pi * 0.388 ** 2):.3f}" == "0.300"
