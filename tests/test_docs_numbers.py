@@ -515,3 +515,13 @@ def test_abundance_prose_is_the_functions():
     paper_radius = einstein_radius_physical(1e9 * u.Msun, 0.39, 2.2).to_value(u.kpc)
     assert f"{paper_radius:.3f} kpc is the Einstein radius of a :math:`10^9 M_\\odot`" in prose
     assert f"{0.142 / (math.pi * 0.388 ** 2):.3f}" == "0.300"
+
+
+def test_photometry_numbers_are_the_benchmark_s(tmp_path):
+    """docs/photometry.rst's speed and the high-pass filter's flux loss are what
+    docs/scripts/photometry_numbers.py reads from the stored output of
+    benchmarks/bench_photometry.py."""
+    sub, folder, page = generated_numbers(tmp_path, "photometry_numbers", "photometry", "phot")
+    assert "_static/photometry/speed.txt" in page
+    # "the FWHM fit about doubles the work"
+    assert 1.5 <= float(sub["phot_nopsf_ratio"]) <= 2.5
