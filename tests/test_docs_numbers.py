@@ -446,6 +446,14 @@ def test_parametric_cases_are_the_benchmark_s(tmp_path):
         assert coarse[case]["best"]["Rs"] == fine[case]["best"]["Rs"]
         for field in ("size_med", "size_max") + (("model_max",) if case != "a" else ()):
             assert coarse[case][field] == fine[case][field]
+    # "even at 0.01 arcsec its widths exceed the parameter bounds (in (a), e1 ...)"
+    assert float(sub["par001_a_e1_width"]) > float(sub["par001_a_e1_bound"])
+    # the emcee runs: the example converged (at least 50 tau kept), the wide
+    # posterior not; the demo's fit flags no pair
+    for name in ("demo.txt", "mcmc.txt"):
+        assert f"_static/parametric/{name}" in page
+    assert int(sub["par_mcmc0005_n_tau"]) >= 50 > int(sub["par_mcmc006_n_tau"])
+    assert sub["par_demo_model_flags"] == "0"
     # "the parametric errors do not shrink" as mu_size's do
     for case in "ab":
         size = float(coarse[case]["relerr_size"]) / float(fine[case]["relerr_size"])
