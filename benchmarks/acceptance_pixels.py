@@ -9,11 +9,17 @@ the detected positions and, when available, automatic pairing. Prints
 completeness and spurious fraction, astrometric rms vs SNR and the flux-ratio
 error::
 
-    python benchmarks/acceptance_pixels.py [--seeds 20]
+    python benchmarks/acceptance_pixels.py [--seeds 20] [--output FILE]
+
+The docs' table (docs/mock_images.rst) is read from the stored output of
+``--seeds 20 --output docs/_static/scenes/acceptance.txt`` by
+``docs/scripts/mock_images_numbers.py``.
 """
 
 import argparse
+import sys
 import warnings
+from pathlib import Path
 
 import astropy.units as u
 import numpy as np
@@ -23,6 +29,9 @@ from lensdual.detection import find_point_sources
 from lensdual.pairing import pair_constellations
 from lensdual.photometry import psf_photometry
 from lensdual.simulation import render_mock_images, smacs0723_analog
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _output import Record, add_output_argument  # noqa: E402
 
 BANDS = ("F150W", "F200W")
 
@@ -120,7 +129,9 @@ def run_seed(seed):
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=20)
+    add_output_argument(parser)
     args = parser.parse_args(argv)
+    rec = Record()
     agg = {}
     for seed in range(args.seeds):
         res = run_seed(seed)
@@ -129,24 +140,27 @@ def main(argv=None):
             agg[key] = agg[key] + val
     found, snr = np.array(agg["found"]), np.array(agg["snr"])
     sel = snr >= 10
-    print(f"{args.seeds} systems, {len(found)} images")
-    print(f"detection completeness (SNR >= 10 in both bands): {found[sel].mean():.1%} "
-          f"of {sel.sum()}; all: {found.mean():.1%}")
-    print(f"spurious detections: {agg['spurious']} of {agg['detections']} "
-          f"({agg['spurious'] / max(agg['detections'], 1):.1%})")
+    rec.say(f"{args.seeds} systems, {len(found)} images")
+    lo, med, hi = np.percentile(snr, [5, 50, 95])
+    rec.say(f"image SNR (the lower of the two bands): median {med:.0f}, 5-95 % {lo:.0f}-{hi:.0f}")
+    rec.say(f"detection completeness (SNR >= 10 in both bands): {found[sel].sum()} of "
+            f"{sel.sum()} ({found[sel].mean():.1%}); all: {found.mean():.1%}")
+    rec.say(f"spurious detections: {agg['spurious']} of {agg['detections']} "
+            f"({agg['spurious'] / max(agg['detections'], 1):.1%})")
     err, psnr = np.array(agg["pos_err"]), np.array(agg["pos_snr"])
     for lo, hi in ((10, 20), (20, 40), (40, 80), (80, np.inf)):
         s = (psnr >= lo) & (psnr < hi)
         if s.any():
-            print(f"  astrometric rms, SNR {lo}-{hi}: {np.sqrt(np.mean(err[s] ** 2)):.4f} arcsec "
-                  f"({s.sum()} images)")
-    print(f"automatic pairing: {agg['pairs_correct']} of {agg['pairs_true']} true pairs "
-          f"({agg['pairs_correct'] / max(agg['pairs_true'], 1):.1%}), {agg['pairs_wrong']} wrong "
-          f"(at most {max(agg['wrong_per_system'], default=0)} in one system)")
+            rec.say(f"  astrometric rms, SNR {lo}-{hi}: {np.sqrt(np.mean(err[s] ** 2)):.4f} arcsec "
+                    f"({s.sum()} images)")
+    rec.say(f"automatic pairing: {agg['pairs_correct']} of {agg['pairs_true']} true pairs "
+            f"({agg['pairs_correct'] / max(agg['pairs_true'], 1):.1%}), {agg['pairs_wrong']} wrong "
+            f"(at most {max(agg['wrong_per_system'], default=0)} in one system)")
     rerr, rsnr = np.array(agg["ratio_err"]), np.array(agg["ratio_snr"])
     s = rsnr >= 30
-    print(f"flux ratio, both images SNR >= 30: median |ln(measured/true)| = "
-          f"{np.median(rerr[s]):.2%} ({s.sum()} ratios)")
+    rec.say(f"flux ratio, both images SNR >= 30: median |ln(measured/true)| = "
+            f"{np.median(rerr[s]):.2%} ({s.sum()} ratios)")
+    rec.write(args.output)
 
 
 if __name__ == "__main__":

@@ -33,6 +33,7 @@ benchmark::
 import importlib.util
 import re
 import sys
+from decimal import ROUND_HALF_UP, Decimal
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -168,6 +169,109 @@ def other_seed_numbers(cells):
     return sub
 
 
+#: The cluster-scale families of the main table whose pulls and false flags the
+#: page reads together (the folds and the SMACS families).
+FOLDS = ("cluster_fold", "smacs_analog", "smacs_lenstool")
+#: The cluster-scale families of the main table (the folds and the cusp).
+CLUSTER = FOLDS + ("cluster_cusp",)
+
+
+def _half_up(x, digits, scale=1.0):
+    """``scale`` times ``x`` rounded half up to ``digits`` decimals, as text; ``x`` is
+    read from its shortest repr (the stored tables' own digits), and zero is "0"."""
+    value = Decimal(repr(float(x))) * Decimal(repr(float(scale)))
+    if value == 0:
+        return "0"
+    return str(value.quantize(Decimal(1).scaleb(-digits), rounding=ROUND_HALF_UP))
+
+
+def _span(values, digits, scale=100.0):
+    """The range ``lo-hi`` of ``scale`` times ``values`` (NaN left out), rounded half up."""
+    values = [v for v in values if v == v]
+    lo, hi = (_half_up(v, digits, scale) for v in (min(values), max(values)))
+    return lo if lo == hi else f"{lo}-{hi}"
+
+
+def suite_numbers(seed0, seed100):
+    """The substitutions read from the validation suite on seed 0 (the page's main
+    table) and on seeds 100-109: the claims of "When to trust a flag" and "What
+    the table says", and the quad2 ranges the method page quotes."""
+    def rows(cells, families, method="adaptive", sources=None, noises=None):
+        return [r for (fam, n, m, noise), r in cells.items()
+                if fam in families and m == method and (sources is None or n in sources)
+                and (noises is None or noise in noises)]
+
+    def col(rows_, name):
+        return [r[name] for r in rows_]
+
+    def one(family, n_sources, noise, method="adaptive"):
+        return seed0[(family, n_sources, method, float(noise))]
+
+    sub = {}
+    # quad2: close to calibrated on the cluster folds with 20-40 sources, not next
+    # to cusps at 1-2 mas, nor with 8 sources, nor on the galaxy fold
+    sub["cal_q2_folds"] = _span(col(rows(seed0, ("cluster_fold", "smacs_analog"), "quad2",
+                                         (20, 40)), "ffr"), 2)
+    sub["cal_q2_cusp12"] = _span(col(rows(seed0, ("cluster_cusp",), "quad2", None, (1, 2)),
+                                     "ffr"), 1)
+    sub["cal_q2_n8_max"] = _half_up(max(col(rows(seed0, CLUSTER, "quad2", (8,)), "ffr")), 1, 100)
+    galaxy_q2 = col(rows(seed0, ("galaxy_fold",), "quad2"), "ffr")
+    sub["cal_q2_galaxy"] = _span(galaxy_q2, 0)
+    sub["cal_q2_galaxy_max"] = _half_up(max(galaxy_q2), 0, 100)
+
+    # the folds and the SMACS families, 8-40 sources
+    folds = rows(seed0, FOLDS)
+    sub["cal_folds_ffr"] = _span(col(folds, "ffr"), 2)
+    sub["cal_folds_w"] = _span(col(folds, "pull_w"), 2, 1.0)
+    sub["cal_folds8_gw"] = _span(col(rows(seed0, FOLDS, sources=(8,), noises=(1, 2)),
+                                     "pull_gw"), 2, 1.0)
+    # the cusp
+    sub["cal_cusp_ffr"] = _span(col(rows(seed0, ("cluster_cusp",)), "ffr"), 2)
+    r = one("cluster_cusp", 40, 20)
+    sub["cal_cusp40_20_ffr"] = _half_up(r["ffr"], 2, 100)
+    sub["cal_cusp40_20_bias"] = _half_up(r["bias"], 1, 100)
+    sub["cal_cusp40_20_sig3"] = _half_up(r["sig"] / 3, 1, 100)
+    for noise in (1, 20):
+        r = one("cluster_cusp", 8, noise)
+        sub[f"cal_cusp8_{noise}_w"] = _half_up(r["pull_w"], 2)
+        sub[f"cal_cusp8_{noise}_gw"] = _half_up(r["pull_gw"], 2)
+        sub[f"cal_cusp8_{noise}_tested"] = _half_up(r["tested"], 0, 100)
+    # the galaxy fold
+    galaxy8 = rows(seed0, ("galaxy_fold",), sources=(8,))
+    sub["cal_gal8_tested"] = " / ".join(_half_up(one("galaxy_fold", 8, noise)["tested"], 0, 100)
+                                        for noise in (1, 2, 5))
+    for noise in (10, 20):
+        sub[f"cal_gal8_tested{noise}"] = _half_up(one("galaxy_fold", 8, noise)["tested"], 0, 100)
+    sub["cal_gal8_w"] = _span(col(galaxy8, "pull_w"), 2, 1.0)
+    sub["cal_gal8_gw"] = _span(col(galaxy8, "pull_gw"), 2, 1.0)
+    galaxy = rows(seed0, ("galaxy_fold",), sources=(20, 40))
+    sub["cal_gal_ffr"] = _span(col(galaxy, "ffr"), 2)
+    sub["cal_gal_w"] = _span(col(galaxy, "pull_w"), 2, 1.0)
+    sub["cal_gal_gw"] = _span(col(galaxy, "pull_gw"), 2, 1.0)
+    sub["cal_gal20_1_tested"] = _half_up(one("galaxy_fold", 20, 1)["tested"], 0, 100)
+    sub["cal_gal8_ffr_both"] = _span(col(galaxy8 + rows(seed100, ("galaxy_fold",),
+                                                        sources=(8,)), "ffr"), 2)
+    # power on the cluster fold at 5 mas, a 25 % anomaly
+    for method, short in (("adaptive", "power"), ("quad2", "q2_power")):
+        sub[f"cal_{short}"] = " / ".join(
+            _half_up(one("cluster_fold", n, 5, method)["pow25"], 0, 100) for n in (8, 20, 40))
+    for n in (20, 40):
+        sub[f"cal_power{n}"] = _half_up(one("cluster_fold", n, 5)["pow25"], 0, 100)
+    sub["cal_sig20_5"] = _half_up(one("cluster_fold", 20, 5)["sig"], 1, 100)
+    sub["cal_q2_sig20_5"] = _half_up(one("cluster_fold", 20, 5, "quad2")["sig"], 1, 100)
+    # 8 sources: the worst false flags of MACS J1149 at 1 mas (either seed set) and
+    # of Abell 370 at 5 mas (seed 0)
+    m1149 = [seed0[("macs1149_lenstool", 8, "adaptive", 1.0)]["ffr"],
+             seed100[("macs1149_lenstool", 8, "adaptive", 1.0)]["ffr"]]
+    sub["cal_m1149_8_worst"] = _half_up(max(m1149), 1, 100)
+    sub["cal_a370_8_5"] = _half_up(one("a370_lenstool", 8, 5)["ffr"], 1, 100)
+    # Abell 370 with 20-40 sources at 10-20 mas, both seed sets
+    a370 = [r["ffr"] for cells in (seed0, seed100)
+            for r in rows(cells, ("a370_lenstool",), sources=(20, 40), noises=(10, 20))]
+    sub["cal_a370_coarse"] = _span(a370, 2)
+    return sub
+
+
 def null_numbers(dev, heldout, demo, first_lines):
     """The substitutions read from the null calibration's runs of its spline map
     (``first_lines``: the tables' first lines, which say their settings)."""
@@ -284,13 +388,15 @@ def compute(folder=STATIC):
     sub |= null_numbers(*(read_null_table(p) for p in paths),
                         [p.read_text().split("\n", 1)[0] for p in paths])
     sub |= joint_numbers(read_joint_table(folder / "joint" / "calibration_heldout.txt"))
-    sub |= other_seed_numbers(read_cells(folder / "calibration" / "suite_seed100.txt"))
-    sub["cal_s0_missed"] = str(len(missed_targets(
-        read_cells(folder / "calibration" / "suite_seed0.txt"))))
+    seed0 = read_cells(folder / "calibration" / "suite_seed0.txt")
+    seed100 = read_cells(folder / "calibration" / "suite_seed100.txt")
+    sub |= other_seed_numbers(seed100)
+    sub["cal_s0_missed"] = str(len(missed_targets(seed0)))
     pooled = folder / "calibration" / "suite_pooled70.txt"
     sub |= pooled_numbers(read_cells(pooled),
                           [read_cells(folder / "calibration" / name) for name, _ in SEED_SETS],
                           pooled.read_text().splitlines())
+    sub |= suite_numbers(seed0, seed100)
     return sub
 
 

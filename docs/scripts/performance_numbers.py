@@ -17,7 +17,14 @@ files, so the page cannot drift from them:
 - ``joint.txt``: ``benchmarks/bench_joint.py``;
 - ``memory_2048.txt``, ``memory_4096.txt`` and ``memory_4096_noerror.txt``:
   ``benchmarks/bench_memory_run.py --size 2048``, ``--size 4096`` and ``--size
-  4096 --no-error --cases run``.
+  4096 --no-error --cases run``;
+- ``compile.txt``: ``benchmarks/bench_compile.py`` (CPU times, quoted by the
+  install and Lenstool pages);
+- ``neighbour_cap.txt``: ``benchmarks/neighbour_cap.py`` (accuracies, not
+  times).
+
+The load averages of the last two are not part of the performance page's,
+whose figures are wall times.
 
 Run from the repository root after rerunning a benchmark (each with
 ``--output docs/_static/performance/<file>``)::
@@ -303,12 +310,56 @@ def memory_run(path):
     return sub
 
 
+def compile_times(path):
+    """``bench_compile.py``: CPU time to compile the kernels of each case."""
+    lines = _lines(path)
+    sub = {}
+    for case in ("adaptive", "lenstool"):
+        m = _search(rf"^{case}\s+([\d.]+) \(\s*[\d.]+\)\s+([\d.]+) \(\s*[\d.]+\)\s+([\d.]+)$",
+                    lines, path)
+        sub[f"perf_compile_{case}"] = f"{float(m.group(3)):.0f}"
+    return sub
+
+
+def neighbour_cap(path):
+    """``neighbour_cap.py``: what the neighbour cap changes on the smooth test map."""
+    lines = _lines(path)
+    sub = {"perf_cap_pairs": _search(r"^(\d+) pairs of the smooth test map", lines, path).group(1)}
+    for method in ("quad", "quad2"):
+        m = _search(rf"^{method}\s+([\d.]+)%\s+([\d.]+)%$", lines, path)
+        capped, uncapped = float(m.group(1)), float(m.group(2))
+        sub[f"perf_cap_{method}_capped"] = f"{capped:.2g}"
+        sub[f"perf_cap_{method}_uncapped"] = f"{uncapped:.2g}"
+    m = _search(r"^adaptive, (\d+) pairs, ([\d.]+) mas noise, capped against uncapped",
+                lines, path)
+    sub["perf_cap_compared"], sub["perf_cap_noise"] = m.groups()
+    m = _search(r"the same estimate .*: (\d+) of (\d+) pairs", lines, path)
+    sub["perf_cap_same"] = m.group(1)
+    m = _search(r"errors in quadrature: median ([\d.e+-]+), 90th percentile ([\d.]+)",
+                lines, path)
+    sub["perf_cap_z_median"], sub["perf_cap_z90"] = m.groups()
+    m = _search(r"error capped / uncapped: median ([\d.]+)", lines, path)
+    sub["perf_cap_err_ratio"] = f"{float(m.group(1)):.2f}"
+    for label in ("capped", "uncapped"):
+        m = _search(rf"pulls against the exact mu, {label}: 16-84 % (-?[\d.]+) to (-?[\d.]+)",
+                    lines, path)
+        sub[f"perf_cap_pull_{label}"] = f"{m.group(1)} to {m.group(2)}"
+    m = _search(r"capped: pull width \(16-84 % half-width\) ([\d.]+), beyond 3 sigma "
+                r"([\d.]+) %", lines, path)
+    sub["perf_cap_width"], sub["perf_cap_beyond3"] = m.groups()
+    return sub
+
+
 #: The stored outputs and the reader of each.
 READERS = {"estimators.txt": estimators, "null_calibration.txt": null_calibration,
            "solver.txt": solver, "lenstool.txt": lenstool, "sensitivity.txt": sensitivity,
            "scale_estimators.txt": scale_estimators, "scale_pairing.txt": scale_pairing,
            "joint.txt": joint, "memory_2048.txt": memory_run, "memory_4096.txt": memory_run,
            "memory_4096_noerror.txt": memory_run}
+
+
+#: Stored outputs that are not wall times (their load is not the page's), and their readers.
+RESULTS = {"compile.txt": compile_times, "neighbour_cap.txt": neighbour_cap}
 
 
 def compute(folder=OUT):
@@ -325,6 +376,8 @@ def compute(folder=OUT):
                          f"{sorted(cores)}")
     sub["perf_cores"] = cores.pop()
     sub["perf_load"] = _range(loads, "{:.1f}")
+    for name, reader in RESULTS.items():
+        sub |= reader(folder / name)
     return sub
 
 

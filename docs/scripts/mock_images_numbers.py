@@ -1,0 +1,185 @@
+"""Write docs/_static/scenes/numbers.inc: the numbers the mock-images page quotes.
+
+They are read from the stored outputs the page includes or tabulates, so the
+prose cannot drift from them:
+
+- ``scenes/finite_size_bias.txt``: ``benchmarks/finite_size_bias.py`` (the
+  photometry's bias on clusters of one half-light radius, and the whole
+  pipeline on the point and the realistic scenes);
+- ``scenes/acceptance.txt``: ``benchmarks/acceptance_pixels.py --seeds 20``
+  (detection, photometry and pairing on mocks of the SMACS0723 analogue).
+
+Run from the repository root after rerunning a benchmark::
+
+    python benchmarks/finite_size_bias.py --out docs/_static/scenes/finite_size_bias.txt
+    python benchmarks/acceptance_pixels.py --seeds 20 --output docs/_static/scenes/acceptance.txt
+    python docs/scripts/mock_images_numbers.py
+"""
+
+import math
+import re
+import sys
+from pathlib import Path
+
+from scipy.stats import beta
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _substitutions import write  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[2]
+OUT = ROOT / "docs" / "_static" / "scenes"
+
+#: The half-light radii (pc) of part 1 whose flux losses and flux-ratio biases
+#: the page quotes.
+LOSS_RADII = (20, 40, 80)
+BIAS_RADII = (40, 80)
+#: The largest radius (pc) the page calls a point to the photometry.
+POINT_RADIUS = 10
+#: The standard error of the median of n normal draws times sqrt(n) / sigma.
+MEDIAN_ERROR = math.sqrt(math.pi / 2)
+#: The confidence of the upper limit on the false-flag rate when none is flagged.
+CONFIDENCE = 0.95
+#: The astrometric SNR bins of the acceptance run (label in its output -> short name).
+ASTROMETRY_BINS = {"10-20": "10", "20-40": "20", "40-80": "40", "80-inf": "80"}
+
+
+def _search(pattern, lines, path):
+    """The match of ``pattern`` in the first line it matches."""
+    for line in lines:
+        m = re.search(pattern, line)
+        if m:
+            return m
+    raise ValueError(f"{path}: no line matches {pattern!r}")
+
+
+def read_bias_rows(path):
+    """Part 1 of ``finite_size_bias.py``'s output: ``{r_eff [pc]: row}``, each row a
+    dict of the ln flux losses on both arcs (``ln1``, ``ln2``), their closed forms
+    (``pred1``, ``pred2``), the stretches and the flux ratio's bias (``ratio``) and
+    its 16-84 % half-width (``ratio_width``), its closed form (``ratio_pred``) and
+    the number of pairs."""
+    rows = {}
+    number = r"\s+([+-]?[\d.]+)"
+    pattern = re.compile(r"^\s*(\d+)" + number * 10 + r"\s+(\d+)\s*$")
+    for line in Path(path).read_text().splitlines():
+        m = pattern.match(line)
+        if m is None:
+            continue
+        v = [float(x) for x in m.groups()]
+        rows[int(v[0])] = {"stretch1": v[2], "stretch2": v[3], "ln1": v[4], "pred1": v[5],
+                           "ln2": v[6], "pred2": v[7], "ratio": v[8], "ratio_width": v[9],
+                           "ratio_pred": v[10], "pairs": int(v[11])}
+    if not rows:
+        raise ValueError(f"{path}: no rows of part 1")
+    return rows
+
+
+def read_pipeline_rows(path):
+    """Part 2 of ``finite_size_bias.py``'s output: ``{scene: row}``."""
+    rows = {}
+    pattern = re.compile(r"^\s*(point|realistic)\s+(\d+) / (\d+)\s+(-|\d+ of \d+)\s+"
+                         r"(\d+) of (\d+)\s+([\d.]+)\s+([\d.]+)\s*$")
+    for line in Path(path).read_text().splitlines():
+        m = pattern.match(line)
+        if m is None:
+            continue
+        rows[m.group(1)] = {"false": int(m.group(2)), "tested": int(m.group(3)),
+                            "patch": m.group(4), "subhalo": int(m.group(5)),
+                            "seeds": int(m.group(6)), "size_err": float(m.group(7)),
+                            "ratio_err": float(m.group(8))}
+    if set(rows) != {"point", "realistic"}:
+        raise ValueError(f"{path}: no rows of part 2 for both scenes")
+    return rows
+
+
+def _pct_range(values):
+    """The range of ``values`` (fractions) in whole per cent, one number when equal."""
+    lo, hi = (f"{100 * v:.0f}" for v in (min(values), max(values)))
+    return lo if lo == hi else f"{lo}-{hi}"
+
+
+def _signed_pct(x):
+    return f"{100 * x:+.0f}"
+
+
+def finite_size_numbers(path):
+    """The substitutions read from ``finite_size_bias.py``'s output."""
+    bias = read_bias_rows(path)
+    sub = {}
+    stretches = [bias[0][k] for k in ("stretch1", "stretch2")]
+    sub["mock_stretch"] = f"{min(stretches):.1f}-{max(stretches):.1f}"
+    for r in LOSS_RADII:
+        row = bias[r]
+        # the fraction of the flux lost, 1 - F/F_true, from the median ln(F/F_true)
+        sub[f"mock_loss{r}"] = _pct_range([1 - math.exp(row[k]) for k in ("ln1", "ln2")])
+    ratios = [bias[r][f"ln{k}"] / bias[r][f"pred{k}"] for r in LOSS_RADII for k in (1, 2)]
+    sub["mock_loss_over_pred"] = f"{min(ratios):.2f}-{max(ratios):.2f}"
+    for r in BIAS_RADII:
+        sub[f"mock_ratio_bias{r}"] = _signed_pct(math.expm1(bias[r]["ratio"]))
+        sub[f"mock_ratio_pred{r}"] = _signed_pct(math.expm1(bias[r]["ratio_pred"]))
+    points = [row for r, row in bias.items() if r <= POINT_RADIUS]
+    sub["mock_point_max"] = f"{max(abs(row[k]) for row in points for k in ('ln1', 'ln2')):.3f}"
+    # the standard error of a median, 1.2533 sigma / sqrt(n), with sigma the 16-84 %
+    # half-width of the flux ratios
+    noise = [MEDIAN_ERROR * row["ratio_width"] / math.sqrt(row["pairs"]) for row in points]
+    sub["mock_median_noise"] = f"{min(noise):.3f}-{max(noise):.3f}"
+
+    pipe = read_pipeline_rows(path)
+    point, real = pipe["point"], pipe["realistic"]
+    sub["mock_clean_pairs"] = str(real["tested"])
+    sub["mock_false_real"] = str(real["false"])
+    sub["mock_false_point"] = str(point["false"])
+    # the one-sided Clopper-Pearson upper limit on the rate of k flags in n pairs
+    k, n = real["false"], real["tested"]
+    limit = 1.0 if k == n else beta.ppf(CONFIDENCE, k + 1, n - k)
+    sub["mock_false_limit"] = f"{100 * limit:.1f}"
+    sub["mock_confidence"] = f"{100 * CONFIDENCE:.0f}"
+    sub["mock_subhalo_real"] = f"{real['subhalo']} of {real['seeds']}"
+    sub["mock_subhalo_point"] = f"{point['subhalo']} of {point['seeds']}"
+    sub["mock_patch_flagged"] = real["patch"]
+    sub["mock_ratio_err_real"] = f"{100 * real['ratio_err']:.1f}"
+    sub["mock_ratio_err_point"] = f"{100 * point['ratio_err']:.1f}"
+    return sub
+
+
+def acceptance_numbers(path):
+    """The substitutions read from ``acceptance_pixels.py``'s output."""
+    lines = Path(path).read_text().splitlines()
+    m = _search(r"^(\d+) systems, (\d+) images$", lines, path)
+    systems, images = int(m.group(1)), int(m.group(2))
+    # two images (one per arc) per source
+    sub = {"mock_acc_systems": str(systems), "mock_acc_sources": str(images // (2 * systems))}
+    m = _search(r"^image SNR \(the lower of the two bands\): median (\d+), 5-95 % (\d+-\d+)$",
+                lines, path)
+    sub["mock_acc_snr"] = m.group(2)
+    m = _search(r"^detection completeness \(SNR >= 10 in both bands\): (\d+) of (\d+) "
+                r"\(([\d.]+)%\)", lines, path)
+    found, n = int(m.group(1)), int(m.group(2))
+    sub["mock_acc_complete"] = f"{100 * found / n:.0f} % ({found} of {n})"
+    m = _search(r"^spurious detections: (\d+) of (\d+)", lines, path)
+    spurious, det = int(m.group(1)), int(m.group(2))
+    sub["mock_acc_spurious"] = f"{100 * spurious / det:.1f} % ({spurious} of {det})"
+    for label, short in ASTROMETRY_BINS.items():
+        m = _search(rf"astrometric rms, SNR {label}: ([\d.]+) arcsec", lines, path)
+        sub[f"mock_acc_rms{short}"] = f"{m.group(1)} arcsec"
+    m = _search(r"^automatic pairing: (\d+) of (\d+) true pairs \(.*?\), (\d+) wrong", lines, path)
+    sub["mock_acc_pairing"] = f"{m.group(1)} of {m.group(2)} correct, {m.group(3)} wrong"
+    m = _search(r"^flux ratio, both images SNR >= 30: median \|ln\(measured/true\)\| = "
+                r"([\d.]+)%", lines, path)
+    sub["mock_acc_ratio"] = f"median abs ln error {m.group(1)} %"
+    return sub
+
+
+def compute(folder=OUT):
+    """The substitutions (name -> text) from the stored outputs under ``folder``."""
+    return (finite_size_numbers(folder / "finite_size_bias.txt")
+            | acceptance_numbers(folder / "acceptance.txt"))
+
+
+def main(out=OUT):
+    """Write the include file into ``out`` (the docs' folder by default)."""
+    return write(compute(), out)
+
+
+if __name__ == "__main__":
+    main()
