@@ -312,6 +312,9 @@ FAMILY_NAMES = {"cluster_fold": "the cluster fold", "cluster_cusp": "the cusp",
                 "smacs_lenstool": "SMACS0723", "macs1149_lenstool": "MACS J1149",
                 "a2744_lenstool": "Abell 2744", "a370_lenstool": "Abell 370",
                 "as1063_lenstool": "Abell S1063", "as1063_s13_lenstool": "Abell S1063 system 13"}
+#: The cluster-scale families of the page's first bullet.
+CLUSTER_SCALE = ("cluster_fold", "cluster_cusp", "smacs_analog", "smacs_lenstool",
+                 "macs1149_lenstool", "a2744_lenstool", "as1063_s13_lenstool")
 #: The runs pooled into ``suite_pooled70.txt``, as the prose labels them.
 SEED_SETS = (("suite_seed0.txt", "seeds 0-9"), ("suite_seed100.txt", "seeds 100-109"),
              ("suite_seed2000.txt", "seeds 2000-2049"))
@@ -367,7 +370,16 @@ def pooled_numbers(pooled, sets, declined_lines):
     sub["cal_p70_bias"] = _and(f"{_cell_name(*k)}, {_pct(r['bias'], 1)} % against a third "
                                f"of its median error, {_pct(r['sig'] / 3, 1)} %"
                                for k, r in bias) if bias else "none"
+    cluster = [r for k, r in adaptive.items() if k[0] in CLUSTER_SCALE and k[1] >= 20]
+    sub["cal_p70_cluster_gw"] = _range([r["pull_gw"] for r in cluster], 1.0)
+    sub["cal_p70_cluster_ffr_max"] = _pct(max(r["ffr"] for r in cluster))
+    galaxy = [r for k, r in adaptive.items() if k[0] == "galaxy_fold" and k[1] >= 20]
+    sub["cal_p70_gal_ffr"] = _range([r["ffr"] for r in galaxy])
+    galaxy8 = [r["pull_w"] for k, r in adaptive.items()
+               if k[0] == "galaxy_fold" and k[1] == 8 and r["tested"] >= 0.5]
+    sub["cal_p70_gal8_w"] = f"{max(galaxy8):.1f}"
     fold = ("cluster_fold", "adaptive", 5.0)
+    sub["cal_p70_pow8"] = f"{100 * pooled[(fold[0], 8, fold[1], fold[2])]['pow25']:.0f}"
     sub["cal_p70_fold_pow"] = " / ".join(
         f"{100 * pooled[(fold[0], n_src, fold[1], fold[2])]['pow25']:.1f}" for n_src in (20, 40))
     sub["cal_p70_fold20_pow"] = f"{100 * pooled[(fold[0], 20, fold[1], fold[2])]['pow25']:.1f}"
