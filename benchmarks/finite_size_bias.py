@@ -68,14 +68,14 @@ def _closed_form(system, truth, r_pc, band):
     return out
 
 
-def photometry_bias(seeds):
-    """Part 1: one row per r_eff."""
+def photometry_bias(seeds, source_model="point", radii=RADII_PC):
+    """Part 1: one row per r_eff, with measure_pairs(source_model=source_model)."""
     rows = []
     records = {r: {"l1": [], "l2": [], "ratio": [], "pred1": [], "pred2": [], "pred": [],
-                   "stretch1": [], "stretch2": []} for r in RADII_PC}
+                   "stretch1": [], "stretch2": [], "pull": []} for r in radii}
     for seed in seeds:
         system, truth = simulate_demo(subhalo="none", seed=seed)
-        for r in RADII_PC:
+        for r in radii:
             mocks = render_mock_images(system, bands=DEMO_BANDS, pairs=truth, seed=seed,
                                        r_eff=r * u.pc)
             psf = {b: np.asarray(mocks[("L1", b)].psf) for b in DEMO_BANDS}
@@ -87,7 +87,7 @@ def photometry_bias(seeds):
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 measured = measure_pairs(mocks.arc("L1"), mocks.arc("L2"), start, psf=psf,
-                                         bands=list(DEMO_BANDS))
+                                         bands=list(DEMO_BANDS), source_model=source_model)
             rec = records[r]
             for b in DEMO_BANDS:
                 f1 = measured[f"flux1_{b}"].to_value(u.nJy)
@@ -98,22 +98,26 @@ def photometry_bias(seeds):
                     rec["l1"].append(np.log(f1 / t1))
                     rec["l2"].append(np.log(f2 / t2))
                     rec["ratio"].append(np.log((f1 / f2) / np.asarray(truth["mu_true"])))
+                    e1 = measured[f"flux_err1_{b}"].to_value(u.nJy) / f1
+                    e2 = measured[f"flux_err2_{b}"].to_value(u.nJy) / f2
+                    rec["pull"].append(rec["ratio"][-1] / np.hypot(e1, e2))
                 p1, p2 = _closed_form(system, truth, r, b)
                 rec["pred1"].append(p1)
                 rec["pred2"].append(p2)
                 rec["pred"].append(p1 - p2)
             rec["stretch1"].append(np.asarray(mocks.pairs["stretch1"]))
             rec["stretch2"].append(np.asarray(mocks.pairs["stretch2"]))
-    for r in RADII_PC:
+    for r in radii:
         rec = {k: np.concatenate(v) for k, v in records[r].items()}
         ok = np.isfinite(rec["ratio"])
         q16, q84 = np.percentile(rec["ratio"][ok], [16, 84])
+        p16, p84 = np.percentile(rec["pull"][ok], [16, 84])
         angle = source_sigmas(r * u.pc, 1, system)[0][0] * 1e3
         rows.append((r, angle, np.median(rec["stretch1"]), np.median(rec["stretch2"]),
                      np.nanmedian(rec["l1"]), np.median(rec["pred1"]),
                      np.nanmedian(rec["l2"]), np.median(rec["pred2"]),
                      np.median(rec["ratio"][ok]), 0.5 * (q84 - q16), np.median(rec["pred"]),
-                     int(ok.sum())))
+                     int(ok.sum()), 0.5 * (p84 - p16)))
     return rows
 
 
@@ -162,7 +166,7 @@ def format_results(bias, flags, seeds, pipeline_seeds):
         "  [pc]  [mas]       L1       L2          L1    L1           L2    L2   "
         "median  16-84%/2",
     ]
-    for (r, ang, s1, s2, l1, p1, l2, p2, ratio, width, pred, n) in bias:
+    for (r, ang, s1, s2, l1, p1, l2, p2, ratio, width, pred, n, _) in bias:
         lines.append(f"{r:6.0f} {ang:6.2f} {s1:8.2f} {s2:8.2f} {l1:+11.3f} {p1:+6.3f} "
                      f"{l2:+12.3f} {p2:+6.3f}   {ratio:+6.3f}  {width:8.3f}  {pred:+6.3f}  "
                      f"{n:5d}")

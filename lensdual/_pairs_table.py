@@ -112,6 +112,17 @@ def flags_col(arc, band):
     return f"flags{_arc(arc)}_{band}"
 
 
+def size_col(arc, band):
+    """Fitted source size of ``measure_pairs(source_model="resolved")`` (mas):
+    ``size1_<band>`` or ``size2_<band>``."""
+    return f"size{_arc(arc)}_{band}"
+
+
+def size_snr_col(arc, band):
+    """Significance of that size: ``size_snr1_<band>`` or ``size_snr2_<band>``."""
+    return f"size_snr{_arc(arc)}_{band}"
+
+
 def band_flux_cols(band):
     """``(flux1_<band>, flux2_<band>, flux_err1_<band>, flux_err2_<band>)``."""
     return (flux_col(1, band), flux_col(2, band), flux_err_col(1, band), flux_err_col(2, band))

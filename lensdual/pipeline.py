@@ -164,7 +164,8 @@ def analyse(images, *, psf=None, estimator=DEFAULT_METHOD, sigma_pos="auto",
             n_bootstrap=DEFAULT_N_BOOTSTRAP, snr_threshold=DEFAULT_SNR_THRESHOLD,
             seed=DEFAULT_SEED,
             catalogs=None, manual_pairs=None, progress=None, null_realisations=0,
-            oversampling=None, test=DEFAULT_TEST, max_magnification=None):
+            oversampling=None, test=DEFAULT_TEST, max_magnification=None,
+            source_model="point"):
     """Run the pipeline from images of two arcs to the duality table.
 
     Parameters
@@ -206,6 +207,11 @@ def analyse(images, *, psf=None, estimator=DEFAULT_METHOD, sigma_pos="auto",
         The duality test of :func:`~lensdual.duality.check_duality` and of
         the null calibration (default ``"geometric"``); ``"joint"`` needs
         ``estimator="adaptive"``.
+    source_model : {"point", "resolved"}
+        The photometry of the pairs (:func:`~lensdual.photometry.measure_pairs`):
+        ``"point"`` (default) fits the PSF; ``"resolved"`` fits the PSF
+        convolved with an elliptical Gaussian of free size, for slightly
+        resolved sources (see :ref:`photometry-resolved`).
 
     Returns
     -------
@@ -268,7 +274,8 @@ def analyse(images, *, psf=None, estimator=DEFAULT_METHOD, sigma_pos="auto",
                 with_lost_pairs(pairs, to_pair, images)
         with progress.step("PSF photometry of the pairs"):
             measured = measure_pairs(images["L1"], images["L2"], to_measure, psf=psf,
-                                     bands=bands, oversampling=oversampling or None)
+                                     bands=bands, oversampling=oversampling or None,
+                                     source_model=source_model)
         doubt = pairing_doubts(to_measure)
         for row, reason in lost.items():
             add_doubt(doubt, np.arange(len(doubt)) == row, reason)

@@ -560,3 +560,28 @@ def test_photometry_numbers_are_the_benchmark_s(tmp_path):
     assert "_static/photometry/speed.txt" in page
     # "the FWHM fit about doubles the work"
     assert 1.5 <= float(sub["phot_nopsf_ratio"]) <= 2.5
+
+
+def test_resolved_photometry_numbers_are_read_from_the_record():
+    """The resolved-fit numbers of docs/mock_images.rst and docs/photometry.rst are what
+    docs/scripts/resolved_numbers.py reads from the benchmark's stored output, which
+    the page includes whole."""
+    module = load_script("resolved_numbers")
+    folder = STATIC / "scenes"
+    stamps, anomaly, demo = module.read_record(folder / module.RECORD)
+    sub = module.compute(stamps, anomaly, demo)
+    assert_files_match(module.include_files(sub), folder,
+                       "docs/scripts/resolved_numbers.py")
+    for name in ("mock_images", "photometry"):
+        page = (ROOT / "docs" / f"{name}.rst").read_text()
+        assert ".. include:: _static/scenes/resolved.inc" in page
+        assert substitutions_used(page, "rs") <= set(sub)
+    page = (ROOT / "docs" / "mock_images.rst").read_text()
+    assert "literalinclude:: _static/scenes/resolved_photometry.txt" in page
+    # an independent read of the largest resolved bias: the 5th number of each stamp row
+    text = (folder / module.RECORD).read_text().split("2. The demo")[0]
+    rows = [ln.replace("|", " ").split() for ln in text.splitlines()
+            if ln.count("|") == 3 and ln.strip()[:1].isdigit()]
+    assert len(rows) == len(stamps) > 0
+    worst = max(abs(float(r[6])) for r in rows)
+    assert sub["rs_resolved_maxbias"] == f"{100 * worst:.1f} %"

@@ -46,6 +46,7 @@ class PhotometryFlag(enum.IntFlag):
     BAD_ERROR = 1 << 17
     FIT_FAILED = 1 << 18
     FLAT_TOP = 1 << 19
+    TOO_RESOLVED = 1 << 20
 
 
 _FLAG_WORDS = {
@@ -66,6 +67,9 @@ _FLAG_WORDS = {
     PhotometryFlag.FIT_FAILED: "the fitter raised an error",
     PhotometryFlag.FLAT_TOP: ("flat-topped core where the PSF peaks (saturated or clipped: "
                               "the flux is not that of a point source)"),
+    PhotometryFlag.TOO_RESOLVED: ("too resolved (source_model='resolved'): over 10 % of the "
+                                  "fitted model's flux lies outside the fitting box, or its "
+                                  "size reached the largest fitted"),
 }
 
 #: The flags that make a measurement unusable (its flux and position are not used).
@@ -82,6 +86,7 @@ UNUSABLE_FLAGS = (
     | PhotometryFlag.BAD_ERROR
     | PhotometryFlag.FIT_FAILED
     | PhotometryFlag.FLAT_TOP
+    | PhotometryFlag.TOO_RESOLVED
 )
 _BAD_FLAGS = int(UNUSABLE_FLAGS)
 

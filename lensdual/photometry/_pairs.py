@@ -23,6 +23,8 @@ from .._pairs_table import (
     id_col,
     pos_err_col,
     positions,
+    size_col,
+    size_snr_col,
     sky_col,
     x_col,
     xy_cols,
@@ -213,6 +215,7 @@ class _ArcResult(NamedTuple):
     err: np.ndarray
     fluxes: dict  # band -> (flux, flux_err, flags)
     offsets: dict  # band -> (dx, dy, significance, n_sources), bands that were shifted
+    sizes: dict  # band -> (size in mas, its significance); empty for point sources
 
 
 #: A band's median position offset from the first band of its arc is removed
@@ -282,7 +285,7 @@ def _measure_arc(arc, images, sky_init, bands, phot_of, reference, troubles, src
     sum_w = np.zeros(n)
     sum_x = np.zeros(n)
     sum_y = np.zeros(n)
-    fluxes = {}
+    fluxes, sizes = {}, {}
     per_band = []
     for band in bands:
         img = images[band]
@@ -292,6 +295,8 @@ def _measure_arc(arc, images, sky_init, bands, phot_of, reference, troubles, src
         ok = np.isfinite(xb) & np.isfinite(yb) & np.isfinite(sig) & (sig > 0) & ~bad
         per_band.append((np.where(ok, xb, np.nan), np.where(ok, yb, np.nan), sig, ok))
         fluxes[band] = _usable_fluxes(res, flags, bad)
+        if "size" in res.colnames:
+            sizes[band] = (_size_mas(res, img.wcs, arc, band), np.asarray(res["size_snr"]))
     offsets = {}
     x0, y0, s0, _ = per_band[0]
     for k, band in enumerate(bands):
@@ -310,7 +315,18 @@ def _measure_arc(arc, images, sky_init, bands, phot_of, reference, troubles, src
         ym = np.where(sum_w > 0, sum_y / sum_w, np.nan)
         err = np.where(sum_w > 0, 1.0 / np.sqrt(sum_w), np.nan)
     troubles.note(np.flatnonzero(sum_w == 0), f"no band measured its L{arc} position (NaN)")
-    return _ArcResult(xm, ym, err, fluxes, offsets)
+    return _ArcResult(xm, ym, err, fluxes, offsets, sizes)
+
+
+def _size_mas(res, wcs, arc, band):
+    """The fitted sizes of a resolved fit (pixels) in mas, with the image's mean pixel
+    scale."""
+    from astropy.wcs.utils import proj_plane_pixel_scales
+
+    wcs = _as_wcs(wcs, f"images_l{arc}[{band!r}].wcs")
+    scale = float(np.sqrt(np.prod(proj_plane_pixel_scales(wcs.celestial))))
+    unit = wcs.celestial.world_axis_units[0] or "deg"
+    return np.asarray(res["size"], dtype=np.float64) * (scale * u.Unit(unit)).to_value(u.mas)
 
 
 def _offset_warning(per_arc, bands):
@@ -353,6 +369,11 @@ def _write_fluxes(out, per_arc, bands):
         out[flux_err_col(2, band)] = e2
         out[flags_col(1, band)] = g1
         out[flags_col(2, band)] = g2
+        for arc in ARCS:
+            if band in per_arc[arc].sizes:
+                size, snr = per_arc[arc].sizes[band]
+                out[size_col(arc, band)] = size * u.mas
+                out[size_snr_col(arc, band)] = snr
 
 
 def _measured(per_arc, bands, troubles):
@@ -405,6 +426,7 @@ def measure_pairs(
     neighbour_passes=10,
     oversampling=None,
     check_psf=True,
+    source_model="point",
 ):
     r"""PSF photometry of the point-source pairs of two arcs, into a pairs table.
 
@@ -439,6 +461,13 @@ def measure_pairs(
         used for the output).
     background, fit_shape, xy_bounds, neighbour_passes, check_psf
         Passed to :func:`psf_photometry`.
+    source_model : {"point", "resolved"}, optional
+        Passed to :func:`psf_photometry`: ``"point"`` (default) fits every
+        source as the PSF; ``"resolved"`` refits it as the PSF convolved
+        with an elliptical Gaussian of free size, on each image alone, so
+        that slightly resolved sources (star clusters stretched differently
+        on the two arcs) keep their flux ratio (see
+        :ref:`photometry-resolved`), and adds the size columns below.
     oversampling : int, (int, int) or dict of str to those, optional
         The oversampling of PSF images (see :func:`psf_photometry`), for all
         bands or per band (a dict; a band it lacks gets None).
@@ -461,6 +490,15 @@ def measure_pairs(
           ``flux_err2_<band>`` (image unit; L2 converted to the unit of L1),
           and ``flags1_<band>``, ``flags2_<band>`` (:class:`PhotometryFlag`
           bits; 0 is a clean fit);
+        * with ``source_model="resolved"``, per band ``size1_<band>``,
+          ``size2_<band>`` (mas): the standard deviation of the fitted
+          Gaussian along its major axis (before the PSF; negative: the
+          signed square root of a negative fitted variance, as noise gives
+          a point source), and ``size_snr1_<band>``, ``size_snr2_<band>``:
+          that variance over its error (above 3 the source is resolved).
+          A source too resolved to be used (over 10 % of its fitted flux
+          outside the fitting box) has the unusable flag ``TOO_RESOLVED``
+          (NaN flux, and the pair's ``photometry_note`` says so);
         * ``photometry_flags``: per pair, the sum of the unusable flags
           (:data:`UNUSABLE_FLAGS`) of all its fits; 0 when all were usable;
         * ``photometry_note``: per pair, what was not measured and why, in
@@ -563,6 +601,7 @@ def measure_pairs(
         xy_bounds=xy_bounds,
         neighbour_passes=neighbour_passes,
         check_psf=check_psf,
+        source_model=source_model,
     )
 
     sky1_init, sky2_init = _initial_sky(pairs, reference)
@@ -595,6 +634,7 @@ def measure_pairs(
         "fit_shape": fit_shape,
         "xy_bounds": xy_bounds,
         "neighbour_passes": neighbour_passes,
+        "source_model": source_model,
         "psf": {b: repr(p) for b, p in psf_of.items()},
         "oversampling": {b: os_of[b] for b in bands},
         "frame": "gnomonic about reference, x west, y north, arcsec",

@@ -32,6 +32,7 @@ from ._inputs import (
     _unpack_image,
 )
 from ._profiles import _GaussianProfile, _image_fwhm, _ImageProfile
+from ._resolved import RESOLVED_COLUMNS, refit_resolved
 
 __all__ = ["ArcPSFPhotometry", "psf_photometry"]
 
@@ -43,6 +44,17 @@ _PSF_CHECK_SOURCES = 6
 #: psf_photometry works on a cut-out about the positions when its area is at most
 #: this fraction of the image's (else on the whole image: the saving is small).
 _CUTOUT_MAX_FRACTION = 0.5
+
+#: What the photometry can model: point sources, or slightly resolved ones.
+SOURCE_MODELS = ("point", "resolved")
+
+_RESOLVED_ADVICE = (
+    "the fluxes assume point sources and miss the light of resolved sources beyond the "
+    "PSF, differently on differently stretched images (a flux-ratio bias). Check the "
+    "PSF's pixel scale; for resolved sources (star clusters stretched along an arc) use "
+    "source_model='resolved', which fits the PSF convolved with an elliptical Gaussian "
+    "and reports each source's size"
+)
 
 
 def _cutout_margin(basis_kind, fit_shape, fwhm, highpass, local_est):
@@ -263,6 +275,19 @@ check_psf : bool, optional
     PSF more than 1.8 times wider than them (an oversampled PSF passed
     without ``oversampling``), or 1.8 times narrower when an
     ``oversampling`` was given; warn when it is narrower without one.
+    With a Gaussian ``psf`` of given FWHM, warn when it is 1.8 times
+    narrower than the sources (``source_model="point"`` only).
+source_model : {"point", "resolved"}, optional
+    ``"point"`` (default): every source is the PSF. ``"resolved"``: after
+    the PSF fit, every source is refitted alone as the PSF convolved with an
+    elliptical Gaussian of free covariance (see :ref:`photometry-resolved`),
+    on the image minus the other sources' models, with the same background
+    columns; its flux is the model's total flux, so a slightly resolved
+    source (a star cluster stretched along an arc) keeps all its flux. The
+    fitted size is reported (``size``, ``size_minor``, ``size_angle``,
+    ``size_snr``, ``flux_outside``) and the PSF fluxes are kept in
+    ``flux_point``; a source whose model puts more than 10 % of its flux
+    outside the fitting box is flagged ``TOO_RESOLVED`` (unusable).
 """,
     "returns": r"""
 table : `~astropy.table.QTable`
@@ -295,6 +320,19 @@ table : `~astropy.table.QTable`
     the reduced chi-square. ``meta`` records the PSF, FWHM (pixels),
     fit shape, background strategy and smoothing, the PSF image's
     ``oversampling`` and ``input`` (how messages name the image).
+
+    With ``source_model="resolved"`` the fluxes, positions and their errors
+    are those of the resolved fit, and the table has also:
+
+    * ``flux_point``, ``flux_point_err``: the PSF fit's flux and error;
+    * ``size``, ``size_minor``: the standard deviations (pixels) of the
+      fitted Gaussian along its major and minor axes, before the PSF; a
+      negative value is the signed square root of a negative fitted
+      variance (a point source's size scatters about 0);
+    * ``size_angle``: the major axis' angle (degrees from +x towards +y);
+    * ``size_snr``: the major-axis variance over its error (> 3: resolved);
+    * ``flux_outside``: the fraction of the fitted model's flux outside the
+      fitting box (above 0.1 the source is flagged ``TOO_RESOLVED``).
 """,
 }
 
@@ -384,8 +422,14 @@ class ArcPSFPhotometry:
         warn=True,
         oversampling=None,
         check_psf=True,
+        source_model="point",
     ):
         from photutils.background import LocalBackground
+
+        if source_model not in SOURCE_MODELS:
+            raise ValueError(f"source_model must be one of {list(SOURCE_MODELS)}, got "
+                             f"{source_model!r}")
+        self._source_model = source_model
 
         self._oversampling = _as_oversampling(oversampling)
         self._psf_kind, self._psf = _psf_spec(psf, oversampling=self._oversampling)
@@ -436,6 +480,7 @@ class ArcPSFPhotometry:
             "warn": warn,
             "oversampling": oversampling,
             "check_psf": check_psf,
+            "source_model": source_model,
         }
 
     def __repr__(self):
@@ -526,6 +571,7 @@ class ArcPSFPhotometry:
             None if kind != "image" else [int(v) for v in np.broadcast_to(spec.oversampling, 2)]
         )
         out.meta["input"] = where
+        out.meta["source_model"] = self._source_model
         if self._warn:
             _warn_flagged(out, caught, failed, (x_all, y_all, ids, off), full_shape, where)
         return out
@@ -582,9 +628,55 @@ class ArcPSFPhotometry:
             # before the fit: a wrong PSF (e.g. oversampled without its factor) makes
             # wide groups whose joint fits are slow, and its fluxes are wrong anyway
             self._check_image_psf(fitter, where)
+        elif kind == "gaussian" and self._check_psf and self._source_model == "point":
+            self._check_resolved(fitter, where)
         radius = 2.0 * fwhm if self._group_radius is None else self._group_radius
         res, caught, failed = fitter.fit(self._neighbour_passes, radius)
+        if self._source_model == "resolved":
+            failed = failed + refit_resolved(fitter, res)
         return res, caught, failed, profile
+
+    def _sources_fwhm(self, fitter):
+        """The Gaussian FWHM (pixels) fitted to the (at most 6) brightest sources and how
+        many; None when no fit is usable."""
+        lin = fitter.linear_init()[:, 0]
+        amp = np.where(np.isfinite(lin) & (lin > 0), lin, 0.0)
+        order = np.argsort(-amp)
+        pick = order[amp[order] > 0][:_PSF_CHECK_SOURCES]
+        if pick.size == 0:
+            return None
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                fwhm_data = _estimate_fwhm(
+                    fitter.scene.subset(pick),
+                    self._highpass,
+                    fitter.basis,
+                    fitter.fit_shape,
+                    self._xy_bounds,
+                    self._maxiters,
+                    max_rel_err=0.2,
+                )
+        except ValueError:  # no usable Gaussian fit: nothing to compare with
+            return None
+        return fwhm_data, pick.size
+
+    def _check_resolved(self, fitter, where):
+        """Warn when the sources are much wider than a Gaussian PSF of given FWHM."""
+        got = self._sources_fwhm(fitter)
+        if got is None:
+            return
+        fwhm_data, n = got
+        ratio = fitter.profile.fwhm / fwhm_data
+        if ratio < 1.0 / _PSF_WIDTH_TOLERANCE:
+            # stacklevel: _check_resolved, _fit, _measure, __call__ or psf_photometry, caller
+            warnings.warn(
+                f"{where}: the PSF (Gaussian FWHM {fitter.profile.fwhm:.2f} px) is "
+                f"{1.0 / ratio:.1f} times narrower than the point sources (Gaussian FWHM "
+                f"{fwhm_data:.2f} px fitted to the {n} brightest): {_RESOLVED_ADVICE}",
+                LensdualWarning,
+                stacklevel=5,
+            )
 
     def _check_image_psf(self, fitter, where):
         """Compare the width of an image PSF with the sources' own (a Gaussian FWHM fit).
@@ -599,33 +691,17 @@ class ArcPSFPhotometry:
         else a warning (the sources may be resolved). Without any usable fit
         nothing is checked.
         """
-        lin = fitter.linear_init()[:, 0]
-        amp = np.where(np.isfinite(lin) & (lin > 0), lin, 0.0)
-        order = np.argsort(-amp)
-        pick = order[amp[order] > 0][:_PSF_CHECK_SOURCES]
-        if pick.size == 0:
+        got = self._sources_fwhm(fitter)
+        if got is None:
             return
-        try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                fwhm_data = _estimate_fwhm(
-                    fitter.scene.subset(pick),
-                    self._highpass,
-                    fitter.basis,
-                    fitter.fit_shape,
-                    self._xy_bounds,
-                    self._maxiters,
-                    max_rel_err=0.2,
-                )
-        except ValueError:  # no usable Gaussian fit: nothing to compare with
-            return
+        fwhm_data, n_fitted = got
         fwhm_psf = fitter.profile.fwhm
         ratio = fwhm_psf / fwhm_data
         oversampling = self._oversampling
         given = "no oversampling" if oversampling is None else f"oversampling={list(oversampling)}"
         facts = (
             f"{where}: the PSF image (FWHM {fwhm_psf:.2f} px with {given}) is {{}} than the "
-            f"point sources (Gaussian FWHM {fwhm_data:.2f} px fitted to the {pick.size} "
+            f"point sources (Gaussian FWHM {fwhm_data:.2f} px fitted to the {n_fitted} "
             "brightest)"
         )
         if ratio > _PSF_WIDTH_TOLERANCE:
@@ -646,12 +722,13 @@ class ArcPSFPhotometry:
                     "detector-sampled PSF; check_psf=False skips this check"
                 )
             # stacklevel: _check_image_psf, _fit, _measure, __call__ or psf_photometry, caller
-            warnings.warn(
-                text + ": resolved sources, or a PSF image of another pixel scale; the fluxes "
-                "assume point sources",
-                LensdualWarning,
-                stacklevel=5,
-            )
+            if self._source_model == "point":
+                warnings.warn(
+                    text + ": resolved sources, or a PSF image of another pixel scale. "
+                    + _RESOLVED_ADVICE,
+                    LensdualWarning,
+                    stacklevel=5,
+                )
 
 
 def _local_background(local_radii):
@@ -674,7 +751,8 @@ def _all_rows(res, off):
     inside = ~off
     n_all = off.size
     full = {}
-    for col in _RESULT_COLUMNS + ("bkg_at",):
+    extra = tuple(c for c in RESOLVED_COLUMNS if c in res)
+    for col in _RESULT_COLUMNS + ("bkg_at",) + extra:
         full[col] = np.full(n_all, np.nan)
         full[col][inside] = res[col]
     full["flags"] = np.full(n_all, int(PhotometryFlag.OUTSIDE_IMAGE), np.int64)
@@ -712,6 +790,14 @@ def _result_table(res, ids, x_all, y_all, unit, wcs):
             out["sky"] = sky
     for name in ("group_size", "qfit", "cfit", "reduced_chi2", "n_pixels_fit", "flags"):
         out[name] = res[name]
+    if "flux_point" in res:
+        point, point_err = res["flux_point"], res["flux_point_err"]
+        if unit is not None:
+            point, point_err = point * unit, point_err * unit
+        out["flux_point"] = point
+        out["flux_point_err"] = point_err
+        for name in RESOLVED_COLUMNS[2:]:
+            out[name] = res[name]
     out["flag_note"] = [describe_flags(f) for f in res["flags"]]
     return out
 
@@ -755,6 +841,7 @@ def psf_photometry(
     oversampling=None,
     check_psf=True,
     label=None,
+    source_model="point",
 ):
     r"""PSF photometry of point sources on a bright arc, from given positions.
 
@@ -840,5 +927,6 @@ def psf_photometry(
         warn=warn,
         oversampling=oversampling,
         check_psf=check_psf,
+        source_model=source_model,
     )
     return phot._measure(image, positions, label)
