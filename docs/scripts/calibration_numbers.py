@@ -30,13 +30,13 @@ benchmark::
     python docs/scripts/calibration_numbers.py
 """
 
-import importlib.util
 import re
 import sys
 from decimal import ROUND_HALF_UP, Decimal
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _records import benchmark_module  # noqa: E402
 from _substitutions import write  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -56,11 +56,7 @@ NULL_HEADER = re.compile(r"null map: .*?; (\d+) constellations per cell")
 
 def _targets_module():
     """``benchmarks/calibration_tables.py``: the reader and the targets of ``--targets``."""
-    path = ROOT / "benchmarks" / "calibration_tables.py"
-    spec = importlib.util.spec_from_file_location("calibration_tables", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return benchmark_module("calibration_tables")
 
 
 def read_cells(path):

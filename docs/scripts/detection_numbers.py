@@ -14,6 +14,7 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _records import header, search  # noqa: E402
 from _substitutions import write  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -28,33 +29,23 @@ STEPS = {"first Numba pass": "pass1", "second Numba pass": "pass2",
          "low-level estimate": "low"}
 
 
-def _search(pattern, lines, path):
-    """The match of ``pattern`` in the first line it matches."""
-    for line in lines:
-        m = re.search(pattern, line)
-        if m:
-            return m
-    raise ValueError(f"{path}: no line matches {pattern!r}")
-
-
 def compute(folder=OUT):
     """The substitutions (name -> text) from the stored output under ``folder``."""
     path = folder / "timings.txt"
     lines = path.read_text().splitlines()
-    sub = {"det_cores": _search(r"^cores: (\d+)", lines, path).group(1),
-           "det_load": _search(r"^load average at start: ([\d.]+)", lines, path).group(1)}
-    m = _search(r"^two (\d+) x \d+ float64 bands, (\d+) injected point sources, (\d+) found; "
+    sub = dict(zip(("det_cores", "det_load"), header(path), strict=True))
+    m = search(r"^two (\d+) x \d+ float64 bands, (\d+) injected point sources, (\d+) found; "
                 r"best of (\d+)$", lines, path)
     for name, value in zip(("size", "injected", "found", "repeat"), m.groups(), strict=True):
         sub[f"det_{name}"] = value
     for label, short in CASES.items():
-        m = _search(rf"^{re.escape(label)}.*?\s+([\d.]+)\s+([\d.]+)\s+([\d.]+)$", lines, path)
+        m = search(rf"^{re.escape(label)}.*?\s+([\d.]+)\s+([\d.]+)\s+([\d.]+)$", lines, path)
         sub[f"det_{short}_time"] = f"{float(m.group(1)):.2f}"
         sub[f"det_{short}_ratio"] = m.group(2)
     for label, short in STEPS.items():
-        m = _search(rf"^\s+{re.escape(label)}.*?\s+([\d.]+) s$", lines, path)
+        m = search(rf"^\s+{re.escape(label)}.*?\s+([\d.]+) s$", lines, path)
         sub[f"det_{short}_time"] = f"{float(m.group(1)):.2f}"
-    m = _search(r"fresh interpreter: ([\d.]+) s with an empty Numba cache, ([\d.]+) s with a "
+    m = search(r"fresh interpreter: ([\d.]+) s with an empty Numba cache, ([\d.]+) s with a "
                 r"warm one", lines, path)
     sub["det_first_cold"], sub["det_first_warm"] = m.groups()
     return sub

@@ -14,7 +14,7 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _substitutions import include_files  # noqa: E402
+from _substitutions import include_files, write_files  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 OUT = ROOT / "docs" / "_static" / "lenstool"
@@ -60,9 +60,7 @@ def compute(folder=OUT):
 def main(out=OUT):
     """Write the files into ``out`` (the docs' folder by default); returns the substitutions."""
     files, sub = compute()
-    for name, text in files.items():
-        (Path(out) / name).write_text(text)
-    print(files["numbers.inc"], end="")
+    write_files(files, out)
     return sub
 
 

@@ -24,7 +24,8 @@ from pathlib import Path
 from scipy.stats import beta
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _substitutions import write  # noqa: E402
+from _records import search  # noqa: E402
+from _substitutions import value_range, write  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 OUT = ROOT / "docs" / "_static" / "scenes"
@@ -41,15 +42,6 @@ MEDIAN_ERROR = math.sqrt(math.pi / 2)
 CONFIDENCE = 0.95
 #: The astrometric SNR bins of the acceptance run (label in its output -> short name).
 ASTROMETRY_BINS = {"10-20": "10", "20-40": "20", "40-80": "40", "80-inf": "80"}
-
-
-def _search(pattern, lines, path):
-    """The match of ``pattern`` in the first line it matches."""
-    for line in lines:
-        m = re.search(pattern, line)
-        if m:
-            return m
-    raise ValueError(f"{path}: no line matches {pattern!r}")
 
 
 def read_bias_rows(path):
@@ -92,12 +84,6 @@ def read_pipeline_rows(path):
     return rows
 
 
-def _pct_range(values):
-    """The range of ``values`` (fractions) in whole per cent, one number when equal."""
-    lo, hi = (f"{100 * v:.0f}" for v in (min(values), max(values)))
-    return lo if lo == hi else f"{lo}-{hi}"
-
-
 def _signed_pct(x):
     return f"{100 * x:+.0f}"
 
@@ -111,7 +97,8 @@ def finite_size_numbers(path):
     for r in LOSS_RADII:
         row = bias[r]
         # the fraction of the flux lost, 1 - F/F_true, from the median ln(F/F_true)
-        sub[f"mock_loss{r}"] = _pct_range([1 - math.exp(row[k]) for k in ("ln1", "ln2")])
+        sub[f"mock_loss{r}"] = value_range([100 * (1 - math.exp(row[k])) for k in ("ln1", "ln2")],
+                                           "{:.0f}")
     ratios = [bias[r][f"ln{k}"] / bias[r][f"pred{k}"] for r in LOSS_RADII for k in (1, 2)]
     sub["mock_loss_over_pred"] = f"{min(ratios):.2f}-{max(ratios):.2f}"
     for r in BIAS_RADII:
@@ -145,26 +132,26 @@ def finite_size_numbers(path):
 def acceptance_numbers(path):
     """The substitutions read from ``acceptance_pixels.py``'s output."""
     lines = Path(path).read_text().splitlines()
-    m = _search(r"^(\d+) systems, (\d+) images$", lines, path)
+    m = search(r"^(\d+) systems, (\d+) images$", lines, path)
     systems, images = int(m.group(1)), int(m.group(2))
     # two images (one per arc) per source
     sub = {"mock_acc_systems": str(systems), "mock_acc_sources": str(images // (2 * systems))}
-    m = _search(r"^image SNR \(the lower of the two bands\): median (\d+), 5-95 % (\d+-\d+)$",
+    m = search(r"^image SNR \(the lower of the two bands\): median (\d+), 5-95 % (\d+-\d+)$",
                 lines, path)
     sub["mock_acc_snr"] = m.group(2)
-    m = _search(r"^detection completeness \(SNR >= 10 in both bands\): (\d+) of (\d+) "
+    m = search(r"^detection completeness \(SNR >= 10 in both bands\): (\d+) of (\d+) "
                 r"\(([\d.]+)%\)", lines, path)
     found, n = int(m.group(1)), int(m.group(2))
     sub["mock_acc_complete"] = f"{100 * found / n:.0f} % ({found} of {n})"
-    m = _search(r"^spurious detections: (\d+) of (\d+)", lines, path)
+    m = search(r"^spurious detections: (\d+) of (\d+)", lines, path)
     spurious, det = int(m.group(1)), int(m.group(2))
     sub["mock_acc_spurious"] = f"{100 * spurious / det:.1f} % ({spurious} of {det})"
     for label, short in ASTROMETRY_BINS.items():
-        m = _search(rf"astrometric rms, SNR {label}: ([\d.]+) arcsec", lines, path)
+        m = search(rf"astrometric rms, SNR {label}: ([\d.]+) arcsec", lines, path)
         sub[f"mock_acc_rms{short}"] = f"{m.group(1)} arcsec"
-    m = _search(r"^automatic pairing: (\d+) of (\d+) true pairs \(.*?\), (\d+) wrong", lines, path)
+    m = search(r"^automatic pairing: (\d+) of (\d+) true pairs \(.*?\), (\d+) wrong", lines, path)
     sub["mock_acc_pairing"] = f"{m.group(1)} of {m.group(2)} correct, {m.group(3)} wrong"
-    m = _search(r"^flux ratio, both images SNR >= 30: median \|ln\(measured/true\)\| = "
+    m = search(r"^flux ratio, both images SNR >= 30: median \|ln\(measured/true\)\| = "
                 r"([\d.]+)%", lines, path)
     sub["mock_acc_ratio"] = f"median abs ln error {m.group(1)} %"
     return sub

@@ -15,14 +15,12 @@ the repository root after rerunning a benchmark::
     python docs/scripts/pairing_numbers.py
 """
 
-import csv
-import io
 import re
 import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _substitutions import include_files  # noqa: E402
+from _substitutions import csv_text, include_files, value_range, write_files  # noqa: E402
 from performance_numbers import read_scale_pairing  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -106,26 +104,13 @@ def case_label(case, nn=None):
     return label
 
 
-def _csv(rows):
-    """CSV text in the dialect of the ``csv-table`` directive."""
-    out = io.StringIO()
-    writer = csv.writer(out, lineterminator="\n")
-    writer.writerows(rows)
-    return out.getvalue()
-
-
 def tables(acc):
     """``{"accuracy.csv": text, "smacs.csv": text}``: the page's two tables."""
     rows = [[case_label(r["case"], acc["nn"]), r["points"], f"{r['found']} %",
              f"{r['clean']} %", r["max_wrong"], r["refused"]] for r in acc["cases"]]
     smacs = [[r["case"], f"{r['found']} %", f"{r['clean']} %", r["max_wrong"], r["refused"]]
              for r in acc["smacs"]]
-    return {"accuracy.csv": _csv(rows), "smacs.csv": _csv(smacs)}
-
-
-def _range(values):
-    lo, hi = min(values), max(values)
-    return f"{lo}" if lo == hi else f"{lo}-{hi}"
+    return {"accuracy.csv": csv_text(rows), "smacs.csv": csv_text(smacs)}
 
 
 def accuracy_numbers(acc):
@@ -146,9 +131,9 @@ def accuracy_numbers(acc):
         text = f"{len(rows)} with {case_label(case)}"
         if paired:
             text += (f", paired without the check with "
-                     f"{_range([int(r['right']) for r in paired])} of "
-                     f"{_range([int(r['true']) for r in paired])} pairs right and "
-                     f"{_range([int(r['wrong']) for r in paired])} wrong")
+                     f"{value_range([int(r['right']) for r in paired], '{}')} of "
+                     f"{value_range([int(r['true']) for r in paired], '{}')} pairs right and "
+                     f"{value_range([int(r['wrong']) for r in paired], '{}')} wrong")
         parts.append(text)
     sub["pair_refused_detail"] = "; ".join(parts) or "none"
     head = acc["smacs_head"]
@@ -178,7 +163,7 @@ def crowded_numbers(runs):
         sub[f"pair_crowd_{short}_refused"] = str(len(refused))
         sub[f"pair_crowd_{short}_paired"] = str(len(rows) - len(refused))
         brought = [int(_BROUGHT.search(r["note"]).group(1)) for r in refused]
-        sub[f"pair_crowd_{short}_brought"] = _range(brought) if brought else "--"
+        sub[f"pair_crowd_{short}_brought"] = value_range(brought, "{}") if brought else "--"
     return sub
 
 
@@ -195,11 +180,7 @@ def main(out=OUT):
     """Write ``numbers.inc`` and the tables into ``out`` (the docs' folder by
     default); returns the substitutions."""
     csv_files, sub = compute()
-    files = include_files(sub) | csv_files
-    out = Path(out)
-    for name, text in files.items():
-        (out / name).write_text(text)
-    print(files["numbers.inc"], end="")
+    write_files(include_files(sub) | csv_files, out)
     return sub
 
 

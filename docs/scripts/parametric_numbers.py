@@ -16,14 +16,13 @@ benchmark::
     python docs/scripts/parametric_numbers.py
 """
 
-import csv
-import io
 import re
 import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _substitutions import include_files  # noqa: E402
+from _records import search  # noqa: E402
+from _substitutions import csv_text, include_files, write_files  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 OUT = ROOT / "docs" / "_static" / "parametric"
@@ -68,17 +67,11 @@ def _key(sigma):
     return sigma.replace(".", "")
 
 
-def _csv(rows):
-    out = io.StringIO()
-    csv.writer(out, lineterminator="\n").writerows(rows)
-    return out.getvalue()
-
-
 def tables(runs):
     """One CSV table per ``sigma_pos``: ``{"cases_<sigma>.csv": text}``."""
     files = {}
     for sigma, rows in runs.items():
-        files[f"cases_{_key(sigma)}.csv"] = _csv(
+        files[f"cases_{_key(sigma)}.csv"] = csv_text(
             [r["label"], f"{r['chi2']} / {r['dof']}", f"{r['size_med']} / {r['size_max']}",
              f"{r['model_med']} / {r['model_max']}",
              f"{r['relerr_size']} / {r['relerr_model']}",
@@ -109,26 +102,17 @@ def numbers(runs):
     return sub
 
 
-def _search(pattern, lines, path):
-    """The match of ``pattern`` in the first line it matches."""
-    for line in lines:
-        m = re.search(pattern, line)
-        if m:
-            return m
-    raise ValueError(f"{path}: no line matches {pattern!r}")
-
-
 def demo_numbers(path):
     """``bench_demo_parametric.py``: the fit's cost and result in the demo."""
     lines = Path(path).read_text().splitlines()
-    m = _search(r"^\s+added by the fit\s+(-?[\d.]+) s / \s*(-?[\d.]+) s$", lines, path)
+    m = search(r"^\s+added by the fit\s+(-?[\d.]+) s / \s*(-?[\d.]+) s$", lines, path)
     sub = {"par_demo_added_wall": f"{float(m.group(1)):.0f}",
            "par_demo_added_cpu": f"{float(m.group(2)):.0f}"}
-    m = _search(r"^fit: chi2 = ([\d.]+) for (\d+) degrees of freedom$", lines, path)
+    m = search(r"^fit: chi2 = ([\d.]+) for (\d+) degrees of freedom$", lines, path)
     sub["par_demo_chi2"], sub["par_demo_dof"] = m.groups()
-    m = _search(r"^pairs that break duality against the fitted model: (\d+)$", lines, path)
+    m = search(r"^pairs that break duality against the fitted model: (\d+)$", lines, path)
     sub["par_demo_model_flags"] = m.group(1)
-    m = _search(r"^pairs the geometric test flags: pair (\d+) at SNR ([\d.]+)$", lines, path)
+    m = search(r"^pairs the geometric test flags: pair (\d+) at SNR ([\d.]+)$", lines, path)
     sub["par_demo_snr"] = f"{float(m.group(2)):.0f}"
     return sub
 
@@ -170,9 +154,7 @@ def compute(folder=OUT):
 def main(out=OUT):
     """Write the files into ``out`` (the docs' folder by default); returns the substitutions."""
     files, sub = compute()
-    for name, text in files.items():
-        (Path(out) / name).write_text(text)
-    print(files["numbers.inc"], end="")
+    write_files(files, out)
     return sub
 
 

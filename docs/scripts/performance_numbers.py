@@ -37,7 +37,8 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _substitutions import write  # noqa: E402
+from _records import header, read_lines, search  # noqa: E402
+from _substitutions import value_range, write  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 OUT = ROOT / "docs" / "_static" / "performance"
@@ -55,43 +56,17 @@ SPURIOUS = (0, 100, 300, 500)
 JOINT_SIZES = (20, 40)
 
 
-def _lines(path):
-    return Path(path).read_text().splitlines()
-
-
-def _search(pattern, lines, path):
-    """The match of ``pattern`` in the first line it matches."""
-    for line in lines:
-        m = re.search(pattern, line)
-        if m:
-            return m
-    raise ValueError(f"{path}: no line matches {pattern!r}")
-
-
-def header(path):
-    """The cores and the load average at the start of a stored output."""
-    lines = _lines(path)
-    cores = _search(r"^cores: (\d+)", lines, path).group(1)
-    load = _search(r"^load average at start: ([\d.]+)", lines, path).group(1)
-    return cores, load
-
-
-def _range(values, fmt="{:.1f}", unit=""):
-    lo, hi = fmt.format(min(values)), fmt.format(max(values))
-    return f"{lo}{unit}" if lo == hi else f"{lo}-{hi}{unit}"
-
-
 def estimators(path):
     """``bench_estimators.py``: Numba against the numpy reference, first calls."""
-    lines = _lines(path)
-    m = _search(r"N = (\d+) pairs, n_bootstrap = (\d+)", lines, path)
+    lines = read_lines(path)
+    m = search(r"N = (\d+) pairs, n_bootstrap = (\d+)", lines, path)
     sub = {"perf_est_pairs": m.group(1), "perf_est_boot": m.group(2)}
     for method in ESTIMATORS:
-        m = _search(rf"^{method}\s+([\d.]+)\s+([\d.]+)\s+(\d+)x$", lines, path)
+        m = search(rf"^{method}\s+([\d.]+)\s+([\d.]+)\s+(\d+)x$", lines, path)
         sub[f"perf_est_{method}_numba"] = m.group(1)
         sub[f"perf_est_{method}_ref"] = m.group(2)
         sub[f"perf_est_{method}_ratio"] = f"{m.group(3)}x"
-    m = _search(r"first call of quad, 2v, quad2: ([\d.]+) s with an empty Numba cache, "
+    m = search(r"first call of quad, 2v, quad2: ([\d.]+) s with an empty Numba cache, "
                 r"([\d.]+) s with a warm cache", lines, path)
     sub["perf_est_cold"], sub["perf_est_warm"] = m.groups()
     return sub
@@ -99,12 +74,12 @@ def estimators(path):
 
 def null_calibration(path):
     """``bench_null_calibration.py``: threads against serial, and the reverse map's cost."""
-    lines = _lines(path)
-    m = _search(r"default \(threads\) ([\d.]+) s, serial ([\d.]+) s \(x([\d.]+)\); "
+    lines = read_lines(path)
+    m = search(r"default \(threads\) ([\d.]+) s, serial ([\d.]+) s \(x([\d.]+)\); "
                 r"identical results", lines, path)
     sub = {"perf_null_threads": m.group(1), "perf_null_serial": m.group(2),
            "perf_null_ratio": f"{m.group(3)}x"}
-    m = _search(r"with the reverse map ([\d.]+) s .*forward only ([\d.]+) s .*cost x([\d.]+)",
+    m = search(r"with the reverse map ([\d.]+) s .*forward only ([\d.]+) s .*cost x([\d.]+)",
                 lines, path)
     sub |= dict(zip(("perf_null_reverse", "perf_null_forward", "perf_null_reverse_cost"),
                     m.groups(), strict=True))
@@ -113,13 +88,13 @@ def null_calibration(path):
 
 def solver(path):
     """``bench_solver.py``: the image finder against lenstronomy's solver."""
-    lines = _lines(path)
-    m = _search(r"timed on (\d+) sources: ([\d.]+) s per source", lines, path)
+    lines = read_lines(path)
+    m = search(r"timed on (\d+) sources: ([\d.]+) s per source", lines, path)
     sub = {"perf_solver_lt_n": m.group(1), "perf_solver_lt": f"{float(m.group(2)):.2f}"}
-    m = _search(r"^NFW_ELLIPSE_CSE cluster, (\d+) sources", lines, path)
+    m = search(r"^NFW_ELLIPSE_CSE cluster, (\d+) sources", lines, path)
     sub["perf_solver_n"] = m.group(1)
     for row, short in FINDERS.items():
-        m = _search(rf"^{row} \(.*?\)\s+(\d+)\s+([\d.]+)\s+([\d.]+)\s+([\d.]+)\s+(\d+)"
+        m = search(rf"^{row} \(.*?\)\s+(\d+)\s+([\d.]+)\s+([\d.]+)\s+([\d.]+)\s+(\d+)"
                     r"\s+([\d.]+)\s+(\d+)$", lines, path)
         _, build, solve, per, ratio, amort, amort_ratio = m.groups()
         sub[f"perf_solver_{short}_build"] = f"{float(build):.2f}"
@@ -128,12 +103,12 @@ def solver(path):
         sub[f"perf_solver_{short}_ratio"] = f"{ratio}x"
         sub[f"perf_solver_{short}_amort"] = f"{float(amort):.2g}"
         sub[f"perf_solver_{short}_amort_ratio"] = f"{amort_ratio}x"
-        m = _search(rf"^\s+{row} \(.*?\)\s+total\s+(\d+)\s+histogram (\{{.*\}})$", lines, path)
+        m = search(rf"^\s+{row} \(.*?\)\s+total\s+(\d+)\s+histogram (\{{.*\}})$", lines, path)
         hist = {int(k): int(v) for k, v in re.findall(r"(\d+): (\d+)", m.group(2))}
         sub[f"perf_solver_{short}_images"] = ", ".join(
             f"{k} {'source' if k == 1 else 'sources'} with {n} images"
             for n, k in sorted(hist.items()))
-        m = _search(rf"^\s+{row} \(.*?\)\s+on those: .*?, (\d+) of lenstronomy's (\d+) images",
+        m = search(rf"^\s+{row} \(.*?\)\s+on those: .*?, (\d+) of lenstronomy's (\d+) images",
                     lines, path)
         sub[f"perf_solver_{short}_matched"] = f"{m.group(1)} of lenstronomy's {m.group(2)}"
     return sub
@@ -141,25 +116,25 @@ def solver(path):
 
 def lenstool(path):
     """``bench_lenstool.py``: the dPIE kernels against lenstronomy's profiles."""
-    lines = _lines(path)
-    m = _search(r"grid (\d+) x \d+ = \d+ points over \+-([\d.]+) arcsec, (\d+) potentials",
+    lines = read_lines(path)
+    m = search(r"grid (\d+) x \d+ = \d+ points over \+-([\d.]+) arcsec, (\d+) potentials",
                 lines, path)
     sub = {"perf_lt_grid": m.group(1), "perf_lt_half": m.group(2), "perf_lt_n": m.group(3)}
     for label, short in (("lensdual alpha \\+ hessian, 1 thread", "sep"),
                          ("lensdual alpha_hessian \\(one pass\\), 1 thread", "onepass"),
                          ("lensdual alpha_hessian, (\\d+) threads", "threads")):
-        m = _search(rf"^{label}\s+([\d.]+)$", lines, path)
+        m = search(rf"^{label}\s+([\d.]+)$", lines, path)
         sub[f"perf_lt_{short}"] = m.groups()[-1]
         if short == "threads":
             sub["perf_lt_n_threads"] = m.group(1)
     for label, short in LENSTRONOMY.items():
-        m = _search(rf"^{re.escape(label)}.*?\s+([\d.]+)\s+([\d.]+)x\s+([\d.]+)x$", lines, path)
+        m = search(rf"^{re.escape(label)}.*?\s+([\d.]+)\s+([\d.]+)x\s+([\d.]+)x$", lines, path)
         sub[f"perf_lt_{short}"] = m.group(1)
         sub[f"perf_lt_{short}_ratio"] = f"{float(m.group(2)):.2g}x"
         sub[f"perf_lt_{short}_ratio_threads"] = f"{float(m.group(3)):.2g}x"
-    m = _search(r"alpha_NIE\| = ([\d.e+-]+) arcsec", lines, path)
+    m = search(r"alpha_NIE\| = ([\d.e+-]+) arcsec", lines, path)
     sub["perf_lt_nie_diff"] = m.group(1)
-    m = _search(r"one elliptical NFW.*lensdual ([\d.]+) s .*NFW_ELLIPSE_POTENTIAL ([\d.]+) s "
+    m = search(r"one elliptical NFW.*lensdual ([\d.]+) s .*NFW_ELLIPSE_POTENTIAL ([\d.]+) s "
                 r"\(([\d.]+)x\)", lines, path)
     sub["perf_lt_nfw"], sub["perf_lt_nfw_lt"] = m.group(1), m.group(2)
     sub["perf_lt_nfw_ratio"] = f"{float(m.group(3)):.2g}x"
@@ -168,30 +143,30 @@ def lenstool(path):
 
 def sensitivity(path):
     """``bench_sensitivity.py``: the detection-SNR map, serial and in threads, and lenstronomy."""
-    lines = _lines(path)
-    sub = {"perf_sens_placements": _search(r"= (\d+) placements", lines, path).group(1)}
-    m = _search(r"^lensdual serial:\s+([\d.]+) s\s+\((\d+) us per placement\)", lines, path)
+    lines = read_lines(path)
+    sub = {"perf_sens_placements": search(r"= (\d+) placements", lines, path).group(1)}
+    m = search(r"^lensdual serial:\s+([\d.]+) s\s+\((\d+) us per placement\)", lines, path)
     sub["perf_sens_serial"] = f"{float(m.group(1)):.1f}"
     sub["perf_sens_serial_per"] = f"{int(m.group(2)) / 1e3:.2f}"
-    m = _search(r"^lensdual, (\d+) threads:\s+([\d.]+) s\s+\(speed-up ([\d.]+), identical: True\)",
+    m = search(r"^lensdual, (\d+) threads:\s+([\d.]+) s\s+\(speed-up ([\d.]+), identical: True\)",
                 lines, path)
     sub["perf_sens_workers"] = m.group(1)
     sub["perf_sens_threads"] = f"{float(m.group(2)):.1f}"
     sub["perf_sens_threads_ratio"] = f"{m.group(3)}x"
-    m = _search(r"^lenstronomy, (\d+) random placements: ([\d.]+) s per placement -> ([\d.]+) h",
+    m = search(r"^lenstronomy, (\d+) random placements: ([\d.]+) s per placement -> ([\d.]+) h",
                 lines, path)
     sub["perf_sens_lt_n"] = m.group(1)
     sub["perf_sens_lt_per"] = f"{1e3 * float(m.group(2)):.0f}"
     extrapolated = float(m.group(2)) * int(sub["perf_sens_placements"])
     sub["perf_sens_lt_map"] = f"{round(extrapolated, -2):.0f}"
-    sub["perf_sens_ratio"] = _search(r"speed-up per placement \(serial lensdual\): (\d+)x",
+    sub["perf_sens_ratio"] = search(r"speed-up per placement \(serial lensdual\): (\d+)x",
                                      lines, path).group(1) + "x"
-    m = _search(r"image counts: equal in (\d+) of (\d+); lenstronomy found fewer in (\d+), "
+    m = search(r"image counts: equal in (\d+) of (\d+); lenstronomy found fewer in (\d+), "
                 r"lensdual fewer in (\d+)", lines, path)
     sub["perf_sens_counts"] = f"{m.group(1)} of the {m.group(2)}"
     sub["perf_sens_lt_fewer"], sub["perf_sens_ld_fewer"] = m.group(3), m.group(4)
     for name, short in (("M <= 1e9", "light"), ("M > 1e9", "heavy")):
-        m = _search(rf"{re.escape(name)} \((\d+)\): median ([\d.e+-]+), max ([\d.e+-]+)",
+        m = search(rf"{re.escape(name)} \((\d+)\): median ([\d.e+-]+), max ([\d.e+-]+)",
                     lines, path)
         sub[f"perf_sens_{short}_median"], sub[f"perf_sens_{short}_max"] = m.group(2), m.group(3)
         for stat, value in (("median", m.group(2)), ("max", m.group(3))):
@@ -206,8 +181,8 @@ def _pairing_result(runs):
     if not done:
         return f"refused ({len(refused)} of {len(runs)})"
     true = done[0]["true"]
-    text = (f"{_range([r['found'] for r in done], '{:d}')} / {true} "
-            f"({_range([r['wrong'] for r in done], '{:d}')})")
+    text = (f"{value_range([r['found'] for r in done], '{:d}')} / {true} "
+            f"({value_range([r['wrong'] for r in done], '{:d}')})")
     return text + (f"; {len(refused)} refused" if refused else "")
 
 
@@ -217,7 +192,7 @@ def read_scale_pairing(path):
     runs = []
     pattern = re.compile(r"^\s*(yes|no)\s+(\d+)\s+(\d+)\s+([\d.]+)\s+([\d.]+)\s+(\d+)/(\d+)\s+"
                          r"(\d+)\s*(.*)$")
-    for line in _lines(path):
+    for line in read_lines(path):
         m = pattern.match(line)
         if m:
             runs.append({"fluxes": m.group(1) == "yes", "spurious": int(m.group(2)),
@@ -241,7 +216,7 @@ def scale_pairing(path):
             if not rows:
                 raise ValueError(f"{path}: no run with {n} spurious candidates, fluxes {fluxes}")
             key = f"perf_pair_{short}{n}"
-            sub[f"{key}_time"] = _range([r["time"] for r in rows], unit=" s")
+            sub[f"{key}_time"] = value_range([r["time"] for r in rows], unit=" s")
             sub[f"{key}_peak"] = f"{max(r['peak'] for r in rows):.0f} MB"
             sub[f"{key}_result"] = _pairing_result(rows)
     return sub
@@ -249,10 +224,10 @@ def scale_pairing(path):
 
 def joint(path):
     """``bench_joint.py``: the joint duality test against the geometric one."""
-    lines = _lines(path)
+    lines = read_lines(path)
     sub = {}
     for n in JOINT_SIZES:
-        m = _search(rf"^{n} ([\d.]+) ([\d.]+) ([\d.]+)$", lines, path)
+        m = search(rf"^{n} ([\d.]+) ([\d.]+) ([\d.]+)$", lines, path)
         sub[f"perf_joint{n}_geo"], sub[f"perf_joint{n}_joint"] = m.group(1), m.group(2)
         sub[f"perf_joint{n}_ratio"] = f"{m.group(3)}x"
     return sub
@@ -263,7 +238,7 @@ def scale_estimators(path):
     sub = {}
     pattern = re.compile(r"^\s*(\d+)\s+(\w+)\s+([\d.]+)\s+(?:--\s+--\s+--|([\d.]+)\s+"
                          r"([\d.]+)\s+(\S+)\s+(\S+))\s*$")
-    for line in _lines(path):
+    for line in read_lines(path):
         m = pattern.match(line)
         if not m:
             continue
@@ -288,8 +263,8 @@ def scale_estimators(path):
 
 def memory_run(path):
     """``bench_memory_run.py``: peak memory and time of each case at one size."""
-    lines = _lines(path)
-    m = _search(r"^# size (\d+), error maps: (True|False)", lines, path)
+    lines = read_lines(path)
+    m = search(r"^# size (\d+), error maps: (True|False)", lines, path)
     key = f"perf_mem{m.group(1)}" + ("" if m.group(2) == "True" else "_noerr")
     sub = {}
     for case in ("detect", "photometry", "run"):
@@ -312,10 +287,10 @@ def memory_run(path):
 
 def compile_times(path):
     """``bench_compile.py``: CPU time to compile the kernels of each case."""
-    lines = _lines(path)
+    lines = read_lines(path)
     sub = {}
     for case in ("adaptive", "lenstool"):
-        m = _search(rf"^{case}\s+([\d.]+) \(\s*[\d.]+\)\s+([\d.]+) \(\s*[\d.]+\)\s+([\d.]+)$",
+        m = search(rf"^{case}\s+([\d.]+) \(\s*[\d.]+\)\s+([\d.]+) \(\s*[\d.]+\)\s+([\d.]+)$",
                     lines, path)
         sub[f"perf_compile_{case}"] = f"{float(m.group(3)):.0f}"
     return sub
@@ -323,28 +298,28 @@ def compile_times(path):
 
 def neighbour_cap(path):
     """``neighbour_cap.py``: what the neighbour cap changes on the smooth test map."""
-    lines = _lines(path)
-    sub = {"perf_cap_pairs": _search(r"^(\d+) pairs of the smooth test map", lines, path).group(1)}
+    lines = read_lines(path)
+    sub = {"perf_cap_pairs": search(r"^(\d+) pairs of the smooth test map", lines, path).group(1)}
     for method in ("quad", "quad2"):
-        m = _search(rf"^{method}\s+([\d.]+)%\s+([\d.]+)%$", lines, path)
+        m = search(rf"^{method}\s+([\d.]+)%\s+([\d.]+)%$", lines, path)
         capped, uncapped = float(m.group(1)), float(m.group(2))
         sub[f"perf_cap_{method}_capped"] = f"{capped:.2g}"
         sub[f"perf_cap_{method}_uncapped"] = f"{uncapped:.2g}"
-    m = _search(r"^adaptive, (\d+) pairs, ([\d.]+) mas noise, capped against uncapped",
+    m = search(r"^adaptive, (\d+) pairs, ([\d.]+) mas noise, capped against uncapped",
                 lines, path)
     sub["perf_cap_compared"], sub["perf_cap_noise"] = m.groups()
-    m = _search(r"the same estimate .*: (\d+) of (\d+) pairs", lines, path)
+    m = search(r"the same estimate .*: (\d+) of (\d+) pairs", lines, path)
     sub["perf_cap_same"] = m.group(1)
-    m = _search(r"errors in quadrature: median ([\d.e+-]+), 90th percentile ([\d.]+)",
+    m = search(r"errors in quadrature: median ([\d.e+-]+), 90th percentile ([\d.]+)",
                 lines, path)
     sub["perf_cap_z_median"], sub["perf_cap_z90"] = m.groups()
-    m = _search(r"error capped / uncapped: median ([\d.]+)", lines, path)
+    m = search(r"error capped / uncapped: median ([\d.]+)", lines, path)
     sub["perf_cap_err_ratio"] = f"{float(m.group(1)):.2f}"
     for label in ("capped", "uncapped"):
-        m = _search(rf"pulls against the exact mu, {label}: 16-84 % (-?[\d.]+) to (-?[\d.]+)",
+        m = search(rf"pulls against the exact mu, {label}: 16-84 % (-?[\d.]+) to (-?[\d.]+)",
                     lines, path)
         sub[f"perf_cap_pull_{label}"] = f"{m.group(1)} to {m.group(2)}"
-    m = _search(r"capped: pull width \(16-84 % half-width\) ([\d.]+), beyond 3 sigma "
+    m = search(r"capped: pull width \(16-84 % half-width\) ([\d.]+), beyond 3 sigma "
                 r"([\d.]+) %", lines, path)
     sub["perf_cap_width"], sub["perf_cap_beyond3"] = m.groups()
     return sub
@@ -375,7 +350,7 @@ def compute(folder=OUT):
         raise ValueError(f"the stored outputs were measured on different numbers of cores: "
                          f"{sorted(cores)}")
     sub["perf_cores"] = cores.pop()
-    sub["perf_load"] = _range(loads, "{:.1f}")
+    sub["perf_load"] = value_range(loads, "{:.1f}")
     for name, reader in RESULTS.items():
         sub |= reader(folder / name)
     return sub

@@ -9,11 +9,11 @@ root after rerunning the benchmark::
     python docs/scripts/photometry_numbers.py
 """
 
-import re
 import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _records import header, search  # noqa: E402
 from _substitutions import write  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -23,37 +23,27 @@ OUT = ROOT / "docs" / "_static" / "photometry"
 STRATEGIES = ("ridge", "plane", "residual")
 
 
-def _search(pattern, lines, path):
-    """The match of ``pattern`` in the first line it matches."""
-    for line in lines:
-        m = re.search(pattern, line)
-        if m:
-            return m
-    raise ValueError(f"{path}: no line matches {pattern!r}")
-
-
 def compute(folder=OUT):
     """The substitutions (name -> text) from the stored output under ``folder``."""
     path = folder / "speed.txt"
     lines = path.read_text().splitlines()
-    sub = {"phot_cores": _search(r"^cores: (\d+)", lines, path).group(1),
-           "phot_load": _search(r"^load average at start: ([\d.]+)", lines, path).group(1)}
-    m = _search(r"^isolated sources: (\d+) on a (\d+) x (\d+) arc image", lines, path)
+    sub = dict(zip(("phot_cores", "phot_load"), header(path), strict=True))
+    m = search(r"^isolated sources: (\d+) on a (\d+) x (\d+) arc image", lines, path)
     sub["phot_iso_n"] = m.group(1)
     sub["phot_iso_shape"] = f"{m.group(2)} x {m.group(3)}"
     for strategy in STRATEGIES:
-        m = _search(rf"^{strategy}\s+([\d.]+)\s+([\d.]+)\s+([\d.]+)$", lines, path)
+        m = search(rf"^{strategy}\s+([\d.]+)\s+([\d.]+)\s+([\d.]+)$", lines, path)
         sub[f"phot_{strategy}_ms"] = f"{float(m.group(2)):.0f}"
         sub[f"phot_{strategy}_ratio"] = f"{float(m.group(3)):.1f}"
-    m = _search(r"^large image: (\d+) sources on (\d+) x (\d+) px", lines, path)
+    m = search(r"^large image: (\d+) sources on (\d+) x (\d+) px", lines, path)
     sub["phot_large_n"] = m.group(1)
     sub["phot_large_shape"] = f"{m.group(2)} x {m.group(3)}"
     for label, short in (("psf=FWHM", "psf"), ("psf=None", "nopsf")):
-        m = _search(rf"^\s+{label}: wall ([\d.]+) s, CPU ([\d.]+) s$", lines, path)
+        m = search(rf"^\s+{label}: wall ([\d.]+) s, CPU ([\d.]+) s$", lines, path)
         sub[f"phot_large_{short}"] = f"{float(m.group(2)):.1f}"
-    m = _search(r"psf=None / psf=FWHM, CPU: ([\d.]+)$", lines, path)
+    m = search(r"psf=None / psf=FWHM, CPU: ([\d.]+)$", lines, path)
     sub["phot_nopsf_ratio"] = f"{float(m.group(1)):.1f}"
-    m = _search(r"^high-pass filter \(sigma ([\d.]+) px\) removes ([\d.]+) % of the "
+    m = search(r"^high-pass filter \(sigma ([\d.]+) px\) removes ([\d.]+) % of the "
                 r"least-squares flux of a ([\d.]+) px FWHM", lines, path)
     sub["phot_highpass_loss"] = f"{float(m.group(2)):.0f}"
     return sub

@@ -10,14 +10,14 @@ repository root::
     python docs/scripts/validation_numbers.py
 """
 
-import importlib.util
 import sys
 from pathlib import Path
 
 import astropy.units as u
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _substitutions import include_files  # noqa: E402
+from _records import benchmark_module  # noqa: E402
+from _substitutions import include_files, value_range, write_files  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 OUT = ROOT / "docs" / "_static" / "validation"
@@ -26,15 +26,6 @@ OUT = ROOT / "docs" / "_static" / "validation"
 NOISE = 0.01 * u.arcsec
 #: The numbers of sources the prose compares ``quad2`` with ``quad`` at.
 MANY = (20, 30)
-
-
-def _tables_module():
-    """``benchmarks/validation_tables.py``."""
-    path = ROOT / "benchmarks" / "validation_tables.py"
-    spec = importlib.util.spec_from_file_location("validation_tables", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 def _pct(text):
@@ -52,8 +43,7 @@ def _column(table, name, **where):
 
 
 def _range(values, digits=1):
-    lo, hi = f"{min(values):.{digits}f}", f"{max(values):.{digits}f}"
-    return lo if lo == hi else f"{lo}-{hi}"
+    return value_range(values, f"{{:.{digits}f}}")
 
 
 def numbers(exact, noisy):
@@ -76,7 +66,7 @@ def numbers(exact, noisy):
 
 def compute():
     """``({file name: text}, substitutions)``: the tables the page includes and its numbers."""
-    module = _tables_module()
+    module = benchmark_module("validation_tables")
     exact, noisy = module.tables(), module.tables(NOISE)
     files = {f"{name}.inc": module.rst_table(*table) + "\n" for name, table in exact.items()}
     files["analog_noise.inc"] = module.rst_table(*noisy["analog"]) + "\n"
@@ -87,11 +77,7 @@ def compute():
 def main(out=OUT):
     """Write the files into ``out`` (the docs' folder by default); returns the substitutions."""
     files, sub = compute()
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    for name, text in files.items():
-        (out / name).write_text(text)
-    print(files["numbers.inc"], end="")
+    write_files(files, out)
     return sub
 
 
