@@ -35,7 +35,7 @@ def compute(folder=OUT):
     lines = path.read_text().splitlines()
     sub = dict(zip(("det_cores", "det_load"), header(path), strict=True))
     m = search(r"^two (\d+) x \d+ float64 bands, (\d+) injected point sources, (\d+) found; "
-                r"best of (\d+)$", lines, path)
+               r"best of (\d+)$", lines, path)
     for name, value in zip(("size", "injected", "found", "repeat"), m.groups(), strict=True):
         sub[f"det_{name}"] = value
     for label, short in CASES.items():
@@ -46,7 +46,7 @@ def compute(folder=OUT):
         m = search(rf"^\s+{re.escape(label)}.*?\s+([\d.]+) s$", lines, path)
         sub[f"det_{short}_time"] = f"{float(m.group(1)):.2f}"
     m = search(r"fresh interpreter: ([\d.]+) s with an empty Numba cache, ([\d.]+) s with a "
-                r"warm one", lines, path)
+               r"warm one", lines, path)
     sub["det_first_cold"], sub["det_first_warm"] = m.groups()
     return sub
 

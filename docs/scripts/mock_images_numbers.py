@@ -137,10 +137,10 @@ def acceptance_numbers(path):
     # two images (one per arc) per source
     sub = {"mock_acc_systems": str(systems), "mock_acc_sources": str(images // (2 * systems))}
     m = search(r"^image SNR \(the lower of the two bands\): median (\d+), 5-95 % (\d+-\d+)$",
-                lines, path)
+               lines, path)
     sub["mock_acc_snr"] = m.group(2)
     m = search(r"^detection completeness \(SNR >= 10 in both bands\): (\d+) of (\d+) "
-                r"\(([\d.]+)%\)", lines, path)
+               r"\(([\d.]+)%\)", lines, path)
     found, n = int(m.group(1)), int(m.group(2))
     sub["mock_acc_complete"] = f"{100 * found / n:.0f} % ({found} of {n})"
     m = search(r"^spurious detections: (\d+) of (\d+)", lines, path)
@@ -152,7 +152,7 @@ def acceptance_numbers(path):
     m = search(r"^automatic pairing: (\d+) of (\d+) true pairs \(.*?\), (\d+) wrong", lines, path)
     sub["mock_acc_pairing"] = f"{m.group(1)} of {m.group(2)} correct, {m.group(3)} wrong"
     m = search(r"^flux ratio, both images SNR >= 30: median \|ln\(measured/true\)\| = "
-                r"([\d.]+)%", lines, path)
+               r"([\d.]+)%", lines, path)
     sub["mock_acc_ratio"] = f"median abs ln error {m.group(1)} %"
     return sub
 

@@ -67,7 +67,7 @@ def estimators(path):
         sub[f"perf_est_{method}_ref"] = m.group(2)
         sub[f"perf_est_{method}_ratio"] = f"{m.group(3)}x"
     m = search(r"first call of quad, 2v, quad2: ([\d.]+) s with an empty Numba cache, "
-                r"([\d.]+) s with a warm cache", lines, path)
+               r"([\d.]+) s with a warm cache", lines, path)
     sub["perf_est_cold"], sub["perf_est_warm"] = m.groups()
     return sub
 
@@ -76,11 +76,11 @@ def null_calibration(path):
     """``bench_null_calibration.py``: threads against serial, and the reverse map's cost."""
     lines = read_lines(path)
     m = search(r"default \(threads\) ([\d.]+) s, serial ([\d.]+) s \(x([\d.]+)\); "
-                r"identical results", lines, path)
+               r"identical results", lines, path)
     sub = {"perf_null_threads": m.group(1), "perf_null_serial": m.group(2),
            "perf_null_ratio": f"{m.group(3)}x"}
     m = search(r"with the reverse map ([\d.]+) s .*forward only ([\d.]+) s .*cost x([\d.]+)",
-                lines, path)
+               lines, path)
     sub |= dict(zip(("perf_null_reverse", "perf_null_forward", "perf_null_reverse_cost"),
                     m.groups(), strict=True))
     return sub
@@ -95,7 +95,7 @@ def solver(path):
     sub["perf_solver_n"] = m.group(1)
     for row, short in FINDERS.items():
         m = search(rf"^{row} \(.*?\)\s+(\d+)\s+([\d.]+)\s+([\d.]+)\s+([\d.]+)\s+(\d+)"
-                    r"\s+([\d.]+)\s+(\d+)$", lines, path)
+                   r"\s+([\d.]+)\s+(\d+)$", lines, path)
         _, build, solve, per, ratio, amort, amort_ratio = m.groups()
         sub[f"perf_solver_{short}_build"] = f"{float(build):.2f}"
         sub[f"perf_solver_{short}_solve"] = f"{float(solve):.2g}"
@@ -109,7 +109,7 @@ def solver(path):
             f"{k} {'source' if k == 1 else 'sources'} with {n} images"
             for n, k in sorted(hist.items()))
         m = search(rf"^\s+{row} \(.*?\)\s+on those: .*?, (\d+) of lenstronomy's (\d+) images",
-                    lines, path)
+                   lines, path)
         sub[f"perf_solver_{short}_matched"] = f"{m.group(1)} of lenstronomy's {m.group(2)}"
     return sub
 
@@ -118,7 +118,7 @@ def lenstool(path):
     """``bench_lenstool.py``: the dPIE kernels against lenstronomy's profiles."""
     lines = read_lines(path)
     m = search(r"grid (\d+) x \d+ = \d+ points over \+-([\d.]+) arcsec, (\d+) potentials",
-                lines, path)
+               lines, path)
     sub = {"perf_lt_grid": m.group(1), "perf_lt_half": m.group(2), "perf_lt_n": m.group(3)}
     for label, short in (("lensdual alpha \\+ hessian, 1 thread", "sep"),
                          ("lensdual alpha_hessian \\(one pass\\), 1 thread", "onepass"),
@@ -135,7 +135,7 @@ def lenstool(path):
     m = search(r"alpha_NIE\| = ([\d.e+-]+) arcsec", lines, path)
     sub["perf_lt_nie_diff"] = m.group(1)
     m = search(r"one elliptical NFW.*lensdual ([\d.]+) s .*NFW_ELLIPSE_POTENTIAL ([\d.]+) s "
-                r"\(([\d.]+)x\)", lines, path)
+               r"\(([\d.]+)x\)", lines, path)
     sub["perf_lt_nfw"], sub["perf_lt_nfw_lt"] = m.group(1), m.group(2)
     sub["perf_lt_nfw_ratio"] = f"{float(m.group(3)):.2g}x"
     return sub
@@ -149,25 +149,25 @@ def sensitivity(path):
     sub["perf_sens_serial"] = f"{float(m.group(1)):.1f}"
     sub["perf_sens_serial_per"] = f"{int(m.group(2)) / 1e3:.2f}"
     m = search(r"^lensdual, (\d+) threads:\s+([\d.]+) s\s+\(speed-up ([\d.]+), identical: True\)",
-                lines, path)
+               lines, path)
     sub["perf_sens_workers"] = m.group(1)
     sub["perf_sens_threads"] = f"{float(m.group(2)):.1f}"
     sub["perf_sens_threads_ratio"] = f"{m.group(3)}x"
     m = search(r"^lenstronomy, (\d+) random placements: ([\d.]+) s per placement -> ([\d.]+) h",
-                lines, path)
+               lines, path)
     sub["perf_sens_lt_n"] = m.group(1)
     sub["perf_sens_lt_per"] = f"{1e3 * float(m.group(2)):.0f}"
     extrapolated = float(m.group(2)) * int(sub["perf_sens_placements"])
     sub["perf_sens_lt_map"] = f"{round(extrapolated, -2):.0f}"
     sub["perf_sens_ratio"] = search(r"speed-up per placement \(serial lensdual\): (\d+)x",
-                                     lines, path).group(1) + "x"
+                                    lines, path).group(1) + "x"
     m = search(r"image counts: equal in (\d+) of (\d+); lenstronomy found fewer in (\d+), "
-                r"lensdual fewer in (\d+)", lines, path)
+               r"lensdual fewer in (\d+)", lines, path)
     sub["perf_sens_counts"] = f"{m.group(1)} of the {m.group(2)}"
     sub["perf_sens_lt_fewer"], sub["perf_sens_ld_fewer"] = m.group(3), m.group(4)
     for name, short in (("M <= 1e9", "light"), ("M > 1e9", "heavy")):
         m = search(rf"{re.escape(name)} \((\d+)\): median ([\d.e+-]+), max ([\d.e+-]+)",
-                    lines, path)
+                   lines, path)
         sub[f"perf_sens_{short}_median"], sub[f"perf_sens_{short}_max"] = m.group(2), m.group(3)
         for stat, value in (("median", m.group(2)), ("max", m.group(3))):
             sub[f"perf_sens_{short}_{stat}_pct"] = f"{100 * float(value):.2g} %"
@@ -291,7 +291,7 @@ def compile_times(path):
     sub = {}
     for case in ("adaptive", "lenstool"):
         m = search(rf"^{case}\s+([\d.]+) \(\s*[\d.]+\)\s+([\d.]+) \(\s*[\d.]+\)\s+([\d.]+)$",
-                    lines, path)
+                   lines, path)
         sub[f"perf_compile_{case}"] = f"{float(m.group(3)):.0f}"
     return sub
 
@@ -306,21 +306,21 @@ def neighbour_cap(path):
         sub[f"perf_cap_{method}_capped"] = f"{capped:.2g}"
         sub[f"perf_cap_{method}_uncapped"] = f"{uncapped:.2g}"
     m = search(r"^adaptive, (\d+) pairs, ([\d.]+) mas noise, capped against uncapped",
-                lines, path)
+               lines, path)
     sub["perf_cap_compared"], sub["perf_cap_noise"] = m.groups()
     m = search(r"the same estimate .*: (\d+) of (\d+) pairs", lines, path)
     sub["perf_cap_same"] = m.group(1)
     m = search(r"errors in quadrature: median ([\d.e+-]+), 90th percentile ([\d.]+)",
-                lines, path)
+               lines, path)
     sub["perf_cap_z_median"], sub["perf_cap_z90"] = m.groups()
     m = search(r"error capped / uncapped: median ([\d.]+)", lines, path)
     sub["perf_cap_err_ratio"] = f"{float(m.group(1)):.2f}"
     for label in ("capped", "uncapped"):
         m = search(rf"pulls against the exact mu, {label}: 16-84 % (-?[\d.]+) to (-?[\d.]+)",
-                    lines, path)
+                   lines, path)
         sub[f"perf_cap_pull_{label}"] = f"{m.group(1)} to {m.group(2)}"
     m = search(r"capped: pull width \(16-84 % half-width\) ([\d.]+), beyond 3 sigma "
-                r"([\d.]+) %", lines, path)
+               r"([\d.]+) %", lines, path)
     sub["perf_cap_width"], sub["perf_cap_beyond3"] = m.groups()
     return sub
 

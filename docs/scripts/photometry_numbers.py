@@ -44,7 +44,7 @@ def compute(folder=OUT):
     m = search(r"psf=None / psf=FWHM, CPU: ([\d.]+)$", lines, path)
     sub["phot_nopsf_ratio"] = f"{float(m.group(1)):.1f}"
     m = search(r"^high-pass filter \(sigma ([\d.]+) px\) removes ([\d.]+) % of the "
-                r"least-squares flux of a ([\d.]+) px FWHM", lines, path)
+               r"least-squares flux of a ([\d.]+) px FWHM", lines, path)
     sub["phot_highpass_loss"] = f"{float(m.group(2)):.0f}"
     return sub
 
