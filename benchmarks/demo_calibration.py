@@ -17,6 +17,7 @@ import argparse
 import warnings
 
 import numpy as np
+from _output import Record, add_output_argument
 from astropy import units as u
 from astropy.coordinates import SkyCoord
 
@@ -62,26 +63,29 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=30)
     parser.add_argument("--first-seed", type=int, default=0)
+    add_output_argument(parser)
     args = parser.parse_args(argv)
+    rec = Record()
     totals = {}
-    print("seed subhalo method n tested false_flags subhalo_flagged subhalo_snr "
+    rec.say("seed subhalo method n tested false_flags subhalo_flagged subhalo_snr "
           "subhalo_significance")
     for seed in range(args.first_seed, args.first_seed + args.seeds):
         for subhalo in ("none", "overconcentrated"):
             for method, r in one(seed, subhalo).items():
-                print(f"{seed} {subhalo} {method} {r['n']} {r['tested']} {r['false']} "
-                      f"{r['sub_flagged']} {r['sub_snr']:.1f} {r['sub_sig']:.1f}", flush=True)
+                rec.say(f"{seed} {subhalo} {method} {r['n']} {r['tested']} {r['false']} "
+                      f"{r['sub_flagged']} {r['sub_snr']:.1f} {r['sub_sig']:.1f}")
                 t = totals.setdefault((subhalo, method), {"clean": 0, "false": 0, "hit": 0,
                                                           "runs": 0})
                 t["clean"] += r["clean_tested"]
                 t["false"] += r["false"]
                 t["runs"] += 1
                 t["hit"] += bool(r["sub_flagged"])
-    print("\nsubhalo method clean_pairs_tested false_flags rate subhalo_flagged_runs")
+    rec.say("\nsubhalo method clean_pairs_tested false_flags rate subhalo_flagged_runs")
     for (subhalo, method), t in totals.items():
         hit = f"{t['hit']}/{t['runs']}" if subhalo != "none" else "-"
-        print(f"{subhalo} {method} {t['clean']} {t['false']} "
-              f"{t['false'] / max(t['clean'], 1):.2%} {hit}")
+        rec.say(f"{subhalo} {method} {t['clean']} {t['false']} "
+                f"{t['false'] / max(t['clean'], 1):.2%} {hit}")
+    rec.write(args.output)
 
 
 if __name__ == "__main__":

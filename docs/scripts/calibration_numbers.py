@@ -369,6 +369,9 @@ def pooled_numbers(pooled, sets, declined_lines):
     cluster = [r for k, r in adaptive.items() if k[0] in CLUSTER_SCALE and k[1] >= 20]
     sub["cal_p70_cluster_gw"] = _range([r["pull_gw"] for r in cluster], 1.0)
     sub["cal_p70_cluster_ffr_max"] = _pct(max(r["ffr"] for r in cluster))
+    errors = [r["sig"] for k, r in adaptive.items()
+              if k[0] in CLUSTER_SCALE and k[1] == 20 and 5 <= k[3] <= 20]
+    sub["cal_p70_err_5_20"] = f"{100 * min(errors):.0f} to {100 * max(errors):.0f}"
     galaxy = [r for k, r in adaptive.items() if k[0] == "galaxy_fold" and k[1] >= 20]
     sub["cal_p70_gal_ffr"] = _range([r["ffr"] for r in galaxy])
     galaxy8 = [r["pull_w"] for k, r in adaptive.items()
