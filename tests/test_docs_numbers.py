@@ -556,10 +556,51 @@ def test_photometry_numbers_are_the_benchmark_s(tmp_path):
     """docs/photometry.rst's speed and the high-pass filter's flux loss are what
     docs/scripts/photometry_numbers.py reads from the stored output of
     benchmarks/bench_photometry.py."""
-    sub, folder, page = generated_numbers(tmp_path, "photometry_numbers", "photometry", "phot")
+    sub, folder, page = generated_numbers(
+        tmp_path, "photometry_numbers", "photometry", "phot",
+        files=("numbers.inc", "comparison_40.csv", "comparison_100.csv", "snr.csv"))
     assert "_static/photometry/speed.txt" in page
     # "the FWHM fit about doubles the work"
     assert 1.5 <= float(sub["phot_nopsf_ratio"]) <= 2.5
+    for name in ("comparison_40.csv", "comparison_100.csv", "snr.csv"):
+        assert f":file: _static/photometry/{name}" in page
+
+
+def test_photometry_accuracy_claims_hold_in_the_stored_output():
+    """docs/photometry.rst's case for the "ridge" default, read independently of
+    docs/scripts/photometry_numbers.py from the stored output of
+    benchmarks/photometry_accuracy.py: on the arcs (A = 40, 100 and the harder
+    one) ridge's flux and position pull standard deviations are the closest to 1
+    and its median abs ln the smallest; without an arc "plane" has smaller
+    errors; the output was made with the full numbers of realisations."""
+    text = (STATIC / "photometry" / "accuracy.txt").read_text()
+    from lensdual.photometry import BACKGROUND_STRATEGIES
+
+    m = re.search(r"realisations (\d+) per comparison table, (\d+) for the SNR table, "
+                  r"(\d+) per variant", text)
+    assert m.groups() == ("8", "20", "4")
+    blocks = re.split(r"\n(?=\S)", text)
+    tables = {}
+    for block in blocks:
+        rows = [ln.split() for ln in block.splitlines()[1:] if ln.startswith("  ")]
+        header = next((r for r in rows if r[0] == "background"), None)
+        if header is None:
+            continue
+        tables[block.splitlines()[0].split(":")[0]] = {
+            r[0]: dict(zip(header[1:], map(float, r[1:]), strict=True))
+            for r in rows if r[0] in BACKGROUND_STRATEGIES}
+    arcs = ("comparison, A = 40", "comparison, A = 100")
+    arcs += tuple(t for t in tables if t.startswith("harder arc"))
+    assert len(arcs) == 3
+    for title in arcs:
+        rows = tables[title]
+        assert set(rows) == set(BACKGROUND_STRATEGIES)
+        for column in ("pull_std", "pos_pull_std"):
+            closest = min(rows, key=lambda s, c=column: abs(np.log(rows[s][c])))
+            assert closest == "ridge", (title, column)
+        assert min(rows, key=lambda s: rows[s]["med_abs_ln"]) == "ridge", title
+    empty = tables["comparison, A = 0"]
+    assert empty["plane"]["err_crb"] < empty["ridge"]["err_crb"]
 
 
 def test_resolved_photometry_numbers_are_read_from_the_record():
