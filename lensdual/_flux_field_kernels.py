@@ -1,8 +1,9 @@
 """Numba kernels of the flux field (:mod:`lensdual.flux_field`): unit-free, no checks.
 
 :func:`predict_all` makes the leave-one-out prediction of every pair (steps 0
-to 3 of the module docstring of :mod:`lensdual.flux_field`); the common model
-variance (step 4) is added by the caller.
+to 3 of the module docstring of :mod:`lensdual.flux_field`) and returns what
+step 2 reads; step 2's estimate of the squared bias and the common model
+variance (step 4) are made by the caller.
 """
 
 import numpy as np
@@ -91,13 +92,14 @@ def _weighted_fit(dw, y, s, m, degree, cond_max, coef, a):
 
 
 @njit(**JIT_OPTIONS)
-def _local_fit(d, y, s, sig_target, sig, m, degree, cond_max, coef, a, s_eff):
+def _local_fit(d, y, s, sig_target, sig, m, degree, cond_max, coef, a, s_eff, dw):
     """One neighbourhood's fit in its whitened frame, refitted with the neighbours'
     errors widened by their position errors times the fitted gradient.
 
     Returns ``(ok, value, var_stat, var_position)``: the value at the origin, the
     variance the neighbours' errors give it, and the variance the origin's own
-    position error adds. ``s_eff`` receives the widened errors.
+    position error adds. ``a`` receives the prediction's weights, ``s_eff`` the
+    widened errors and ``dw`` the neighbours' whitened offsets.
     """
     sxx = 0.0
     sxy = 0.0
@@ -116,7 +118,6 @@ def _local_fit(d, y, s, sig_target, sig, m, degree, cond_max, coef, a, s_eff):
     l00 = np.sqrt(syy / det)
     l10 = -sxy / det / l00
     l11 = np.sqrt(sxx / det - l10 * l10)
-    dw = np.empty((m, 2))
     for i in range(m):
         dw[i, 0] = d[i, 0] * l00 + d[i, 1] * l10
         dw[i, 1] = d[i, 1] * l11
@@ -139,10 +140,27 @@ def _local_fit(d, y, s, sig_target, sig, m, degree, cond_max, coef, a, s_eff):
 
 
 @njit(**JIT_OPTIONS)
+def _cubic_sensitivity(dw, a, m):
+    """``sum_c (sum_k a_k m_c(dw_k))^2`` over the four cubic monomials ``m_c``: how much
+    cubic terms of unit coefficients (in the whitened frame) move the prediction."""
+    g = 0.0
+    for c in range(4):
+        v = 0.0
+        for k in range(m):
+            v += a[k] * dw[k, 0] ** (3 - c) * dw[k, 1] ** c
+        g += v * v
+    return g
+
+
+@njit(**JIT_OPTIONS)
 def predict_all(pos, y, s, sig2, usable, resolved, n_local, n_check, min_check, cond_max,
-                max_unresolved, value, var, status, n_used):
-    """The leave-one-out prediction of every pair (steps 0 to 3): fills ``value``,
-    ``var`` (without the common model variance), ``status`` and ``n_used``.
+                max_unresolved, value, var, dev, var_dev, sens, status, n_used):
+    """The leave-one-out prediction of every pair (steps 0, 1 and 3, and what step 2
+    reads): fills ``value`` (the quadratic's prediction), ``var`` (its variance from
+    the neighbours' errors and the pair's position error), ``dev`` (the quadratic's
+    minus the cubic's prediction), ``var_dev`` (the variance the neighbours' errors
+    give ``dev``), ``sens`` (:func:`_cubic_sensitivity` of the quadratic), ``status``
+    and ``n_used``.
 
     A pair is predicted where it is ``resolved`` and at most ``max_unresolved`` of
     its quadratic's neighbours are not.
@@ -151,7 +169,10 @@ def predict_all(pos, y, s, sig2, usable, resolved, n_local, n_check, min_check, 
     dist = np.empty(n)
     coef = np.empty(_n_terms(3))
     a = np.empty(n_check)
+    a2 = np.empty(n_check)
     s_eff = np.empty(n_check)
+    s_eff2 = np.empty(n_check)
+    dw = np.empty((n_check, 2))
     d = np.empty((n_check, 2))
     yy = np.empty(n_check)
     ss = np.empty(n_check)
@@ -160,6 +181,9 @@ def predict_all(pos, y, s, sig2, usable, resolved, n_local, n_check, min_check, 
     for i in range(n):
         value[i] = np.nan
         var[i] = np.nan
+        dev[i] = np.nan
+        var_dev[i] = np.nan
+        sens[i] = np.nan
         count = 0
         for j in range(n):
             if usable[j] and j != i:
@@ -188,12 +212,23 @@ def predict_all(pos, y, s, sig2, usable, resolved, n_local, n_check, min_check, 
             ss[k] = s[j]
             sg[k] = sig2[j]
         ok2, v2, var_stat, var_pos = _local_fit(d, yy, ss, sig2[i], sg, m_local, 2, cond_max,
-                                                coef, a, s_eff)
+                                                coef, a2, s_eff2, dw)
+        g = _cubic_sensitivity(dw, a2, m_local) if ok2 else np.nan
         ok3, v3, _, _ = _local_fit(d, yy, ss, sig2[i], sg, m_check, 3, cond_max, coef, a,
-                                   s_eff)
+                                   s_eff, dw)
         if not (ok2 and ok3):
             status[i] = ILL_CONDITIONED
             continue
+        vd = 0.0
+        for k in range(m_check):
+            if k < m_local:
+                sk = max(s_eff[k], s_eff2[k])
+                vd += (a2[k] - a[k]) ** 2 * sk * sk
+            else:
+                vd += a[k] ** 2 * s_eff[k] ** 2
         status[i] = OK
         value[i] = v2
-        var[i] = var_stat + var_pos + (v2 - v3) ** 2
+        var[i] = var_stat + var_pos
+        dev[i] = v2 - v3
+        var_dev[i] = vd
+        sens[i] = g

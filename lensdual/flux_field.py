@@ -21,10 +21,16 @@ The prediction at pair ``i`` (see :ref:`joint-test` for the specification):
    variances of the neighbours' ``ln mu_flux``, widened by their position
    error times the fitted gradient (a refit), and the prediction is the fit's
    value at ``i``;
-2. its truncation error is bounded by a cubic fit to the :data:`N_CHECK`
-   nearest: the squared difference of the two predictions is added to the
-   variance (it estimates the squared bias of the quadratic plus the noise of
-   the difference, so it errs on the wide side);
+2. its truncation error is estimated against a cubic fit to the
+   :data:`N_CHECK` nearest: the difference ``d`` of the two predictions is
+   the quadratic's bias plus noise of known variance ``V`` (the two fits'
+   prediction weights applied to the neighbours' errors). The bias is given a
+   prior ``N(0, tau^2 G)``, ``G`` being how much cubic terms of unit
+   coefficients in the whitened frame move the quadratic's prediction;
+   ``tau^2`` is the maximum-likelihood value over the constellation's
+   predicted pairs (empirical Bayes), and the variance added is the posterior
+   mean of the squared bias, ``k^2 d^2 + k V`` with ``k = tau^2 G / (tau^2 G
+   + V)``. With fewer than five predicted pairs ``d^2`` itself is added;
 3. ``i``'s own position error moves the point the field is read at: the
    fitted gradient times that error is added too;
 4. the leave-one-out residuals of all pairs, over their errors, must have the
@@ -37,7 +43,7 @@ from typing import NamedTuple
 import numpy as np
 from astropy import units as u
 from astropy.table import QTable
-from scipy.optimize import brentq
+from scipy.optimize import brentq, minimize_scalar
 from scipy.stats import binom
 
 from . import _flux_field_kernels as _kernels
@@ -75,8 +81,10 @@ MAX_UNRESOLVED = _max_unresolved(N_LOCAL, ADAPTIVE_SETTINGS.alpha)
 _MIN_CHECK = 12
 #: Median of |Z| for a unit Gaussian Z.
 _GAUSS_MEDIAN_ABS = 0.6744897501960817
-#: Fewest predictions for the common model variance of step 4.
+#: Fewest predictions for the bias scale of step 2 and the common model variance of step 4.
 _MIN_CALIBRATION = 5
+#: Search interval of ln tau^2 in step 2 (tau^2 in the units of ln mu squared).
+_LN_TAU2_BOUNDS = (-40.0, 5.0)
 #: Largest ratio of the largest to the smallest pivot of a fit's (column-equilibrated)
 #: R factor.
 _COND_MAX = 1e9
@@ -106,6 +114,36 @@ def _common_variance(resid, var):
     return float(brentq(excess, 0.0, upper, xtol=1e-14, rtol=1e-10))
 
 
+def bias_scale(dev, var_dev, sens):
+    """Step 2: the maximum-likelihood ``tau^2`` of ``dev ~ N(0, tau^2 sens + var_dev)``
+    over the pairs given (0 where fewer than :data:`_MIN_CALIBRATION`)."""
+    if dev.size < _MIN_CALIBRATION:
+        return 0.0
+    d2 = dev**2
+
+    def nll(ln_tau2):
+        v = np.exp(ln_tau2) * sens + var_dev
+        return 0.5 * np.sum(np.log(v) + d2 / v)
+
+    res = minimize_scalar(nll, bounds=_LN_TAU2_BOUNDS, method="bounded",
+                          options={"xatol": 1e-8})
+    return float(np.exp(res.x))
+
+
+def squared_bias(dev, var_dev, sens, calib):
+    """Step 2: each pair's posterior mean squared bias (see the module docstring);
+    ``dev**2`` everywhere where fewer than :data:`_MIN_CALIBRATION` pairs calibrate
+    ``tau^2``."""
+    use = calib & np.isfinite(dev) & np.isfinite(var_dev) & np.isfinite(sens) & (var_dev > 0)
+    if np.count_nonzero(use) < _MIN_CALIBRATION:
+        return dev**2
+    tau2 = bias_scale(dev[use], var_dev[use], sens[use])
+    prior = tau2 * sens
+    with np.errstate(invalid="ignore", divide="ignore"):
+        k = np.where(prior + var_dev > 0, prior / (prior + var_dev), 0.0)
+    return k**2 * dev**2 + k * var_dev
+
+
 class _Field(NamedTuple):
     """The flux field of every pair (see :func:`field_arrays`)."""
 
@@ -127,8 +165,7 @@ def field_arrays(pos, y, s, sig2, usable=None, resolved=None):
     finite = np.isfinite(y) & np.isfinite(s) & (s > 0) & placed
     usable = finite if usable is None else usable & finite
     resolved = np.ones(n, dtype=bool) if resolved is None else resolved
-    value = np.empty(n)
-    var = np.empty(n)
+    value, var, dev, var_dev, sens = (np.empty(n) for _ in range(5))
     code = np.empty(n, dtype=np.int64)
     n_used = np.empty(n, dtype=np.int64)
     _kernels.predict_all(np.ascontiguousarray(np.where(placed[:, None], pos, 0.0)),
@@ -136,9 +173,11 @@ def field_arrays(pos, y, s, sig2, usable=None, resolved=None):
                          np.ascontiguousarray(sig2, dtype=float),
                          np.ascontiguousarray(usable, dtype=np.bool_),
                          np.ascontiguousarray(resolved, dtype=np.bool_), N_LOCAL, N_CHECK,
-                         _MIN_CHECK, _COND_MAX, MAX_UNRESOLVED, value, var, code, n_used)
+                         _MIN_CHECK, _COND_MAX, MAX_UNRESOLVED, value, var, dev, var_dev,
+                         sens, code, n_used)
     ok = (code == _kernels.OK) & placed
     calib = ok & usable
+    var = var + squared_bias(dev, var_dev, sens, calib)
     model_var = _common_variance(y[calib] - value[calib], s[calib] ** 2 + var[calib])
     status = np.where(placed, np.asarray(FIELD_STATUS)[code], "excluded")
     return _Field(np.where(ok, value, np.nan), np.where(ok, var + model_var, np.nan), status,

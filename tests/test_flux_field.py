@@ -12,10 +12,12 @@ from lensdual.flux_field import MAX_UNRESOLVED, N_CHECK, N_LOCAL, flux_field_pre
 from lensdual.simulation import clean_constellation, noisy_constellation
 
 
-def _reference(xy, y, s, i, usable=None):
+def _reference_parts(xy, y, s, i, usable=None):
     """Plain numpy: the weighted quadratic and cubic fits of pair i's neighbours in raw
-    coordinates (no position errors), and the variance the module documents before its
-    common model term."""
+    coordinates (no position errors). Returns the quadratic's prediction, its
+    variance, the difference of the two predictions, that difference's noise
+    variance, and the squared norm of the quadratic's weights applied to the four
+    cubic monomials of its neighbours' offsets whitened to unit second moments."""
     n = len(y)
     usable = np.ones(n, bool) if usable is None else usable
     others = np.flatnonzero(usable & (np.arange(n) != i))
@@ -30,8 +32,36 @@ def _reference(xy, y, s, i, usable=None):
         return pinv[0] @ (y[idx] / s[idx]), pinv[0] / s[idx]
 
     quad, a = fit(order[:N_LOCAL], 2)
-    cubic, _ = fit(order[:N_CHECK], 3)
-    return quad, np.sum(a**2 * s[order[:N_LOCAL]] ** 2) + (quad - cubic) ** 2
+    cubic, a3 = fit(order[:N_CHECK], 3)
+    a2 = np.zeros(N_CHECK)
+    a2[:N_LOCAL] = a
+    var_d = np.sum((a2 - a3) ** 2 * s[order[:N_CHECK]] ** 2)
+    d = xy[order[:N_LOCAL]] - xy[i]
+    white = d @ np.linalg.cholesky(np.linalg.inv(d.T @ d / N_LOCAL))
+    cubics = np.column_stack([white[:, 0] ** (3 - c) * white[:, 1] ** c for c in range(4)])
+    return quad, np.sum(a**2 * s[order[:N_LOCAL]] ** 2), quad - cubic, var_d, np.sum(
+        (a @ cubics) ** 2)
+
+
+def _reference(xy, y, s, usable=None):
+    """Every pair's prediction and its variance before the common model term: the
+    squared bias is the posterior mean under the prior N(0, tau^2 G), tau^2 maximising
+    the likelihood of the differences over a fine grid refined by a scalar search."""
+    from scipy.optimize import minimize_scalar
+
+    parts = np.array([_reference_parts(xy, y, s, i, usable) for i in range(len(y))])
+    quad, var, dev, var_d, g = parts.T
+
+    def nll(t):
+        v = np.exp(t) * g + var_d
+        return 0.5 * np.sum(np.log(v) + dev**2 / v)
+
+    grid = np.linspace(-40, 5, 4501)
+    start = grid[np.argmin([nll(t) for t in grid])]
+    t = minimize_scalar(nll, bracket=(start - 0.01, start, start + 0.01)).x \
+        if -40 < start < 5 else start
+    k = np.exp(t) * g / (np.exp(t) * g + var_d)
+    return quad, var + k**2 * dev**2 + k * var_d
 
 
 def _field(xy, y, s, **kw):
@@ -63,10 +93,9 @@ def test_prediction_and_error_match_a_plain_numpy_fit(scatter):
     y = ln_mu + s * rng.standard_normal(30)
     field = _field(xy, y, s)
     model = field.meta["field_model_sd"] ** 2
-    for i in range(30):
-        value, var = _reference(xy, y, s, i)
-        assert field["ln_mu_field"][i] == pytest.approx(value, abs=1e-9)
-        assert field["ln_mu_field_err"][i] ** 2 == pytest.approx(var + model, rel=1e-7)
+    value, var = _reference(xy, y, s)
+    assert np.allclose(field["ln_mu_field"], value, rtol=0, atol=1e-9)
+    assert np.allclose(np.asarray(field["ln_mu_field_err"]) ** 2, var + model, rtol=1e-5)
 
 
 def test_position_errors_widen_by_the_gradient(scatter):
@@ -104,7 +133,7 @@ def test_unusable_pairs_stay_out_of_the_neighbourhoods(scatter):
     usable = np.ones(30, bool)
     usable[[2, 5]] = False
     field = _field(xy, y, s, usable=usable)
-    value, _ = _reference(xy, y, s, 11, usable=usable)
+    value = _reference_parts(xy, y, s, 11, usable=usable)[0]
     assert field["ln_mu_field"][11] == pytest.approx(value, abs=1e-9)
 
 
@@ -429,3 +458,21 @@ def test_plot_flux_field_draws_the_field_and_the_residuals():
     plt.close(fig)
     with pytest.raises(ValueError, match="test='joint'"):
         plot_flux_field(_check(t, 0.005))
+
+
+def test_the_squared_bias_is_the_empirical_bayes_posterior_mean():
+    """Differences of +-3 with unit noise variance and unit sensitivity: the
+    maximum-likelihood tau^2 is mean(d^2) - 1 = 8, so k = 8/9 and each pair's
+    squared bias is k^2 9 + k = 8; differences of zero give a negligible one, and
+    too few pairs fall back on d^2."""
+    from lensdual.flux_field import bias_scale, squared_bias
+
+    dev = np.array([3.0, -3.0] * 5)
+    ones = np.ones(10)
+    calib = np.ones(10, bool)
+    assert bias_scale(dev, ones, ones) == pytest.approx(8.0, rel=1e-6)
+    assert np.allclose(squared_bias(dev, ones, ones, calib), 8.0, rtol=1e-6)
+    assert np.all(squared_bias(np.zeros(10), ones, ones, calib) < 1e-12)
+    few = np.zeros(10, bool)
+    few[:4] = True
+    assert np.array_equal(squared_bias(dev, ones, ones, few), dev**2)
