@@ -151,7 +151,7 @@ def test_joint_status_numbers_are_read_from_the_tables():
     folder = STATIC / "joint"
     sub = (module.compute(module.read_table(folder / "calibration_dev.txt"),
                           module.held_out_rows(folder))
-           | module.history_numbers(folder))
+           | module.history_numbers(folder) | module.variant_numbers(folder))
     assert_files_match(module.include_files(sub), folder, "docs/scripts/joint_status.py")
     page = (ROOT / "docs" / "joint_test.rst").read_text()
     assert ".. include:: _static/joint/status.inc" in page
@@ -626,3 +626,31 @@ def test_resolved_photometry_numbers_are_read_from_the_record():
     assert len(rows) == len(stamps) > 0
     worst = max(abs(float(r[6])) for r in rows)
     assert sub["rs_resolved_maxbias"] == f"{100 * worst:.1f} %"
+
+
+def test_demo_calibration_numbers_are_the_benchmark_s():
+    """The tutorial's table of the demo over 30 seeds and the numbers the tutorial,
+    the calibration and the method pages quote are what
+    docs/scripts/demo_calibration_numbers.py writes from the stored output of
+    benchmarks/demo_calibration.py; the table's counts agree with the benchmark's own
+    summary lines."""
+    module = load_script("demo_calibration_numbers")
+    folder = STATIC / "tutorial"
+    rows = module.read_record(folder / "demo_calibration.txt")
+    assert_files_match(module.files(rows), folder, "docs/scripts/demo_calibration_numbers.py")
+    table, sub = module.compute(rows)
+    summary = {}
+    for line in (folder / "demo_calibration.txt").read_text().splitlines():
+        words = line.split()
+        if len(words) == 6 and words[0] in module.SCENARIOS:
+            summary[(module.SCENARIOS[words[0]], words[1])] = (int(words[2]), int(words[3]),
+                                                               words[5])
+    assert len(summary) == 4
+    for label, method, tested, false, hit in table[1:]:
+        clean, flags, hits = summary[(label, method)]
+        assert tested.startswith(f"{clean} of ") and false.startswith(f"{flags} (")
+        assert hit == "--" if hits == "-" else hit == hits.replace("/", " of ") + " seeds"
+    for page in ("tutorial", "calibration", "method"):
+        text = (ROOT / "docs" / f"{page}.rst").read_text()
+        assert ".. include:: _static/tutorial/numbers.inc" in text
+        assert substitutions_used(text, "dc") <= set(sub)
