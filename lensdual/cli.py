@@ -251,7 +251,8 @@ def _cmd_run(args):
                            catalogs=catalogs, manual_pairs=manual, progress=progress,
                            null_realisations=config.null_realisations,
                            oversampling=oversampling, test=config.test,
-                           max_magnification=config.max_magnification)
+                           max_magnification=config.max_magnification,
+                           source_model=config.source_model)
         read_warnings = [f"{w.category.__name__}: {w.message}" for w in caught]
         analysis.warnings[:0] = list(dict.fromkeys(read_warnings))
         for text in read_warnings:

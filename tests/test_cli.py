@@ -209,6 +209,34 @@ def test_run_default_outdir_is_relative_to_the_config(demo_dir, tmp_path):
     assert (copy / "run-output" / "pairs.ecsv").is_file()
 
 
+def test_run_passes_the_source_model_to_the_photometry(demo_dir, tmp_path, monkeypatch):
+    """``[analysis] source_model`` reaches the analysis (stopped there: the fit
+    itself is tested in tests/test_resolved_photometry.py)."""
+    import shutil
+
+    import lensdual.cli
+
+    class Stop(Exception):
+        pass
+
+    seen = {}
+
+    def analyse(*args, **kwargs):
+        seen.update(kwargs)
+        raise Stop
+
+    copy = tmp_path / "copy"
+    shutil.copytree(demo_dir / "data", copy / "data")
+    text = (demo_dir / "run.toml").read_text()
+    assert "[analysis]" in text
+    text = text.replace("[analysis]", '[analysis]\nsource_model = "resolved"', 1)
+    (copy / "run.toml").write_text(text)
+    monkeypatch.setattr(lensdual.cli, "analyse", analyse)
+    with pytest.raises(Stop):
+        main(["run", str(copy / "run.toml"), "--quiet"])
+    assert seen["source_model"] == "resolved"
+
+
 def _bad_configs(demo_dir):
     """(name, change to the demo's config, expected fragment) of bad configurations."""
     data_dir = demo_dir / "data"

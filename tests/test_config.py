@@ -199,6 +199,9 @@ def test_defaults_and_outdir(data_dir, tmp_path, monkeypatch):
     assert cfg.outdir == data_dir.resolve() / "lensdual-output"
     assert (cfg.estimator, cfg.sigma_pos, cfg.n_bootstrap) == ("adaptive", "auto", 1000)
     assert (cfg.snr_threshold, cfg.seed, cfg.test) == (3.0, 0, "geometric")
+    assert cfg.source_model == "point"
+    assert load_config(write(data_dir, "resolved", minimal_config() | {
+        "analysis": {"source_model": "resolved"}})).source_model == "resolved"
     assert cfg.catalogs is None and cfg.parametric is None
     assert (cfg.pairing_method, cfg.pairs_file) == ("auto", None)
     assert cfg.bands["F150W"] == BandSpec("F150W")
@@ -452,6 +455,8 @@ BAD = [
      "[pairing] max_magnification: must be > 1, got 1"),
     ("test-unknown", _set("analysis", "test", "bayes"),
      "[analysis] test: 'bayes' is not one of 'geometric', 'joint'"),
+    ("source-model-unknown", _set("analysis", "source_model", "extended"),
+     "[analysis] source_model: 'extended' is not one of 'point', 'resolved'"),
     ("joint-needs-adaptive", _both(_set("analysis", "test", "joint"),
                                    _set("analysis", "estimator", "quad")),
      '[analysis] test: "joint" needs estimator = "adaptive", got estimator = "quad"'),

@@ -309,6 +309,9 @@ class RunConfig:
         Number of bootstrap resamplings.
     test : str
         The duality test, one of `lensdual.duality.TESTS`.
+    source_model : str
+        The sources' model in the PSF photometry, ``"point"`` or ``"resolved"``
+        (see `lensdual.photometry.psf_photometry`).
     snr_threshold : float
         Significance threshold of a duality violation.
     seed : int
@@ -334,6 +337,7 @@ class RunConfig:
     sigma_pos: u.Quantity | str = _d("analysis", "sigma_pos")
     n_bootstrap: int = _d("analysis", "n_bootstrap")
     test: str = _d("analysis", "test")
+    source_model: str = _d("analysis", "source_model")
     snr_threshold: float = _d("analysis", "snr_threshold")
     seed: int = _d("analysis", "seed")
     null_realisations: int = _d("analysis", "null_realisations")
@@ -583,7 +587,7 @@ class _Validator:
         elif sigma != "auto":
             sigma = self.get_angle(table, "sigma_pos", sec, prefix='expected "auto" or an angle; ')
         out["sigma_pos"] = sigma
-        for key in ("n_bootstrap", "test", "snr_threshold", "seed"):
+        for key in ("n_bootstrap", "test", "source_model", "snr_threshold", "seed"):
             out[key] = self.get(table, key, sec)
         if out["test"] == "joint" and out["estimator"] not in ("adaptive", _BAD):
             self.add(f'[{sec}] test: "joint" needs estimator = "adaptive", got estimator = '

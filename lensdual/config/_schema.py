@@ -215,6 +215,11 @@ FIELDS = (
        'the duality test: "geometric" (the flux ratio against mu_size) or "joint" (against '
        "mu_size and the neighbours' flux ratios; needs estimator \"adaptive\" and two bands)",
        choices=tuple(TESTS)),
+    _F("analysis", "source_model", "string", "point",
+       'the sources\' model in the PSF photometry: "point" (the PSF) or "resolved" (the PSF '
+       "convolved with an elliptical Gaussian of free size, for star clusters the lens "
+       "stretches beyond the PSF; noisier on point sources)",
+       choices=("point", "resolved")),
     _F("analysis", "snr_threshold", "real", DEFAULT_SNR_THRESHOLD,
        "significance threshold of a duality violation", above=0),
     _F("analysis", "seed", "integer", DEFAULT_SEED, "seed of the random numbers", minimum=0),
