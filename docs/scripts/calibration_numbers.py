@@ -323,34 +323,35 @@ def _cell_name(fam, n_src, noise):
     return f"{FAMILY_NAMES.get(fam, fam)} with {n_src} sources at {noise:g} mas"
 
 
-def _per_set(sets, key, column="ffr"):
-    """A cell's value on each seed set, ``a / b / c`` in per cent."""
-    return " / ".join(_pct(cells[key][column]) for cells in sets)
+def _adaptive_cells(cells):
+    """The adaptive estimator's cells, keyed ``(family, n_sources, noise)`` as
+    :func:`missed_targets` keys them."""
+    return {(k[0], k[1], k[3]): r for k, r in cells.items() if k[2] == "adaptive"}
 
 
 def pooled_numbers(pooled, sets, declined_lines):
     """The substitutions read from the validation suite pooled over 70
     constellations per cell (``sets``: the three runs pooled, in the order of
     :data:`SEED_SETS`; ``declined_lines``: the pooled table's lines)."""
-    adaptive = {k: r for k, r in pooled.items() if k[2] == "adaptive"}
-    n = sum(r["n"] for r in adaptive.values())
+    cell = _adaptive_cells(pooled)
+    set_cells = [_adaptive_cells(cells) for cells in sets]
+    n = sum(r["n"] for r in cell.values())
     sub = {"cal_p70_pairs": f"{n / 1e6:.1f}",
-           "cal_p70_ffr": _pct(sum(r["n"] * r["ffr"] for r in adaptive.values()) / n),
-           "cal_p70_cells": str(len(adaptive))}
+           "cal_p70_ffr": _pct(sum(r["n"] * r["ffr"] for r in cell.values()) / n),
+           "cal_p70_cells": str(len(cell))}
     missed = missed_targets(pooled)
     sub["cal_p70_missed"] = str(len(missed))
     sig = [k for k, why in missed.items() if any("significant" in w for w in why)]
     sub["cal_p70_nsig"] = str(len(sig))
     sub["cal_p70_sig"] = _and(
-        f"{_cell_name(*k)}, {_pct(adaptive[(k[0], k[1], 'adaptive', k[2])]['ffr'])} % "
-        f"(lower limit {_pct(adaptive[(k[0], k[1], 'adaptive', k[2])]['ffr_l95'])} %)"
+        f"{_cell_name(*k)}, {_pct(cell[k]['ffr'])} % (lower limit {_pct(cell[k]['ffr_l95'])} %)"
         for k in sig) if sig else "none"
     labels = " / ".join(label for _, label in SEED_SETS)
     nonsig = [k for k, why in missed.items()
               if any(w.startswith("false flags") for w in why) and k not in sig]
     sub["cal_p70_nonsig"] = _and(
-        f"{_cell_name(*k)}, {_pct(adaptive[(k[0], k[1], 'adaptive', k[2])]['ffr'])} % "
-        f"({labels}: {_per_set(sets, (k[0], k[1], 'adaptive', float(k[2])))} %)"
+        f"{_cell_name(*k)}, {_pct(cell[k]['ffr'])} % "
+        f"({labels}: {' / '.join(_pct(c[k]['ffr']) for c in set_cells)} %)"
         for k in nonsig) if nonsig else "none"
     declined = [m.groups() for m in map(DECLINED.match, declined_lines) if m]
     sub["cal_p70_declined_n"] = str(len(declined))
@@ -358,37 +359,33 @@ def pooled_numbers(pooled, sets, declined_lines):
                                    for d in declined)
     sub["cal_p70_declined_gw"] = _range([float(d[4]) for d in declined], 1.0)
     sub["cal_p70_declined_out"] = _range([float(d[5]) for d in declined], digits=1)
-    widths = [(k, adaptive[(k[0], k[1], "adaptive", k[2])]["pull_gw"])
-              for k, why in missed.items() if any(w.startswith("width") for w in why)]
-    sub["cal_p70_widths"] = _and(f"{_cell_name(*k)} ({w:.2f})" for k, w in widths)
-    bias = [(k, adaptive[(k[0], k[1], "adaptive", k[2])]) for k, why in missed.items()
-            if any(w.startswith("bias") for w in why)]
-    sub["cal_p70_bias"] = _and(f"{_cell_name(*k)}, {_pct(r['bias'], 1)} % against a third "
-                               f"of its median error, {_pct(r['sig'] / 3, 1)} %"
-                               for k, r in bias) if bias else "none"
-    cluster = [r for k, r in adaptive.items() if k[0] in CLUSTER_SCALE and k[1] >= 20]
+    widths = [k for k, why in missed.items() if any(w.startswith("width") for w in why)]
+    sub["cal_p70_widths"] = _and(f"{_cell_name(*k)} ({cell[k]['pull_gw']:.2f})" for k in widths)
+    bias = [k for k, why in missed.items() if any(w.startswith("bias") for w in why)]
+    sub["cal_p70_bias"] = _and(f"{_cell_name(*k)}, {_pct(cell[k]['bias'], 1)} % against a "
+                               f"third of its median error, {_pct(cell[k]['sig'] / 3, 1)} %"
+                               for k in bias) if bias else "none"
+    cluster = [r for k, r in cell.items() if k[0] in CLUSTER_SCALE and k[1] >= 20]
     sub["cal_p70_cluster_gw"] = _range([r["pull_gw"] for r in cluster], 1.0)
     sub["cal_p70_cluster_ffr_max"] = _pct(max(r["ffr"] for r in cluster))
-    errors = [r["sig"] for k, r in adaptive.items()
-              if k[0] in CLUSTER_SCALE and k[1] == 20 and 5 <= k[3] <= 20]
+    errors = [r["sig"] for k, r in cell.items()
+              if k[0] in CLUSTER_SCALE and k[1] == 20 and 5 <= k[2] <= 20]
     sub["cal_p70_err_5_20"] = f"{100 * min(errors):.0f} to {100 * max(errors):.0f}"
-    galaxy = [r for k, r in adaptive.items() if k[0] == "galaxy_fold" and k[1] >= 20]
+    galaxy = [r for k, r in cell.items() if k[0] == "galaxy_fold" and k[1] >= 20]
     sub["cal_p70_gal_ffr"] = _range([r["ffr"] for r in galaxy])
-    galaxy8 = [r["pull_w"] for k, r in adaptive.items()
+    galaxy8 = [r["pull_w"] for k, r in cell.items()
                if k[0] == "galaxy_fold" and k[1] == 8 and r["tested"] >= 0.5]
     sub["cal_p70_gal8_w"] = f"{max(galaxy8):.1f}"
-    fold = ("cluster_fold", "adaptive", 5.0)
-    sub["cal_p70_pow8"] = f"{100 * pooled[(fold[0], 8, fold[1], fold[2])]['pow25']:.0f}"
-    sub["cal_p70_fold_pow"] = " / ".join(
-        f"{100 * pooled[(fold[0], n_src, fold[1], fold[2])]['pow25']:.1f}" for n_src in (20, 40))
-    sub["cal_p70_fold20_pow"] = f"{100 * pooled[(fold[0], 20, fold[1], fold[2])]['pow25']:.1f}"
+    fold = {n_src: cell[("cluster_fold", n_src, 5.0)]["pow25"] for n_src in (8, 20, 40)}
+    sub["cal_p70_pow8"] = f"{100 * fold[8]:.0f}"
+    sub["cal_p70_fold_pow"] = f"{100 * fold[20]:.1f} / {100 * fold[40]:.1f}"
+    sub["cal_p70_fold20_pow"] = f"{100 * fold[20]:.1f}"
     sub["cal_sets_fold20_pow"] = _and(
-        f"{100 * cells[(fold[0], 20, fold[1], fold[2])]['pow25']:.1f}" for cells in sets)
+        f"{100 * c[('cluster_fold', 20, 5.0)]['pow25']:.1f}" for c in set_cells)
     for n_src, noises in ((40, (10, 20)), (20, (5, 10))):
-        for (_, label), cells in zip(SEED_SETS, sets, strict=True):
+        for (_, label), c in zip(SEED_SETS, set_cells, strict=True):
             sub[f"cal_as1063_{n_src}_{label.split()[1].split('-')[0]}"] = " / ".join(
-                _pct(cells[("as1063_lenstool", n_src, "adaptive", float(x))]["ffr"])
-                for x in noises)
+                _pct(c[("as1063_lenstool", n_src, float(x))]["ffr"]) for x in noises)
     return sub
 
 
