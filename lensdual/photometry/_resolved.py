@@ -383,9 +383,6 @@ def refit_resolved(fitter, res):
         res[col] = np.full(n, np.nan)
     usable = (np.isfinite(res["flux_fit"]) & np.isfinite(res["x_fit"])
               & np.isfinite(res["y_fit"]) & ((res["flags"] & _BAD_FLAGS) == 0))
-    others = np.zeros_like(sc.data)
-    for k in range(n):
-        fitter._add(others, k, 1.0)
     reach = max(fitter.fit_shape) + fitter.profile.radius()
     near = (np.abs(sc.x[:, None] - sc.x) < reach) & (np.abs(sc.y[:, None] - sc.y) < reach)
     passes = 2 if (near.sum() > n) else 1
@@ -396,9 +393,7 @@ def refit_resolved(fitter, res):
             if k in fits:
                 _add_resolved(model, kernel, fits[k])
             else:
-                own = np.zeros_like(sc.data)
-                fitter._add(own, k, 1.0)
-                model += own
+                fitter._add(model, k, 1.0)
         for k in np.flatnonzero(usable):
             own = np.zeros_like(sc.data)
             if k in fits:
