@@ -144,6 +144,22 @@ def test_a_psf_much_narrower_than_the_sources_suggests_the_resolved_fit():
     assert res["flux"][0] == pytest.approx(800.0, rel=0.01)
 
 
+def test_only_a_given_gaussian_fwhm_is_checked_against_the_sources(monkeypatch):
+    """A fitted FWHM is the sources' own width: the narrow-PSF check runs only for
+    a Gaussian PSF of given FWHM."""
+    from lensdual.photometry import ArcPSFPhotometry
+
+    calls = []
+    original = ArcPSFPhotometry._check_resolved
+    monkeypatch.setattr(ArcPSFPhotometry, "_check_resolved",
+                        lambda self, *a: calls.append(a) or original(self, *a))
+    image = gaussian_image(800.0, 15.3, 14.9, 0.0, 0.0)
+    measure(image, "point", fwhm=None)
+    assert calls == []
+    measure(image, "point")
+    assert len(calls) == 1
+
+
 def test_an_unknown_source_model_is_refused():
     with pytest.raises(ValueError, match="source_model must be one of"):
         psf_photometry(np.zeros((9, 9)), [(4, 4)], psf=2.0, source_model="extended")

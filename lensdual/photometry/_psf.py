@@ -628,7 +628,9 @@ class ArcPSFPhotometry:
             # before the fit: a wrong PSF (e.g. oversampled without its factor) makes
             # wide groups whose joint fits are slow, and its fluxes are wrong anyway
             self._check_image_psf(fitter, where)
-        elif kind == "gaussian" and self._check_psf and self._source_model == "point":
+        elif (kind == "gaussian" and spec is not None and self._check_psf
+              and self._source_model == "point"):
+            # a given FWHM only: a fitted one is the sources' own width
             self._check_resolved(fitter, where)
         radius = 2.0 * fwhm if self._group_radius is None else self._group_radius
         res, caught, failed = fitter.fit(self._neighbour_passes, radius)
