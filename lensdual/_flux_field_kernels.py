@@ -50,11 +50,12 @@ def _gradient(x, y, degree, coef):
 
 
 @njit(**JIT_OPTIONS)
-def _weighted_fit(dw, y, s, m, degree, cond_max, coef, a):
+def _weighted_fit(dw, y, s, m, degree, cond_max, coef, a, lev):
     """Weighted least squares of ``y[:m]`` (errors ``s``) on the monomials of ``dw``.
 
-    Fills ``coef`` and ``a`` (``a @ y[:m]`` is the value at the origin,
-    ``coef[0]``); returns False where the design is numerically rank deficient.
+    Fills ``coef``, ``a`` (``a @ y[:m]`` is the value at the origin,
+    ``coef[0]``) and ``lev`` (the leverages, the diagonal of the weighted hat
+    matrix); returns False where the design is numerically rank deficient.
     """
     p = _n_terms(degree)
     design = np.empty((m, p))
@@ -67,6 +68,12 @@ def _weighted_fit(dw, y, s, m, degree, cond_max, coef, a):
     r = np.zeros((p, p))
     if not mgs_factor(design, p, scale, r, cond_max):
         return False
+    # design is now Q: the hat matrix is Q Q^T
+    for i in range(m):
+        h = 0.0
+        for c in range(p):
+            h += design[i, c] ** 2
+        lev[i] = h
     # rows = S^-1 R^-1 Q^T, then coef = rows @ (y / s) and a = rows[0] / s
     rinv = np.zeros((p, p))
     for j in range(p - 1, -1, -1):
@@ -92,14 +99,15 @@ def _weighted_fit(dw, y, s, m, degree, cond_max, coef, a):
 
 
 @njit(**JIT_OPTIONS)
-def _local_fit(d, y, s, sig_target, sig, m, degree, cond_max, coef, a, s_eff, dw):
+def _local_fit(d, y, s, sig_target, sig, m, degree, cond_max, coef, a, s_eff, dw, lev):
     """One neighbourhood's fit in its whitened frame, refitted with the neighbours'
     errors widened by their position errors times the fitted gradient.
 
     Returns ``(ok, value, var_stat, var_position)``: the value at the origin, the
     variance the neighbours' errors give it, and the variance the origin's own
     position error adds. ``a`` receives the prediction's weights, ``s_eff`` the
-    widened errors and ``dw`` the neighbours' whitened offsets.
+    widened errors, ``dw`` the neighbours' whitened offsets and ``lev`` their
+    leverages.
     """
     sxx = 0.0
     sxy = 0.0
@@ -121,7 +129,7 @@ def _local_fit(d, y, s, sig_target, sig, m, degree, cond_max, coef, a, s_eff, dw
     for i in range(m):
         dw[i, 0] = d[i, 0] * l00 + d[i, 1] * l10
         dw[i, 1] = d[i, 1] * l11
-    if not _weighted_fit(dw, y, s, m, degree, cond_max, coef, a):
+    if not _weighted_fit(dw, y, s, m, degree, cond_max, coef, a, lev):
         return False, np.nan, np.nan, np.nan
     for i in range(m):
         gx, gy = _gradient(dw[i, 0], dw[i, 1], degree, coef)
@@ -129,7 +137,7 @@ def _local_fit(d, y, s, sig_target, sig, m, degree, cond_max, coef, a, s_eff, dw
         hx = l00 * gx
         hy = l10 * gx + l11 * gy
         s_eff[i] = np.sqrt(s[i] ** 2 + sig[i] ** 2 * (hx * hx + hy * hy))
-    if not _weighted_fit(dw, y, s_eff, m, degree, cond_max, coef, a):
+    if not _weighted_fit(dw, y, s_eff, m, degree, cond_max, coef, a, lev):
         return False, np.nan, np.nan, np.nan
     var_stat = 0.0
     for i in range(m):
@@ -153,17 +161,97 @@ def _cubic_sensitivity(dw, a, m):
 
 
 @njit(**JIT_OPTIONS)
+def _worst_neighbour(dw, y, s_eff, lev, coef, m, degree):
+    """The neighbour whose externally studentised deletion residual is the largest in
+    absolute value, and that residual.
+
+    The residual of neighbour ``k`` from the fit without it, over its standard
+    deviation, is ``z_k = (y_k - f(x_k)) / (s_k sqrt(1 - h_k))`` with ``f``
+    the fit ``coef`` of all ``m`` and ``h_k`` its leverage. It is divided by
+    the scale the other neighbours' residuals show, ``sqrt(chi2_(k) / (m - p -
+    1))`` with ``chi2_(k) = chi2 - z_k^2``, but never by less than 1 (the
+    errors quoted). Neighbours of leverage 1 (the fit passes through them
+    whatever their value) are not tested; ``(-1, 0)`` where none is.
+    """
+    p = _n_terms(degree)
+    row = np.empty(p)
+    z = np.zeros(m)
+    chi2 = 0.0
+    for k in range(m):
+        _monomials(dw[k, 0], dw[k, 1], degree, row)
+        fit = 0.0
+        for c in range(p):
+            fit += coef[c] * row[c]
+        e = (y[k] - fit) / s_eff[k]
+        chi2 += e * e
+        q = 1.0 - lev[k]
+        z[k] = abs(e) / np.sqrt(q) if q > 1e-9 else np.nan
+    dof = m - p - 1
+    worst = -1
+    t_max = 0.0
+    for k in range(m):
+        if not np.isfinite(z[k]):
+            continue
+        scale = 1.0
+        if dof > 0:
+            scale = max(1.0, (chi2 - z[k] * z[k]) / dof)
+        t = z[k] / np.sqrt(scale)
+        if t > t_max:
+            t_max = t
+            worst = k
+    return worst, t_max
+
+
+@njit(**JIT_OPTIONS)
+def _dev_variance(a, a2, s_eff, s_eff2, m_local, m_check):
+    """The variance the neighbours' errors give the quadratic's (weights ``a2`` on the
+    first ``m_local``) minus the cubic's (``a``) prediction."""
+    vd = 0.0
+    for k in range(m_check):
+        if k < m_local:
+            sk = max(s_eff[k], s_eff2[k])
+            vd += (a2[k] - a[k]) ** 2 * sk * sk
+        else:
+            vd += a[k] ** 2 * s_eff[k] ** 2
+    return vd
+
+
+@njit(**JIT_OPTIONS)
+def _gather(i, order, count, dropped, m_check, pos, y, s, sig2, chosen, d, yy, ss, sg):
+    """The ``m_check`` nearest neighbours of ``i`` in ``order`` not ``dropped``: their
+    indices into ``chosen``, offsets into ``d``, values, errors and position errors."""
+    c = 0
+    for k in range(count):
+        j = order[k]
+        if dropped[j]:
+            continue
+        chosen[c] = j
+        d[c, 0] = pos[j, 0] - pos[i, 0]
+        d[c, 1] = pos[j, 1] - pos[i, 1]
+        yy[c] = y[j]
+        ss[c] = s[j]
+        sg[c] = sig2[j]
+        c += 1
+        if c == m_check:
+            break
+
+
+@njit(**JIT_OPTIONS)
 def predict_all(pos, y, s, sig2, usable, resolved, n_local, n_check, min_check, cond_max,
-                max_unresolved, value, var, dev, var_dev, sens, status, n_used):
+                max_unresolved, t_drop, max_drop, value, var, dev, var_dev, sens, status,
+                n_used, n_dropped):
     """The leave-one-out prediction of every pair (steps 0, 1 and 3, and what step 2
     reads): fills ``value`` (the quadratic's prediction), ``var`` (its variance from
     the neighbours' errors and the pair's position error), ``dev`` (the quadratic's
     minus the cubic's prediction), ``var_dev`` (the variance the neighbours' errors
-    give ``dev``), ``sens`` (:func:`_cubic_sensitivity` of the quadratic), ``status``
-    and ``n_used``.
+    give ``dev``), ``sens`` (:func:`_cubic_sensitivity` of the quadratic), ``status``,
+    ``n_used`` and ``n_dropped``.
 
     A pair is predicted where it is ``resolved`` and at most ``max_unresolved`` of
-    its quadratic's neighbours are not.
+    its quadratic's neighbours are not. Up to ``max_drop`` neighbours are
+    dropped, one at a time, while the largest studentised deletion residual of
+    the quadratic's neighbours (:func:`_worst_neighbour`) exceeds ``t_drop``;
+    the next nearest take their places in both fits.
     """
     n = y.size
     dist = np.empty(n)
@@ -172,18 +260,23 @@ def predict_all(pos, y, s, sig2, usable, resolved, n_local, n_check, min_check, 
     a2 = np.empty(n_check)
     s_eff = np.empty(n_check)
     s_eff2 = np.empty(n_check)
+    lev = np.empty(n_check)
     dw = np.empty((n_check, 2))
+    dw2 = np.empty((n_check, 2))
     d = np.empty((n_check, 2))
     yy = np.empty(n_check)
     ss = np.empty(n_check)
     sg = np.empty(n_check)
     others = np.empty(n, dtype=np.int64)
+    chosen = np.empty(n_check, dtype=np.int64)
+    dropped = np.zeros(n, dtype=np.bool_)
     for i in range(n):
         value[i] = np.nan
         var[i] = np.nan
         dev[i] = np.nan
         var_dev[i] = np.nan
         sens[i] = np.nan
+        n_dropped[i] = 0
         count = 0
         for j in range(n):
             if usable[j] and j != i:
@@ -195,40 +288,44 @@ def predict_all(pos, y, s, sig2, usable, resolved, n_local, n_check, min_check, 
             status[i] = TOO_FEW
             continue
         order = others[:count][np.argsort(dist[:count], kind="mergesort")]
-        m_local = min(n_local, count)
-        m_check = min(n_check, count)
         n_unresolved = 0
-        for k in range(m_local):
+        for k in range(min(n_local, count)):
             if not resolved[order[k]]:
                 n_unresolved += 1
         if not resolved[i] or n_unresolved > max_unresolved:
             status[i] = UNRESOLVED
             continue
-        for k in range(m_check):
-            j = order[k]
-            d[k, 0] = pos[j, 0] - pos[i, 0]
-            d[k, 1] = pos[j, 1] - pos[i, 1]
-            yy[k] = y[j]
-            ss[k] = s[j]
-            sg[k] = sig2[j]
-        ok2, v2, var_stat, var_pos = _local_fit(d, yy, ss, sig2[i], sg, m_local, 2, cond_max,
-                                                coef, a2, s_eff2, dw)
-        g = _cubic_sensitivity(dw, a2, m_local) if ok2 else np.nan
+        dropped[order] = False
+        # step 1: the quadratic, refitted without its worst neighbour while that
+        # neighbour is off the others' fit
+        while True:
+            left = count - n_dropped[i]
+            m_local = min(n_local, left)
+            m_check = min(n_check, left)
+            n_used[i] = m_check
+            if left < min_check:
+                break
+            _gather(i, order, count, dropped, m_check, pos, y, s, sig2, chosen, d, yy, ss, sg)
+            ok2, v2, var_stat, var_pos = _local_fit(d, yy, ss, sig2[i], sg, m_local, 2,
+                                                    cond_max, coef, a2, s_eff2, dw2, lev)
+            if not ok2 or n_dropped[i] >= max_drop:
+                break
+            worst, t_max = _worst_neighbour(dw2, yy, s_eff2, lev, coef, m_local, 2)
+            if worst < 0 or not t_max > t_drop:
+                break
+            dropped[chosen[worst]] = True
+            n_dropped[i] += 1
+        if left < min_check:
+            status[i] = TOO_FEW
+            continue
         ok3, v3, _, _ = _local_fit(d, yy, ss, sig2[i], sg, m_check, 3, cond_max, coef, a,
-                                   s_eff, dw)
+                                   s_eff, dw, lev)
         if not (ok2 and ok3):
             status[i] = ILL_CONDITIONED
             continue
-        vd = 0.0
-        for k in range(m_check):
-            if k < m_local:
-                sk = max(s_eff[k], s_eff2[k])
-                vd += (a2[k] - a[k]) ** 2 * sk * sk
-            else:
-                vd += a[k] ** 2 * s_eff[k] ** 2
         status[i] = OK
         value[i] = v2
         var[i] = var_stat + var_pos
         dev[i] = v2 - v3
-        var_dev[i] = vd
-        sens[i] = g
+        var_dev[i] = _dev_variance(a, a2, s_eff, s_eff2, m_local, m_check)
+        sens[i] = _cubic_sensitivity(dw2, a2, m_local)

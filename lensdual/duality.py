@@ -489,7 +489,7 @@ def check_duality(
         ``tested``, ``p_value``, ``p_value_holm`` and ``anomalous`` are the
         joint test's, and these columns are added: ``significance_geometric``
         and ``anomalous_geometric`` (the geometric test's), ``ln_mu_field``,
-        ``ln_mu_field_err``, ``field_status``, ``field_n`` (see
+        ``ln_mu_field_err``, ``field_status``, ``field_n``, ``field_dropped`` (see
         :func:`~lensdual.flux_field.flux_field_prediction`),
         ``field_consistency`` (the significance of the difference between
         ``ln mu_size`` and ``ln_mu_field``), ``ln_mu_predicted`` and
@@ -824,6 +824,7 @@ def _joint_test(tab, theta2, flux, sigma_pos, keep, snr_threshold):
     tab["ln_mu_field_err"] = np.sqrt(field.var)
     tab["field_status"] = field.status
     tab["field_n"] = field.n_used
+    tab["field_dropped"] = field.n_dropped
     tab["field_consistency"] = result.consistency
     tab["smooth_field_fails"] = result.fails
     tab["joint_basis"] = result.basis

@@ -44,13 +44,14 @@ import numpy as np
 from astropy import units as u
 from astropy.table import QTable
 from scipy.optimize import brentq, minimize_scalar
-from scipy.stats import binom
+from scipy.stats import binom, norm
 
 from . import _flux_field_kernels as _kernels
 from .estimators._adaptive import SETTINGS as ADAPTIVE_SETTINGS
 from .estimators.core import as_sigma
 
-__all__ = ["flux_field_prediction", "FIELD_STATUS", "N_LOCAL", "N_CHECK", "MAX_UNRESOLVED"]
+__all__ = ["flux_field_prediction", "FIELD_STATUS", "N_LOCAL", "N_CHECK", "MAX_UNRESOLVED",
+           "DROP_LEVEL", "MAX_DROP"]
 
 #: Neighbours of the quadratic fit (6 coefficients, so 4 residual degrees of freedom).
 N_LOCAL = 10
@@ -77,6 +78,13 @@ def _max_unresolved(n_local, alpha):
 
 #: Most unresolved neighbours among the quadratic's N_LOCAL that chance explains (2).
 MAX_UNRESOLVED = _max_unresolved(N_LOCAL, ADAPTIVE_SETTINGS.alpha)
+#: Family-wise level, over a quadratic fit's N_LOCAL neighbours, at which a neighbour
+#: off the quadratic through the others is dropped from the pair's fits.
+DROP_LEVEL = 0.05
+#: Most neighbours dropped from one pair's fits.
+MAX_DROP = 2
+#: The studentised deletion residual beyond which a neighbour is dropped (Bonferroni).
+_T_DROP = float(norm.isf(DROP_LEVEL / (2 * N_LOCAL)))
 #: Fewest neighbours of the cubic check: two residual degrees of freedom.
 _MIN_CHECK = 12
 #: Median of |Z| for a unit Gaussian Z.
@@ -151,6 +159,7 @@ class _Field(NamedTuple):
     var: np.ndarray  # its variance, the common model variance included
     status: np.ndarray  # FIELD_STATUS per pair
     n_used: np.ndarray  # neighbours of the cubic check
+    n_dropped: np.ndarray  # neighbours dropped as off the quadratic through the others
     model_var: float  # the common model variance of step 4
 
 
@@ -168,20 +177,21 @@ def field_arrays(pos, y, s, sig2, usable=None, resolved=None):
     value, var, dev, var_dev, sens = (np.empty(n) for _ in range(5))
     code = np.empty(n, dtype=np.int64)
     n_used = np.empty(n, dtype=np.int64)
+    n_dropped = np.empty(n, dtype=np.int64)
     _kernels.predict_all(np.ascontiguousarray(np.where(placed[:, None], pos, 0.0)),
                          np.where(finite, y, 0.0), np.where(finite, s, 1.0),
                          np.ascontiguousarray(sig2, dtype=float),
                          np.ascontiguousarray(usable, dtype=np.bool_),
                          np.ascontiguousarray(resolved, dtype=np.bool_), N_LOCAL, N_CHECK,
-                         _MIN_CHECK, _COND_MAX, MAX_UNRESOLVED, value, var, dev, var_dev,
-                         sens, code, n_used)
+                         _MIN_CHECK, _COND_MAX, MAX_UNRESOLVED, _T_DROP, MAX_DROP, value,
+                         var, dev, var_dev, sens, code, n_used, n_dropped)
     ok = (code == _kernels.OK) & placed
     calib = ok & usable
     var = var + squared_bias(dev, var_dev, sens, calib)
     model_var = _common_variance(y[calib] - value[calib], s[calib] ** 2 + var[calib])
     status = np.where(placed, np.asarray(FIELD_STATUS)[code], "excluded")
     return _Field(np.where(ok, value, np.nan), np.where(ok, var + model_var, np.nan), status,
-                  n_used, model_var)
+                  n_used, n_dropped, model_var)
 
 
 def flux_field_prediction(theta2, ln_mu_flux, ln_mu_flux_err, *, sigma_pos=None, usable=None,
@@ -223,7 +233,9 @@ def flux_field_prediction(theta2, ln_mu_flux, ln_mu_flux_err, *, sigma_pos=None,
         Columns ``ln_mu_field`` (the prediction of ``ln mu`` at the pair),
         ``ln_mu_field_err`` (its error), ``field_status`` (one of
         :data:`FIELD_STATUS`; only ``"ok"`` rows have a prediction) and
-        ``field_n`` (neighbours of the cubic check). ``meta['field_model_sd']``
+        ``field_n`` (neighbours of the cubic check) and ``field_dropped``
+        (neighbours dropped from the pair's fits as off the field of the
+        others, step 1). ``meta['field_model_sd']``
         is the common model error of step 4 (0 where the leave-one-out
         residuals already scatter as their errors say).
 
@@ -281,5 +293,6 @@ def flux_field_prediction(theta2, ln_mu_flux, ln_mu_flux_err, *, sigma_pos=None,
     out["ln_mu_field_err"] = np.sqrt(field.var)
     out["field_status"] = field.status
     out["field_n"] = field.n_used
+    out["field_dropped"] = field.n_dropped
     out.meta["field_model_sd"] = float(np.sqrt(field.model_var))
     return out

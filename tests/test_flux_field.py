@@ -8,8 +8,59 @@ import pytest
 from astropy.table import QTable
 
 from lensdual.duality import _joint_pass, check_duality
-from lensdual.flux_field import MAX_UNRESOLVED, N_CHECK, N_LOCAL, flux_field_prediction
+from lensdual.flux_field import (
+    DROP_LEVEL,
+    MAX_DROP,
+    MAX_UNRESOLVED,
+    N_CHECK,
+    N_LOCAL,
+    flux_field_prediction,
+)
 from lensdual.simulation import clean_constellation, noisy_constellation
+
+
+def _quadratic_terms(d):
+    return np.column_stack([d[:, 0] ** (a - b) * d[:, 1] ** b for a in range(3)
+                            for b in range(a + 1)])
+
+
+def _deletion_t(xy, y, s, i, idx):
+    """Plain numpy: the externally studentised deletion residuals of the neighbours
+    ``idx`` of pair i in their weighted quadratic fit, each residual from the fit
+    without it, over its standard deviation and over the scale of the others'
+    residuals (at least 1)."""
+    t = np.zeros(len(idx))
+    for k in range(len(idx)):
+        rest = np.delete(idx, k)
+        d = xy[rest] - xy[i]
+        design = _quadratic_terms(d) / s[rest, None]
+        coef, *_ = np.linalg.lstsq(design, y[rest] / s[rest], rcond=None)
+        x_k = _quadratic_terms((xy[idx[k]] - xy[i])[None, :])[0]
+        cov = np.linalg.inv(design.T @ design)
+        resid = y[idx[k]] - x_k @ coef
+        chi2_rest = np.sum((design @ coef - y[rest] / s[rest]) ** 2)
+        scale = max(1.0, chi2_rest / (len(rest) - 6))
+        t[k] = abs(resid) / np.sqrt(s[idx[k]] ** 2 + x_k @ cov @ x_k) / np.sqrt(scale)
+    return t
+
+
+def _neighbours(xy, y, s, i, usable=None):
+    """Plain numpy: pair i's usable neighbours by distance, with those that step 1
+    drops (the worst deletion residual beyond the Bonferroni bound, up to
+    MAX_DROP of them) removed."""
+    from scipy.stats import norm
+
+    n = len(y)
+    usable = np.ones(n, bool) if usable is None else usable
+    others = np.flatnonzero(usable & (np.arange(n) != i))
+    order = list(others[np.argsort(np.hypot(*(xy[others] - xy[i]).T), kind="stable")])
+    bound = norm.isf(DROP_LEVEL / (2 * N_LOCAL))
+    for _ in range(MAX_DROP):
+        t = _deletion_t(xy, y, s, i, np.array(order[:N_LOCAL]))
+        if t.max() <= bound:
+            break
+        order.pop(int(np.argmax(t)))
+    return np.array(order)
 
 
 def _reference_parts(xy, y, s, i, usable=None):
@@ -18,10 +69,7 @@ def _reference_parts(xy, y, s, i, usable=None):
     variance, the difference of the two predictions, that difference's noise
     variance, and the squared norm of the quadratic's weights applied to the four
     cubic monomials of its neighbours' offsets whitened to unit second moments."""
-    n = len(y)
-    usable = np.ones(n, bool) if usable is None else usable
-    others = np.flatnonzero(usable & (np.arange(n) != i))
-    order = others[np.argsort(np.hypot(*(xy[others] - xy[i]).T), kind="stable")]
+    order = _neighbours(xy, y, s, i, usable)
 
     def fit(idx, degree):
         d = xy[idx] - xy[i]
@@ -476,3 +524,66 @@ def test_the_squared_bias_is_the_empirical_bayes_posterior_mean():
     few = np.zeros(10, bool)
     few[:4] = True
     assert np.array_equal(squared_bias(dev, ones, ones, few), dev**2)
+
+
+def _smooth_scene(seed=4, n=30):
+    rng = np.random.default_rng(seed)
+    xy = rng.uniform(-1, 1, (n, 2))
+    ln_mu = 0.2 + 0.3 * xy[:, 0] - 0.2 * xy[:, 1] ** 2
+    s = np.full(n, 0.02)
+    return xy, ln_mu + s * rng.standard_normal(n), s
+
+
+def test_two_anomalous_neighbours_do_not_pull_each_others_prediction(monkeypatch):
+    import lensdual.flux_field as ff
+
+    xy, y, s = _smooth_scene()
+    a = 3
+    d = np.hypot(*(xy - xy[a]).T)
+    d[a] = np.inf
+    b = int(np.argmin(d))
+    raised = y.copy()
+    raised[[a, b]] += np.log(1.25)
+    clean = _field(xy, y, s)
+    field = _field(xy, raised, s)
+    # each is dropped from the other's fits, so both predictions stay where the
+    # clean constellation puts them, well below the raised flux ratios
+    assert field["field_dropped"][a] >= 1 and field["field_dropped"][b] >= 1
+    for k in (a, b):
+        assert abs(field["ln_mu_field"][k] - clean["ln_mu_field"][k]) < 0.02
+        assert raised[k] - field["ln_mu_field"][k] > 4 * field["ln_mu_field_err"][k]
+    # without step 1's drop each pulls the other's prediction up
+    monkeypatch.setattr(ff, "MAX_DROP", 0)
+    masked = _field(xy, raised, s)
+    assert (masked["field_dropped"] == 0).all()
+    assert masked["ln_mu_field"][a] - clean["ln_mu_field"][a] > 0.05
+
+
+def test_dropped_neighbours_match_a_plain_numpy_deletion_test():
+    xy, y, s = _smooth_scene(seed=7)
+    y = y.copy()
+    y[[2, 11, 19]] += [0.3, -0.25, 0.2]
+    field = _field(xy, y, s)
+    value, var = _reference(xy, y, s)
+    assert np.asarray(field["field_dropped"]).sum() > 3
+    assert np.allclose(field["ln_mu_field"], value, rtol=0, atol=1e-9)
+    assert np.allclose(np.asarray(field["ln_mu_field_err"]) ** 2,
+                       var + field.meta["field_model_sd"] ** 2, rtol=1e-5)
+    for i in (0, 5, 20):
+        kept = _neighbours(xy, y, s, i)
+        n_all = 29
+        assert field["field_dropped"][i] == n_all - len(kept)
+
+
+def test_clean_fields_drop_few_neighbours():
+    # the deletion test's family-wise level bounds how often a neighbourhood of a
+    # clean quadratic field loses a neighbour (its scale factor makes it rarer)
+    rng = np.random.default_rng(1)
+    hits = []
+    for _ in range(60):
+        xy = rng.uniform(-1, 1, (30, 2))
+        ln_mu = 0.2 + 0.3 * xy[:, 0] - 0.2 * xy[:, 1] ** 2
+        field = _field(xy, ln_mu + 0.02 * rng.standard_normal(30), np.full(30, 0.02))
+        hits.append(np.asarray(field["field_dropped"]) > 0)
+    rate = np.concatenate(hits).mean()
+    assert 0.005 < rate < DROP_LEVEL

@@ -8,8 +8,9 @@ choice has looked at), so the prose cannot drift from the tables. The history
 of the rules (``history_numbers``) is read from the earlier runs the page also
 includes: ``calibration_heldout_v1.txt`` (the first version on the first two
 held-out families), ``calibration_dev_strict_gate.txt`` (the gate that asked
-every neighbour) and ``calibration_dev_step2_bound.txt`` (the gate as it stands,
-with step 2's earlier bound). Run from the repository root after rerunning the benchmark::
+every neighbour), ``calibration_dev_step2_bound.txt`` (the gate as it stands,
+with step 2's earlier bound) and ``calibration_dev_no_drop.txt`` (step 2 as it
+stands, before step 1 dropped neighbours off the others' fit). Run from the repository root after rerunning the benchmark::
 
     python docs/scripts/joint_status.py
 """
@@ -96,11 +97,7 @@ def compute(dev, heldout):
     sub["jt_pow1mas_gain"] = f"{100 * min(one):+.1f} to {100 * max(one):+.1f}"
     below = [r for r in dev if r["pow25"] < r["pow25_geo"] - 0.005]
     sub["jt_below_geo"] = str(len(below))
-    mask = [r for n in (20, 40) for r in cells(n, 5, 0.02)]
-    sub["jt_mask"] = _range([r["mask25"] for r in mask])
-    worst = min(mask, key=lambda r: r["mask25"])
-    sub["jt_mask_worst"] = (f"``{worst['family']}`` with {int(worst['n_sources'])} sources, "
-                            f"{_pct(worst['mask25'])} %")
+    sub["jt_mask"], sub["jt_mask_worst"] = _masking(dev)
     for fam, short in HELD_OUT.items():
         rows = [r for r in heldout if r["family"] == fam]
         if not rows:
@@ -130,12 +127,24 @@ def _cell(rows, family, n_sources, noise, flux_err=0.02):
                 and r["noise_mas"] == noise and r["flux_err"] == flux_err)
 
 
+def _masking(rows):
+    """The masking trial's range at 5 mas and 2 % flux errors on the cluster-scale
+    families (20 and 40 sources) and its lowest cell, as text."""
+    mask = [r for r in rows if r["family"] in CLUSTER and r["noise_mas"] == 5
+            and r["flux_err"] == 0.02]
+    worst = min(mask, key=lambda r: r["mask25"])
+    return (_range([r["mask25"] for r in mask]),
+            f"``{worst['family']}`` with {int(worst['n_sources'])} sources, "
+            f"{_pct(worst['mask25'])} %")
+
+
 def history_numbers(folder=STATIC):
     """The substitutions of "How the rules were reached": Abell 370's false flags
-    in the first held-out run (20 sources at 1 and 5 mas, 2 % flux errors), and the
+    in the first held-out run (20 sources at 1 and 5 mas, 2 % flux errors), the
     fraction of pairs with a field and the power on ``cluster_cusp`` with 20
     sources at 20 mas under the gate that asked every neighbour and under the
-    binomial gate, both with step 2's earlier bound."""
+    binomial gate, both with step 2's earlier bound, and the masking trial
+    before step 1 dropped neighbours."""
     first = read_table(folder / "calibration_heldout_v1.txt")
     strict = read_table(folder / "calibration_dev_strict_gate.txt")
     # the binomial gate against the strict one, both with step 2's earlier bound
@@ -146,6 +155,8 @@ def history_numbers(folder=STATIC):
         cell = _cell(rows, "cluster_cusp", 20, 20)
         sub[f"jt_gate_field_{when}"] = _pct(cell["field"])
         sub[f"jt_gate_pow_{when}"] = _pct(cell["pow25"])
+    sub["jt_mask_nodrop"], sub["jt_mask_nodrop_worst"] = _masking(
+        read_table(folder / "calibration_dev_no_drop.txt"))
     return sub
 
 
