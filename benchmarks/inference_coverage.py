@@ -3,7 +3,8 @@
 Run on demand (minutes per family)::
 
     python benchmarks/inference_coverage.py [--families F1,F2] [--n-universes 100]
-        [--n-sources 20] [--sigma-pos-mas 10] [--flux-rel-err 0.02] [--out FILE]
+        [--n-sources 20] [--sigma-pos-mas 10] [--flux-rel-err 0.02]
+        [--test {geometric,joint}] [--out FILE]
 
 Per family: one clean constellation (:func:`clean_constellation`) in the
 family's smooth lens, the forward model of its pairs
@@ -12,10 +13,12 @@ abundances log-spaced over the prior, 1e-3 to 0.3 kpc^-2), then
 ``--n-universes`` mock universes: ``sigma_sub`` drawn from the log-uniform
 prior, one pyHalo CDM realisation at it applied to the fluxes
 (:func:`apply_population`, a seed the forward model never used), Gaussian
-position and flux noise, ``check_duality`` (the default test) and the
-posterior, both with weight 1 (the pairs' errors taken as independent) and
-with the constellation's composite weight (:func:`composite_weight`, from
-``--n-mocks`` other mocks). Reported per weight: the fraction of universes
+position and flux noise, ``check_duality`` (``--test``: the default,
+geometric test, or the joint test, whose prediction also uses the
+neighbours' flux ratios) and the posterior, both with weight 1 (the pairs'
+errors taken as independent) and with the constellation's composite weight
+(:func:`composite_weight`, from ``--n-mocks`` other mocks, each tested with
+the same test). Reported per weight: the fraction of universes
 whose 68 % and 95 % equal-tailed intervals hold the truth (targets 68 +- 5 %
 and 95 +- 3 %), the fractions of truths below and above the 95 % interval,
 the median and the mean of log10(posterior median / truth) (target: at most
@@ -60,7 +63,7 @@ def run_family(family, args, out):
     t0 = time.perf_counter()
     weight = 1.0 if args.no_weight else composite_weight(
         pairs, system, sim, sigma_pos=args.sigma_pos_mas * u.mas, flux_rel_err=args.flux_rel_err,
-        n_mocks=args.n_mocks, seed=args.seed + 7)
+        n_mocks=args.n_mocks, seed=args.seed + 7, test=args.test)
     t_weight = time.perf_counter() - t0
     rng = np.random.default_rng(args.seed + 1)
     sigma_pos = args.sigma_pos_mas * u.mas
@@ -72,7 +75,7 @@ def run_family(family, args, out):
         mock = apply_population(pairs, system, pop, truth / u.kpc**2, seed=10_000 + k)
         noisy = noisy_constellation(mock, sigma_pos=sigma_pos, flux_rel_err=args.flux_rel_err,
                                     seed=20_000 + k)
-        result = check_duality(noisy, sigma_pos=sigma_pos, seed=k)
+        result = check_duality(noisy, sigma_pos=sigma_pos, seed=k, test=args.test)
         if args.oracle_noise:
             # the measured anomaly replaced by the truth plus independent noise of the
             # reported error: isolates the error model from the forward model
@@ -94,9 +97,9 @@ def run_family(family, args, out):
     paper = surface_density_limit(p_det, 1e8 * u.Msun, z_lens=info["z_lens"],
                                   z_source=info["z_source"], zeta=3).to_value(u.kpc**-2)
     head = (f"{family}: {args.n_universes} universes, {args.n_sources} sources, "
-            f"{args.sigma_pos_mas:g} mas, {100 * args.flux_rel_err:g} % flux; forward model "
-            f"{args.n_real} x {args.n_grid}; composite weight from {args.n_mocks} mocks; "
-            f"t_sim={t_sim:.0f}s t_weight={t_weight:.0f}s t_universes={t_uni:.0f}s; "
+            f"{args.sigma_pos_mas:g} mas, {100 * args.flux_rel_err:g} % flux, {args.test} test; "
+            f"forward model {args.n_real} x {args.n_grid}; composite weight from {args.n_mocks} "
+            f"mocks; t_sim={t_sim:.0f}s t_weight={t_weight:.0f}s t_universes={t_uni:.0f}s; "
             f"binomial bound of the same sources {paper:.3f} kpc^-2 (n_tested={n_tested})")
     print(head, flush=True)
     out.append(head)
@@ -140,7 +143,13 @@ def main():
     p.add_argument("--no-weight", action="store_true", help="weight 1 (independent errors)")
     p.add_argument("--oracle-noise", action="store_true",
                    help="replace each measured anomaly by the truth plus independent noise")
+    p.add_argument("--test", choices=("geometric", "joint"), default="geometric",
+                   help="the test of check_duality and of the composite weight's mocks")
     args = p.parse_args()
+    if args.oracle_noise and args.test != "geometric":
+        # the oracle replaces the geometric test's columns; the joint test's
+        # posterior reads ln_mu_predicted, which it leaves alone
+        p.error("--oracle-noise replaces the geometric test's anomalies: use --test geometric")
     use_shared_data()
     out = [f"# {vars(args)}"]
     for family in args.families.split(","):

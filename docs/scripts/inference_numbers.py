@@ -14,6 +14,9 @@ prose quotes from them, so the prose cannot drift from the listings:
 - ``coverage_oracle.txt``: the same with ``--families smacs_analog
   --n-universes 150 --oracle-noise`` (each measured anomaly replaced by the
   truth plus independent noise of its reported error);
+- ``coverage_joint.txt``: the settings of ``coverage.txt`` with ``--test
+  joint`` (``check_duality``'s joint test, in the universes and in the
+  composite weight's mocks);
 - ``wdm.txt``: ``benchmarks/inference_wdm.py --out
   docs/_static/inference/wdm.txt``;
 - ``posterior.txt``: ``docs/scripts/inference_figure.py`` (the figure's
@@ -45,21 +48,27 @@ TARGET68 = (0.68, 0.05)
 TARGET95 = (0.95, 0.03)
 MAX_BIAS = 0.1
 #: The bins of the truth's position in the prior that the prose describes: the
-#: lowest (next to the prior's lower bound) and the middle one.
+#: lowest (next to the prior's lower bound), the middle and the highest one.
 LOW_BIN = "[-3, -2)"
 MID_BIN = "[-2, -1.5)"
+TOP_BIN = "[-1.5, -0.5)"
+#: The short names of the development families in the substitutions.
+SHORT = {"smacs_analog": "smacs", "macs1149_lenstool": "macs1149"}
 
-_FAMILY = re.compile(r"^(\w+): (\d+) universes, (\d+) sources, ([\d.]+) mas, ([\d.]+) % flux; "
-                     r"forward model (\d+) x (\d+); composite weight from (\d+) mocks; "
-                     r"t_sim=(\d+)s t_weight=(\d+)s")
+_FAMILY = re.compile(r"^(\w+): (\d+) universes, (\d+) sources, ([\d.]+) mas, ([\d.]+) % flux"
+                     r"(?:, (\w+) test)?; forward model (\d+) x (\d+); "
+                     r"composite weight from (\d+) mocks; t_sim=(\d+)s t_weight=(\d+)s")
 _ROW = re.compile(r"^  w=([\d.]+)\s+(.*)$")
 _BIN = re.compile(r"^\s+log10 truth in (\[[^)]*\)): n=\s*(\d+) (.*)$")
 _WDM = re.compile(r"^sigma_pos\s+([\d.]+) mas: weight ([\d.]+); .*N_95 = (\S+) constellations$")
 
 
 def _values(text):
-    """``{name: float}`` of the ``name=value`` fields of a line."""
-    return {k: float(v) for k, v in re.findall(r"(\w+)=([-+\d.]+)", text)}
+    """``{name: float}`` of the ``name=value`` fields of a line, and ``<name>_err``
+    of the binomial errors ``name=value (+-err)``."""
+    values = {k: float(v) for k, v in re.findall(r"(\w+)=([-+\d.]+)", text)}
+    values |= {f"{k}_err": float(v) for k, v in re.findall(r"(\w+)=[\d.]+ \(\+-([\d.]+)\)", text)}
+    return values
 
 
 def read_coverage(path):
@@ -70,18 +79,20 @@ def read_coverage(path):
     settings : dict
         The command line's arguments (the file's first line).
     families : dict
-        Per family: ``head`` (the settings and times of its line) and ``rows``,
-        one per weight (``w`` and the line's statistics, ``bins`` by the
-        truth's position in the prior).
+        Per family: ``head`` (the settings and times of its line, and ``test``:
+        ``"geometric"`` where the line names none, as before ``--test``) and
+        ``rows``, one per weight (``w`` and the line's statistics, ``bins`` by
+        the truth's position in the prior).
     """
     lines = Path(path).read_text().splitlines()
     settings = ast.literal_eval(lines[0].lstrip("# "))
     families, rows = {}, None
     for line in lines[1:]:
         if m := _FAMILY.match(line):
-            names = ("universes", "sources", "mas", "flux", "n_real", "n_grid", "mocks",
+            names = ("universes", "sources", "mas", "flux", "test", "n_real", "n_grid", "mocks",
                      "t_sim", "t_weight")
             head = dict(zip(names, m.groups()[1:], strict=True))
+            head["test"] = head["test"] or "geometric"
             rows = []
             families[m.group(1)] = {"head": head, "rows": rows}
         elif m := _ROW.match(line):
@@ -150,6 +161,48 @@ def coverage_numbers(dev, heldout):
     return sub
 
 
+def _unsigned_range(values, fmt="{:.2f}"):
+    lo, hi = (fmt.format(v) for v in (min(values), max(values)))
+    return lo if lo == hi else f"{lo} to {hi}"
+
+
+def joint_numbers(dev, joint):
+    """The coverage under the joint test (``coverage_joint.txt``), per development
+    family and weight, and the geometric run's (``coverage.txt``) it is compared with."""
+    keys = ("universes", "sources", "mas", "flux", "n_real", "n_grid", "mocks")
+    sub = {}
+    for run, test in ((dev, "geometric"), (joint, "joint")):
+        for family in DEVELOPMENT:
+            head = run[1][family]["head"]
+            if head["test"] != test:
+                raise ValueError(f"the {test} run of {family} used the {head['test']} test")
+            if any(head[k] != dev[1][family]["head"][k] for k in keys):
+                raise ValueError(f"the joint run of {family} has other settings than the "
+                                 "geometric one")
+    for family in DEVELOPMENT:
+        name = SHORT[family]
+        w1, wc = joint[1][family]["rows"][0], weighted(joint[1][family])
+        geo = weighted(dev[1][family])
+        sub[f"inf_joint_w_{name}"] = f"{float(wc['w']):g}"
+        for key in ("cov68", "cov95"):
+            sub[f"inf_joint_{key}_{name}"] = _pct(wc[key])
+            sub[f"inf_joint_w1_{key}_{name}"] = _pct(w1[key])
+            sub[f"inf_geo_{key}_{name}"] = _pct(geo[key])
+        sub[f"inf_joint_cov68_err_{name}"] = _pct(wc["cov68_err"])
+    joint_rows = [weighted(joint[1][f]) for f in DEVELOPMENT]
+    geo_rows = [weighted(dev[1][f]) for f in DEVELOPMENT]
+    sub["inf_joint_bias_all"] = _signed_range([r["bias_median"] for r in joint_rows])
+    sub["inf_joint_width"] = _unsigned_range([r["width95"] for r in joint_rows])
+    sub["inf_geo_width"] = _unsigned_range([r["width95"] for r in geo_rows])
+    for name, bin_ in (("low", LOW_BIN), ("top", TOP_BIN)):
+        for test, rows in (("joint", joint_rows), ("geo", geo_rows)):
+            sub[f"inf_{test}_{name}_cov68"] = _unsigned_range(
+                [100 * r["bins"][bin_]["cov68"] for r in rows], "{:.0f}")
+        sub[f"inf_joint_{name}_n"] = _unsigned_range(
+            [r["bins"][bin_]["n"] for r in joint_rows], "{:d}")
+    return sub
+
+
 def oracle_numbers(oracle):
     """The coverage of the run with oracle noise, weight 1 (the SMACS0723 analogue)."""
     row = oracle[1]["smacs_analog"]["rows"][0]
@@ -180,6 +233,8 @@ def compute(folder=OUT):
     sub = coverage_numbers(read_coverage(folder / "coverage.txt"),
                            read_coverage(folder / "coverage_heldout.txt"))
     sub |= oracle_numbers(read_coverage(folder / "coverage_oracle.txt"))
+    sub |= joint_numbers(read_coverage(folder / "coverage.txt"),
+                         read_coverage(folder / "coverage_joint.txt"))
     sub |= wdm_numbers(*read_wdm(folder / "wdm.txt"))
     sub |= posterior_numbers(folder / "posterior.txt")
     return sub
