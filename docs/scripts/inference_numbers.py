@@ -188,6 +188,8 @@ def joint_numbers(dev, joint):
             sub[f"inf_joint_{key}_{name}"] = _pct(wc[key])
             sub[f"inf_joint_w1_{key}_{name}"] = _pct(w1[key])
             sub[f"inf_geo_{key}_{name}"] = _pct(geo[key])
+        # one decimal: a miss of the 68 % target by less than a point must show
+        sub[f"inf_joint_cov68_{name}"] = f"{100 * wc['cov68']:.1f}"
         sub[f"inf_joint_cov68_err_{name}"] = _pct(wc["cov68_err"])
     joint_rows = [weighted(joint[1][f]) for f in DEVELOPMENT]
     geo_rows = [weighted(dev[1][f]) for f in DEVELOPMENT]
