@@ -658,20 +658,25 @@ def test_demo_calibration_numbers_are_the_benchmark_s():
     the calibration and the method pages quote are what
     docs/scripts/demo_calibration_numbers.py writes from the stored output of
     benchmarks/demo_calibration.py; the benchmark's summary agrees with its
-    per-seed rows."""
+    per-seed rows, for every scenario (no sub-halo, over-concentrated, on the
+    mass-concentration relation) and method (adaptive, quad2, the joint test)."""
     module = load_script("demo_calibration_numbers")
     folder = STATIC / "tutorial"
     rows, summary = module.read_record(folder / "demo_calibration.txt")
     assert_files_match(module.files(rows, summary), folder,
                        "docs/scripts/demo_calibration_numbers.py")
     _, sub = module.compute(rows, summary)
-    assert len(summary) == 4
-    for (scenario, method), (tested, false, hits) in summary.items():
+    assert set(summary) == {(s, m) for s in module.SCENARIOS for m in module.METHODS}
+    for (scenario, method), (tested, false, hits, field) in summary.items():
         part = [r for r in rows if r["scenario"] == scenario and r["method"] == method]
         assert len(part) == int(sub["dc_seeds"])
         assert false == sum(r["false"] for r in part)
         assert tested <= sum(r["tested"] for r in part)
         assert hits == (None if scenario == "none" else sum(r["hit"] for r in part))
+        if method == "joint":
+            assert field == (sum(r["field_ok"] for r in part), sum(r["n"] for r in part))
+        else:
+            assert field is None and all(r["field_ok"] is None for r in part)
     for page in ("tutorial", "calibration", "method"):
         text = (ROOT / "docs" / f"{page}.rst").read_text()
         assert ".. include:: _static/tutorial/numbers.inc" in text
