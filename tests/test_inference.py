@@ -18,6 +18,7 @@ from lensdual.inference import (  # noqa: E402  # noqa: E402
     _kernels,
     abundance_posterior,
     apply_population,
+    half_mode_posterior,
     pair_anomalies,
     simulate_anomalies,
 )
@@ -377,6 +378,115 @@ def test_posterior_bad_input(simulation):
         abundance_posterior(_table(np.zeros(20), 0.1), simulation)
 
 
+def _wdm_slices(sigma, log_mhm, scale, n_pairs, n_real, rng, **pop):
+    """Fake simulations of WDM populations: anomalies N(0, (scale(m) s(sigma))^2)."""
+    s = 0.2 * np.sqrt(sigma.value / 0.1)
+    out = []
+    for m in log_mhm:
+        sims = rng.standard_normal((n_pairs, n_real, 1)) * (scale(m) * s)[None, None, :]
+        fake = _fake_simulation(np.arange(1, n_pairs + 1), sigma, sims)
+        out.append(fake._replace(population=SubhaloPopulation(ZL, ZS, model="WDM",
+                                                              log_mhm=m, **pop)))
+    return out, s
+
+
+def test_half_mode_posterior_matches_gaussian_closed_form():
+    """Per half-mode mass the likelihood is that of abundance_posterior; with anomalies
+    N(0, (g(m) s(sigma))^2) it is the closed form N(delta; 0, g^2 s^2 + err^2)."""
+    rng = np.random.default_rng(2)
+    sigma = np.geomspace(0.001, 1.0, 9) * KPC2
+    log_mhm = [9.0, 6.0, 7.5]  # unsorted on purpose
+
+    def scale(m):
+        return 1.0 / (1.0 + 10 ** (m - 8.0))
+
+    slices, s = _wdm_slices(sigma, log_mhm, scale, 5, 100000, rng)
+    err = 0.05
+    delta = rng.normal(0, 0.15, 5)
+    post = half_mode_posterior(_table(delta, err), slices)
+    assert np.unique(post["log10_mhm"]).tolist() == [6.0, 7.5, 9.0]
+    for m in (6.0, 7.5, 9.0):
+        rows = post[post["log10_mhm"] == m]
+        var = (scale(m) * s) ** 2 + err**2
+        exact = np.sum(-0.5 * delta[:, None] ** 2 / var - 0.5 * np.log(2 * np.pi * var), axis=0)
+        np.testing.assert_allclose(rows["log_likelihood"], exact, atol=0.05)
+        np.testing.assert_allclose(rows["sigma_sub"].to_value(KPC2), sigma.value)
+    # the joint density integrates to 1, and so do both marginals
+    dens = np.asarray(post["posterior"]).reshape(3, 9)
+    log_s = np.log10(sigma.value)
+    log_m = np.array([6.0, 7.5, 9.0])
+    assert np.trapezoid(np.trapezoid(dens, log_s, axis=1), log_m) == pytest.approx(1.0)
+    meta = post.meta["inference"]
+    assert np.trapezoid(meta["marginal_sigma_sub"], log_s) == pytest.approx(1.0)
+    assert np.trapezoid(meta["marginal_log10_mhm"], log_m) == pytest.approx(1.0)
+    np.testing.assert_allclose(meta["marginal_log10_mhm"],
+                               np.trapezoid(dens, log_s, axis=1), rtol=1e-12)
+
+
+def test_half_mode_posterior_with_a_flat_likelihood_is_the_prior():
+    sigma = np.geomspace(0.001, 1.0, 7) * KPC2
+    slices, _ = _wdm_slices(sigma, [6.0, 8.0, 10.0], lambda m: 0.0, 3, 50,
+                            np.random.default_rng(0))
+    meta = half_mode_posterior(_table(np.zeros(3), 0.05), slices).meta["inference"]
+    assert meta["log10_mhm_median"] == pytest.approx(8.0)
+    assert meta["log10_mhm_interval_95"] == pytest.approx([6.1, 9.9])
+    assert meta["median"].value == pytest.approx(10**-1.5)
+
+
+def test_large_anomalies_bound_the_half_mode_mass():
+    """Where heavy half-mode masses remove the haloes that make the anomalies, data
+    with large anomalies put an upper limit on the half-mode mass."""
+    rng = np.random.default_rng(3)
+    sigma = np.geomspace(0.01, 1.0, 7) * KPC2
+    log_mhm = [5.0, 6.0, 7.0, 8.0, 9.0, 10.0]
+    slices, _ = _wdm_slices(sigma, log_mhm, lambda m: 1.0 if m <= 7 else 0.05, 8, 3000, rng)
+    delta = rng.normal(0, 0.3, 8)
+    post = half_mode_posterior(_table(delta, 0.02), slices)
+    meta = post.meta["inference"]
+    # the density vanishes from the first suppressing mass on; the limit falls in the
+    # grid's step from 7 to 8 (the trapezoids interpolate the density linearly)
+    assert max(meta["marginal_log10_mhm"][3:]) < 1e-3 * min(meta["marginal_log10_mhm"][:3])
+    assert 7.0 < meta["log10_mhm_upper_95"] < 8.0
+    # the same data and the weakest suppression alone: abundance_posterior's likelihood
+    one = abundance_posterior(_table(delta, 0.02), slices[0])
+    np.testing.assert_allclose(post["log_likelihood"][post["log10_mhm"] == 5.0],
+                               one["log_likelihood"])
+
+
+def test_half_mode_posterior_round_trips_through_ecsv(tmp_path):
+    sigma = np.geomspace(0.001, 1.0, 5) * KPC2
+    slices, _ = _wdm_slices(sigma, [6.0, 9.0], lambda m: 1.0, 3, 200,
+                            np.random.default_rng(4))
+    post = half_mode_posterior(_table(np.full(3, 0.1), 0.05), slices)
+    post.write(tmp_path / "posterior.ecsv")
+    back = QTable.read(tmp_path / "posterior.ecsv")
+    np.testing.assert_allclose(back["posterior"], post["posterior"])
+    assert back.meta["inference"]["log10_mhm_upper_95"] == pytest.approx(
+        post.meta["inference"]["log10_mhm_upper_95"])
+
+
+def test_half_mode_posterior_bad_input(simulation):
+    sigma = np.geomspace(0.001, 1.0, 5) * KPC2
+    rng = np.random.default_rng(5)
+    slices, _ = _wdm_slices(sigma, [6.0, 9.0], lambda m: 1.0, 3, 100, rng)
+    table = _table(np.zeros(3), 0.05)
+    with pytest.raises(ValueError, match="at least two half-mode masses"):
+        half_mode_posterior(table, slices[:1])
+    cdm = slices[0]._replace(population=SubhaloPopulation(ZL, ZS))
+    with pytest.raises(ValueError, match="WDM population"):
+        half_mode_posterior(table, [cdm, slices[1]])
+    with pytest.raises(ValueError, match="each half-mode mass once"):
+        half_mode_posterior(table, [slices[0], slices[0]])
+    other, _ = _wdm_slices(sigma, [9.0], lambda m: 1.0, 3, 100, rng, log_mlow=7.0)
+    with pytest.raises(ValueError, match="one population model"):
+        half_mode_posterior(table, [slices[0], other[0]])
+    coarse, _ = _wdm_slices(sigma[::2], [9.0], lambda m: 1.0, 3, 100, rng)
+    with pytest.raises(ValueError, match="one sigma_sub grid"):
+        half_mode_posterior(table, [slices[0], coarse[0]])
+    with pytest.raises(TypeError, match="AnomalySimulation"):
+        half_mode_posterior(table, [slices[0], "nope"])
+
+
 def test_end_to_end_recovers_a_large_abundance(population, lens_and_pairs, simulation):
     system, pairs = lens_and_pairs
     mock = apply_population(pairs, system, population, 0.15 * KPC2, seed=9)
@@ -447,3 +557,26 @@ def test_plot_abundance_posterior_draws_every_posterior():
     plt.close(ax.figure)
     with pytest.raises(ValueError, match="abundance_posterior"):
         plot_abundance_posterior(QTable({"x": [1.0]}))
+
+
+def test_plot_half_mode_posterior_draws_the_density_and_the_marginal():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from lensdual.visualization import plot_half_mode_posterior
+
+    rng = np.random.default_rng(6)
+    sigma = np.geomspace(0.01, 1.0, 7) * KPC2
+    slices, _ = _wdm_slices(sigma, [5.0, 6.0, 7.0, 8.0, 9.0], lambda m: 1.0 if m <= 7 else 0.05,
+                            8, 2000, rng)
+    post = half_mode_posterior(_table(rng.normal(0, 0.3, 8), 0.02), slices)
+    fig = plot_half_mode_posterior(post)
+    ax, axm = fig.axes[:2]
+    assert len(fig.axes) == 3  # the colour bar
+    assert ax.collections and "m_{\\rm hm}" in ax.get_ylabel()
+    line = axm.lines[0]
+    np.testing.assert_allclose(line.get_ydata(), post.meta["inference"]["marginal_log10_mhm"])
+    assert axm.lines[1].get_xdata()[0] == pytest.approx(
+        post.meta["inference"]["log10_mhm_upper_95"])
+    with pytest.raises(ValueError, match="half_mode_posterior"):
+        plot_half_mode_posterior(abundance_posterior(_table(np.zeros(8), 0.02), slices[0]))

@@ -10,7 +10,8 @@ includes: ``calibration_heldout_v1.txt`` (the first version on the first two
 held-out families), ``calibration_dev_strict_gate.txt`` (the gate that asked
 every neighbour), ``calibration_dev_step2_bound.txt`` (the gate as it stands,
 with step 2's earlier bound) and ``calibration_dev_no_drop.txt`` (step 2 as it
-stands, before step 1 dropped neighbours off the others' fit). Run from the repository root after rerunning the benchmark::
+stands, before step 1 dropped neighbours off the others' fit). Run from the
+repository root after rerunning the benchmark::
 
     python docs/scripts/joint_status.py
 """

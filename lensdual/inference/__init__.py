@@ -13,7 +13,9 @@ The chain, for one or many analysed constellations:
 3. :func:`pair_anomalies` and :func:`abundance_posterior`: the measured
    anomalies and their errors from :func:`~lensdual.check_duality`, the
    Monte-Carlo likelihood (pairs independent given the population, systems
-   multiplied) and the posterior on ``sigma_sub`` under a log-uniform prior.
+   multiplied) and the posterior on ``sigma_sub`` under a log-uniform prior;
+   :func:`half_mode_posterior` the joint posterior with the WDM half-mode
+   mass, from simulations of WDM populations on a grid of half-mode masses.
 
 See the docs page "What the flags say about dark matter" for the model, its
 checks and its injection-recovery coverage.
@@ -21,7 +23,13 @@ checks and its injection-recovery coverage.
 
 from ._forward import MIN_REALISATIONS, AnomalySimulation, apply_population, simulate_anomalies
 from ._population import MODELS, SubhaloPopulation
-from ._posterior import INTERVALS, abundance_posterior, composite_weight, pair_anomalies
+from ._posterior import (
+    INTERVALS,
+    abundance_posterior,
+    composite_weight,
+    half_mode_posterior,
+    pair_anomalies,
+)
 
 __all__ = [
     "SubhaloPopulation",
@@ -32,6 +40,7 @@ __all__ = [
     "MIN_REALISATIONS",
     "pair_anomalies",
     "abundance_posterior",
+    "half_mode_posterior",
     "composite_weight",
     "INTERVALS",
 ]

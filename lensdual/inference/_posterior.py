@@ -10,7 +10,8 @@ from scipy import special, stats
 from ..exceptions import EstimatorWarning
 from ._forward import AnomalySimulation
 
-__all__ = ["pair_anomalies", "abundance_posterior", "composite_weight", "INTERVALS"]
+__all__ = ["pair_anomalies", "abundance_posterior", "half_mode_posterior", "composite_weight",
+           "INTERVALS"]
 
 #: The credible intervals reported in ``meta["inference"]`` (equal-tailed).
 INTERVALS = {"68": (0.16, 0.84), "95": (0.025, 0.975)}
@@ -217,6 +218,140 @@ def abundance_posterior(tables, simulations, *, weights=None):
         "n_realisations": int(simulations[0].delta.shape[1]),
         "weights": [float(w) for w in weights],
         "population": repr(simulations[0].population),
+    }
+    return out
+
+
+def _marginal(log_grid, dens):
+    """The normalised density on ``log_grid`` and its cdf (trapezoids)."""
+    dens = dens / np.trapezoid(dens, log_grid)
+    cdf = np.concatenate([[0.0], np.cumsum(0.5 * (dens[1:] + dens[:-1]) * np.diff(log_grid))])
+    return dens, cdf / cdf[-1]
+
+
+def half_mode_posterior(tables, simulations, *, weights=None):
+    r"""Joint posterior on the sub-halo abundance and the WDM half-mode mass.
+
+    The likelihood of :func:`abundance_posterior`, evaluated for every
+    half-mode mass :math:`m_{
+m hm}` of a grid of warm-dark-matter
+    populations, gives :math:`L(\sigma_{
+m sub}, m_{
+m hm})`; the prior is
+    log-uniform in both on the grids (their ends are the prior's bounds).
+    The half-mode mass sets where pyHalo's WDM mass function turns over, so
+    the lowest masses of the grid, below the smallest sub-haloes that the
+    constellation feels, stand for cold dark matter; where the data cannot
+    tell the masses apart, the marginal on :math:`m_{
+m hm}` stays flat.
+
+    Parameters
+    ----------
+    tables : Table or list of Table
+        :func:`~lensdual.check_duality` results, one per constellation.
+    simulations : list
+        One entry per half-mode mass: the :func:`simulate_anomalies` result
+        of a ``SubhaloPopulation(..., model="WDM", log_mhm=...)``, or, with
+        several constellations, a list of them (one per table, in the order
+        of ``tables``). Every simulation shares one ``sigma_sub`` grid, and
+        apart from ``log_mhm`` one population model (mass range, slope).
+    weights : float or list of float, optional
+        Each constellation's composite-likelihood weight in (0, 1], as for
+        :func:`abundance_posterior`.
+
+    Returns
+    -------
+    posterior : `~astropy.table.QTable`
+        One row per (half-mode mass, abundance): ``log10_mhm``,
+        ``sigma_sub`` (kpc^-2), ``log10_sigma_sub``, ``log_likelihood`` and
+        ``posterior`` (the joint density per dex squared).
+        ``meta["inference"]`` holds the abundance's marginal (``median``,
+        ``interval_68``, ``interval_95``, ``upper_95``, kpc^-2), the half-mode
+        mass's (``log10_mhm_median``, ``log10_mhm_interval_68``,
+        ``log10_mhm_interval_95``, ``log10_mhm_upper_95``), both marginal
+        densities (``marginal_sigma_sub``, ``marginal_log10_mhm``), ``n_pairs``,
+        ``n_systems``, ``prior`` and the populations.
+
+    Raises
+    ------
+    TypeError, ValueError
+        Fewer than two half-mode masses, a population that is not WDM, two
+        simulations of one half-mode mass, grids or models that differ,
+        or mismatched tables (see :func:`abundance_posterior`).
+    """
+    tables = [tables] if isinstance(tables, Table) else list(tables)
+    slices = [[s] if isinstance(s, AnomalySimulation) else list(s) for s in simulations]
+    if len(slices) < 2:
+        raise ValueError(f"give simulations for at least two half-mode masses, got "
+                         f"{len(slices)}")
+    for sims in slices:
+        for s in sims:
+            if not isinstance(s, AnomalySimulation):
+                raise TypeError(f"simulations must be AnomalySimulation objects, got "
+                                f"{type(s).__name__}")
+            if s.population is None or s.population.model != "WDM":
+                raise ValueError("every simulation must be of a WDM population (model='WDM', "
+                                 "log_mhm=...): the half-mode mass is the WDM turnover's")
+        if len({s.population.log_mhm for s in sims}) != 1:
+            raise ValueError("the simulations of one entry must share one half-mode mass")
+    log_mhm = np.array([sims[0].population.log_mhm for sims in slices], dtype=float)
+    if len(set(log_mhm.tolist())) != log_mhm.size:
+        raise ValueError(f"each half-mode mass once, got log_mhm {log_mhm.tolist()}")
+    keys = {_model_key(s.population)[:4] for sims in slices for s in sims}
+    if len(keys) > 1:
+        raise ValueError("apart from log_mhm the simulations must share one population model "
+                         f"(mass range, slope); got {sorted(keys, key=str)}")
+    order = np.argsort(log_mhm)
+    lls = []
+    meta = None
+    for k in order:
+        post = abundance_posterior(tables, slices[k], weights=weights)
+        if meta is None:
+            meta = post.meta["inference"]
+            grid = post["sigma_sub"]
+        elif (len(post) != len(grid)
+              or not np.allclose(post["sigma_sub"].value, grid.value, rtol=1e-12)):
+            raise ValueError("the simulations must share one sigma_sub grid")
+        lls.append(np.asarray(post["log_likelihood"], dtype=float))
+    logl = np.array(lls)  # (M, S)
+    log_m = log_mhm[order]
+    log_s = np.log10(grid.to_value(u.kpc**-2))
+    w = np.exp(logl - np.nanmax(logl))
+    w = np.where(np.isfinite(w), w, 0.0)
+    dens = w / np.trapezoid(np.trapezoid(w, log_s, axis=1), log_m)
+    marg_s, cdf_s = _marginal(log_s, np.trapezoid(dens, log_m, axis=0))
+    marg_m, cdf_m = _marginal(log_m, np.trapezoid(dens, log_s, axis=1))
+    out = QTable()
+    out["log10_mhm"] = np.repeat(log_m, log_s.size)
+    out["sigma_sub"] = np.tile(grid.to_value(u.kpc**-2), log_m.size) * u.kpc**-2
+    out["log10_sigma_sub"] = np.tile(log_s, log_m.size)
+    out["log_likelihood"] = logl.ravel()
+    out["posterior"] = dens.ravel()
+
+    def q(p):
+        return 10 ** _quantile(log_s, cdf_s, p) * u.kpc**-2
+
+    def qm(p):
+        return _quantile(log_m, cdf_m, p)
+
+    out.meta["inference"] = {
+        "median": q(0.5),
+        "interval_68": u.Quantity([q(a) for a in INTERVALS["68"]]),
+        "interval_95": u.Quantity([q(a) for a in INTERVALS["95"]]),
+        "upper_95": q(0.95),
+        "log10_mhm_median": qm(0.5),
+        "log10_mhm_interval_68": [qm(a) for a in INTERVALS["68"]],
+        "log10_mhm_interval_95": [qm(a) for a in INTERVALS["95"]],
+        "log10_mhm_upper_95": qm(0.95),
+        "marginal_sigma_sub": marg_s.tolist(),
+        "marginal_log10_mhm": marg_m.tolist(),
+        "n_pairs": meta["n_pairs"],
+        "n_systems": meta["n_systems"],
+        "prior": (f"log-uniform on sigma_sub in [{grid[0]:.4g}, {grid[-1]:.4g}] and on "
+                  f"log10_mhm in [{log_m[0]:g}, {log_m[-1]:g}]"),
+        "n_realisations": meta["n_realisations"],
+        "weights": meta["weights"],
+        "populations": [repr(slices[k][0].population) for k in order],
     }
     return out
 

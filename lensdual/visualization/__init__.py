@@ -14,7 +14,7 @@ where they belong: :func:`plot_parametric_comparison` and
 # _images (the pairs on the arcs' images), _regions (DS9), _abundance (the
 # sub-halo abundance posterior), _parametric, _sensitivity (Figs. 8 and 9), _run
 # (the figures the commands write), _common (pyplot).
-from ._abundance import plot_abundance_posterior
+from ._abundance import plot_abundance_posterior, plot_half_mode_posterior
 from ._duality import plot_duality, plot_flux_field, plot_pairing_map
 from ._estimators import plot_error_histograms, plot_estimator_grid, plot_true_vs_inferred
 from ._images import plot_arc_images
@@ -32,6 +32,7 @@ __all__ = [
     "ds9_regions",
     "plot_arc_images",
     "plot_abundance_posterior",
+    "plot_half_mode_posterior",
     "plot_parametric_comparison",
     "plot_size_vs_model",
     "plot_flux_excess_violin",
