@@ -20,7 +20,12 @@ prose quotes from them, so the prose cannot drift from the listings:
 - ``wdm.txt``: ``benchmarks/inference_wdm.py --out
   docs/_static/inference/wdm.txt``;
 - ``posterior.txt``: ``docs/scripts/inference_figure.py`` (the figure's
-  constellation and its settings).
+  constellation and its settings);
+- ``half_mode.txt``: ``docs/scripts/half_mode_figure.py`` (the half-mode
+  example: ten constellations under CDM and under WDM);
+- ``half_mode_coverage.txt``: ``benchmarks/inference_half_mode_coverage.py
+  --n-universes 200 --n-systems 5 --out
+  docs/_static/inference/half_mode_coverage.txt``.
 
 Run from the repository root after rerunning one of them::
 
@@ -230,6 +235,62 @@ def posterior_numbers(path):
     return dict(zip(names, m.groups()[1:], strict=True))
 
 
+def read_half_mode_coverage(path):
+    """``{"sigma_sub": {...}, "log10_mhm": {...}}`` (coverages and their errors, bias,
+    width) and the run's summary line of ``inference_half_mode_coverage.py``."""
+    lines = Path(path).read_text().splitlines()
+    out = {}
+    for line in lines:
+        words = line.split()
+        if words and words[0] in ("sigma_sub", "log10_mhm"):
+            out[words[0]] = {k: float(v) for k, v in re.findall(r"(\w+)=([-+\d.]+)", line)}
+            out[words[0]] |= {f"{k}_err": float(v) for k, v in
+                              re.findall(r"(cov\d+)=[\d.]+ \(\+-([\d.]+)\)", line)}
+    return out, lines[1]
+
+
+def half_mode_numbers(example_path, coverage_path):
+    """The half-mode example's two posteriors (``hm_*``) and the injection-recovery
+    coverage of both marginals (``inf_hm_*``)."""
+    text = Path(example_path).read_text().splitlines()
+    sub = {}
+    head = re.search(r"m_hm = ([\d, ]+), (\d+) realisations x (\d+) abundances; composite "
+                     r"weight ([\d.]+).*; (\d+) mock constellations per truth, sigma_sub = "
+                     r"([\d.]+)", text[0])
+    if head is None:
+        raise ValueError(f"{example_path}: unexpected first line {text[0]!r}")
+    grid, *values = head.groups()
+    for name, value in zip(("real", "n_grid", "weight", "systems", "sigma_truth"), values,
+                           strict=True):
+        sub[f"inf_hm_ex_{name}"] = value
+    masses = grid.split(", ")
+    sub["inf_hm_ex_grid"] = f"{masses[0]} to {masses[-1]}"
+    for line in text[1:]:
+        m = re.match(r"truth (CDM|WDM log10 m_hm = ([\d.]+)): sigma_sub median ([\d.]+), 95 % "
+                     r"\[([\d.]+), ([\d.]+)\] kpc\^-2; log10 m_hm median ([\d.]+), 95 % "
+                     r"\[([\d.]+), ([\d.]+)\], upper 95 % ([\d.]+).*; (\d+) pairs flagged", line)
+        if m is None:
+            continue
+        tag = "cdm" if m.group(1) == "CDM" else "wdm"
+        if tag == "wdm":
+            sub["inf_hm_ex_wdm_truth"] = m.group(2)
+        sub[f"inf_hm_ex_{tag}_sigma"] = m.group(3)
+        sub[f"inf_hm_ex_{tag}_sigma95"] = f"{m.group(4)} to {m.group(5)}"
+        sub[f"inf_hm_ex_{tag}_median"] = m.group(6)
+        sub[f"inf_hm_ex_{tag}_upper"] = m.group(9)
+        sub[f"inf_hm_ex_{tag}_flags"] = m.group(10)
+    cov, summary = read_half_mode_coverage(coverage_path)
+    n = re.match(r"\w+: (\d+) universes x (\d+) constellations", summary)
+    sub["inf_hm_universes"], sub["inf_hm_systems"] = n.groups()
+    for name, key in (("sigma", "sigma_sub"), ("mhm", "log10_mhm")):
+        for c in ("cov68", "cov95"):
+            sub[f"inf_hm_{name}_{c}"] = _pct(cov[key][c])
+        sub[f"inf_hm_{name}_err"] = _pct(cov[key]["cov68_err"])
+    sub["inf_hm_bias"] = f"{cov['sigma_sub']['bias_median']:+.2f}"
+    sub["inf_hm_width"] = f"{cov['log10_mhm']['width95']:.1f}"
+    return sub
+
+
 def compute(folder=OUT):
     """The substitutions (name -> text) from the stored outputs under ``folder``."""
     sub = coverage_numbers(read_coverage(folder / "coverage.txt"),
@@ -239,6 +300,7 @@ def compute(folder=OUT):
                          read_coverage(folder / "coverage_joint.txt"))
     sub |= wdm_numbers(*read_wdm(folder / "wdm.txt"))
     sub |= posterior_numbers(folder / "posterior.txt")
+    sub |= half_mode_numbers(folder / "half_mode.txt", folder / "half_mode_coverage.txt")
     return sub
 
 

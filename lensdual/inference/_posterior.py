@@ -233,17 +233,13 @@ def half_mode_posterior(tables, simulations, *, weights=None):
     r"""Joint posterior on the sub-halo abundance and the WDM half-mode mass.
 
     The likelihood of :func:`abundance_posterior`, evaluated for every
-    half-mode mass :math:`m_{
-m hm}` of a grid of warm-dark-matter
-    populations, gives :math:`L(\sigma_{
-m sub}, m_{
-m hm})`; the prior is
+    half-mode mass :math:`m_{\rm hm}` of a grid of warm-dark-matter
+    populations, gives :math:`L(\sigma_{\rm sub}, m_{\rm hm})`; the prior is
     log-uniform in both on the grids (their ends are the prior's bounds).
     The half-mode mass sets where pyHalo's WDM mass function turns over, so
     the lowest masses of the grid, below the smallest sub-haloes that the
     constellation feels, stand for cold dark matter; where the data cannot
-    tell the masses apart, the marginal on :math:`m_{
-m hm}` stays flat.
+    tell the masses apart, the marginal on :math:`m_{\rm hm}` stays flat.
 
     Parameters
     ----------
