@@ -5,7 +5,9 @@ and calls :mod:`lensdual.inference` once per system:
 :class:`~lensdual.inference.SubhaloPopulation` at the smooth lens's
 redshifts, :func:`~lensdual.inference.simulate_anomalies`,
 :func:`~lensdual.inference.composite_weight` (or the configured weight), then
-one :func:`~lensdual.inference.abundance_posterior` over all the systems.
+one :func:`~lensdual.inference.abundance_posterior` over all the systems;
+with a grid of WDM half-mode masses (``log_mhm`` a list), one forward model per
+system and mass and one :func:`~lensdual.inference.half_mode_posterior`.
 What it adds is the preparation the inference page describes for real data:
 the pairs placed in the Lenstool model's frame, and the constellation without
 measurement noise that the composite weight's mocks start from (the observed
@@ -30,6 +32,9 @@ __all__ = ["InferenceRun", "run_inference", "format_inference_report", "table_si
 #: The mass and the zeta of the paper's binomial bound (Sect. 5.4).
 PAPER_BOUND_MASS = 1e8 * u.Msun
 PAPER_BOUND_ZETA = 3
+#: The half-mode mass's marginal in a system's summary of a joint posterior.
+_HALF_MODE_KEYS = ("log10_mhm_median", "log10_mhm_interval_68", "log10_mhm_interval_95",
+                   "log10_mhm_upper_95")
 
 
 class InferenceRun(NamedTuple):
@@ -38,9 +43,14 @@ class InferenceRun(NamedTuple):
     Parameters
     ----------
     posterior : `~astropy.table.QTable`
-        :func:`~lensdual.inference.abundance_posterior` of all the systems,
-        with ``meta["systems"]``: one dict per system.
-    simulations : list of `~lensdual.inference.AnomalySimulation`
+        :func:`~lensdual.inference.abundance_posterior` of all the systems
+        (:func:`~lensdual.inference.half_mode_posterior` when ``log_mhm`` is
+        a grid), with ``meta["systems"]``: one dict per system.
+    simulations : list
+        One `~lensdual.inference.AnomalySimulation` per system; with a grid
+        of half-mode masses, one list per mass (lightest first) of one
+        simulation per system, as :func:`~lensdual.inference.half_mode_posterior`
+        takes them.
     """
 
     posterior: QTable
@@ -153,6 +163,15 @@ def _step(progress, name):
 def run_inference(config, *, client=None, progress=None):
     """The posterior on ``sigma_sub`` of the systems of a ``lensdual infer`` configuration.
 
+    With ``log_mhm`` a grid (``config.half_mode``) it is the joint posterior
+    on ``sigma_sub`` and the half-mode mass: each system is forward-modelled
+    once per half-mode mass, every mass with the system's one seed (the
+    realisations of the masses share their random numbers, so the lightest
+    mass's simulation is the one a run with that single ``log_mhm`` makes);
+    its composite weight is measured once, on the lightest mass's simulation,
+    and its summary in ``meta["systems"]`` is its own joint posterior's
+    marginals.
+
     Parameters
     ----------
     config : `~lensdual.config.InferenceConfig`
@@ -169,27 +188,34 @@ def run_inference(config, *, client=None, progress=None):
         SubhaloPopulation,
         abundance_posterior,
         composite_weight,
+        half_mode_posterior,
         pair_anomalies,
         simulate_anomalies,
     )
 
+    half_mode = config.half_mode
+    masses = config.log_mhm if half_mode else (config.log_mhm,)
     tables, sims, weights, infos = [], [], [], []
     seeds = np.random.SeedSequence(config.seed).generate_state(2 * len(config.systems))
     for i, spec in enumerate(config.systems):
         tab, lens, z_lens, z_source, cosmology, lens_text = _in_lens_frame(spec)
-        pop = SubhaloPopulation(z_lens, z_source, model=config.model,
-                                log_m_host=config.log_m_host, log_mhm=config.log_mhm,
-                                cosmology=cosmology)
+        pops = [SubhaloPopulation(z_lens, z_source, model=config.model,
+                                  log_m_host=config.log_m_host, log_mhm=m,
+                                  cosmology=cosmology) for m in masses]
         with _step(progress, f"forward model {spec.name}"):
-            sim = simulate_anomalies(tab, lens, pop, config.grid,
-                                     n_realisations=config.n_realisations,
-                                     radius=spec.radius, seed=int(seeds[2 * i]), client=client)
+            # one seed per system, the same for every half-mode mass: the
+            # realisations of the masses share their random numbers
+            system_sims = [simulate_anomalies(tab, lens, pop, config.grid,
+                                              n_realisations=config.n_realisations,
+                                              radius=spec.radius, seed=int(seeds[2 * i]),
+                                              client=client) for pop in pops]
+        sim = system_sims[0]  # the lightest half-mode mass (masses are sorted)
         sigma_pos = spec.sigma_pos if spec.sigma_pos is not None else table_sigma_pos(tab)
         flux_rel_err = (spec.flux_rel_err if spec.flux_rel_err is not None
                         else table_flux_rel_err(tab))
         if config.weight == "composite":
             with _step(progress, f"composite weight {spec.name}"):
-                clean = clean_pairs(tab, lens, pop, flux_rel_err)
+                clean = clean_pairs(tab, lens, pops[0], flux_rel_err)
                 weight = composite_weight(clean, lens, sim, sigma_pos=sigma_pos,
                                           flux_rel_err=flux_rel_err, n_mocks=config.n_mocks,
                                           seed=int(seeds[2 * i + 1]), **_check_kwargs(tab))
@@ -200,8 +226,9 @@ def run_inference(config, *, client=None, progress=None):
             if "anomalous" in tab.colnames else 0
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
-            alone = abundance_posterior(tab, sim, weights=weight).meta["inference"]
-        infos.append({
+            alone = (half_mode_posterior(tab, system_sims, weights=weight) if half_mode
+                     else abundance_posterior(tab, sim, weights=weight)).meta["inference"]
+        info = {
             "name": spec.name, "pairs": str(spec.pairs), "lens": lens_text,
             "z_lens": float(z_lens), "z_source": float(z_source), "n_pairs": len(tab),
             "n_tested": n_tested, "n_flagged": n_flagged, "weight": float(weight),
@@ -211,12 +238,19 @@ def run_inference(config, *, client=None, progress=None):
             "median": alone["median"], "interval_68": alone["interval_68"],
             "interval_95": alone["interval_95"],
             "paper_bound": _paper_bound(n_tested, z_lens, z_source, cosmology),
-        })
+        }
+        if half_mode:
+            info.update({k: alone[k] for k in _HALF_MODE_KEYS})
+        infos.append(info)
         tables.append(tab)
-        sims.append(sim)
+        sims.append(system_sims if half_mode else sim)
         weights.append(weight)
     with _step(progress, "posterior"):
-        posterior = abundance_posterior(tables, sims, weights=weights)
+        if half_mode:
+            sims = [list(per_mass) for per_mass in zip(*sims, strict=True)]
+            posterior = half_mode_posterior(tables, sims, weights=weights)
+        else:
+            posterior = abundance_posterior(tables, sims, weights=weights)
     posterior.meta["systems"] = infos
     posterior.meta["inference"]["seed"] = int(config.seed)
     return InferenceRun(posterior, sims)
@@ -227,13 +261,20 @@ def _interval(q):
     return f"[{lo:.3g}, {hi:.3g}]"
 
 
+def _log_interval(values):
+    lo, hi = values
+    return f"[{lo:.2f}, {hi:.2f}]"
+
+
 def format_inference_report(posterior, *, title="lensdual infer"):
     """The text report of a ``lensdual infer`` posterior.
 
     Parameters
     ----------
     posterior : `~astropy.table.QTable`
-        :func:`run_inference`'s posterior (with ``meta["systems"]``).
+        :func:`run_inference`'s posterior (with ``meta["systems"]``): the
+        abundance's, or the joint one with the half-mode mass (a
+        ``log10_mhm`` column), whose report gives both marginals.
     title : str, optional
 
     Returns
@@ -242,21 +283,44 @@ def format_inference_report(posterior, *, title="lensdual infer"):
     """
     m = posterior.meta["inference"]
     kpc2 = u.kpc**-2
-    lines = [f"{title}: posterior on the sub-halo abundance sigma_sub (kpc^-2)",
-             f"  {m['n_systems']} system(s), {m['n_pairs']} tested pair(s); prior "
-             f"{m['prior']}; {m['n_realisations']} realisations per abundance",
-             f"  {m['population']}", "",
-             f"  median {m['median'].to_value(kpc2):.3g}   68 % {_interval(m['interval_68'])}"
-             f"   95 % {_interval(m['interval_95'])}   95 % upper limit "
-             f"{m['upper_95'].to_value(kpc2):.3g}", ""]
+    half_mode = "log10_mhm" in posterior.colnames
+    summary = (f"  median {m['median'].to_value(kpc2):.3g}   68 % {_interval(m['interval_68'])}"
+               f"   95 % {_interval(m['interval_95'])}   95 % upper limit "
+               f"{m['upper_95'].to_value(kpc2):.3g}")
+    if not half_mode:
+        lines = [f"{title}: posterior on the sub-halo abundance sigma_sub (kpc^-2)",
+                 f"  {m['n_systems']} system(s), {m['n_pairs']} tested pair(s); prior "
+                 f"{m['prior']}; {m['n_realisations']} realisations per abundance",
+                 f"  {m['population']}", "", summary, ""]
+    else:
+        pops = m["populations"]
+        grid = ", ".join(f"{v:g}" for v in np.unique(np.asarray(posterior["log10_mhm"])))
+        lines = [f"{title}: joint posterior on the sub-halo abundance sigma_sub (kpc^-2) and "
+                 "the WDM half-mode mass m_hm (log10 Msun)",
+                 f"  {m['n_systems']} system(s), {m['n_pairs']} tested pair(s); prior "
+                 f"{m['prior']}; {m['n_realisations']} realisations per abundance",
+                 f"  half-mode masses log10 m_hm = {grid}; the lightest's population: "
+                 f"{pops[0]}", "",
+                 "  sigma_sub (marginal):",
+                 summary,
+                 "  half-mode mass, log10 m_hm (marginal):",
+                 f"  median {m['log10_mhm_median']:.2f}   68 % "
+                 f"{_log_interval(m['log10_mhm_interval_68'])}   95 % "
+                 f"{_log_interval(m['log10_mhm_interval_95'])}   95 % upper limit "
+                 f"{m['log10_mhm_upper_95']:.2f}", ""]
     header = (f"  {'system':<18s} {'tested':>6s} {'flags':>5s} {'weight':>6s} {'median':>8s} "
               f"{'95 % interval':>20s} {'binomial bound':>14s}")
+    if half_mode:
+        header += f" {'m_hm 95 % UL':>12s}"
     lines += [header, "  " + "-" * (len(header) - 2)]
     for s in posterior.meta.get("systems", []):
-        lines.append(f"  {s['name']:<18.18s} {s['n_tested']:>6d} {s['n_flagged']:>5d} "
-                     f"{s['weight']:>6.3f} {s['median'].to_value(kpc2):>8.3g} "
-                     f"{_interval(s['interval_95']):>20s} "
-                     f"{s['paper_bound'].to_value(kpc2):>14.3g}")
+        row = (f"  {s['name']:<18.18s} {s['n_tested']:>6d} {s['n_flagged']:>5d} "
+               f"{s['weight']:>6.3f} {s['median'].to_value(kpc2):>8.3g} "
+               f"{_interval(s['interval_95']):>20s} "
+               f"{s['paper_bound'].to_value(kpc2):>14.3g}")
+        if half_mode:
+            row += f" {s['log10_mhm_upper_95']:>12.2f}"
+        lines.append(row)
     notes = ("The binomial bound is the paper's (Sect. 5.4): the surface density of 1e8 Msun "
              "sub-haloes, each counted within 3 Einstein radii, that no flag among the tested "
              "sources allows at 95 %. It is another quantity than sigma_sub, shown for "
@@ -264,6 +328,13 @@ def format_inference_report(posterior, *, title="lensdual infer"):
              f"sigma_sub is {PYHALO_DEFAULT_SIGMA_SUB} kpc^-2. The weights correct the product "
              "of the pairs' likelihoods for their correlated errors; the coverage runs of the "
              "docs show that the intervals may still be too narrow on some lenses.")
+    if half_mode:
+        notes += (" The half-mode mass's prior is log-uniform on the grid, whose lightest "
+                  "masses stand for cold dark matter; where the data cannot tell the masses "
+                  "apart its marginal stays flat, and its upper limit is then the prior's "
+                  "95 % quantile.")
+        if any(s["weight_source"] == "composite" for s in posterior.meta.get("systems", [])):
+            notes += " Each system's composite weight is measured at the lightest mass."
     lines += ["", textwrap.fill(notes, 90)]
     return "\n".join(lines)
 
@@ -271,10 +342,18 @@ def format_inference_report(posterior, *, title="lensdual infer"):
 def write_inference(run, directory, report_text):
     """posterior.ecsv, posterior.png and report.txt of ``lensdual infer``."""
     from ._outputs import save_figure, write_table
-    from .visualization import plot_abundance_posterior
+    from .visualization import plot_abundance_posterior, plot_half_mode_posterior
 
     posterior = run.posterior
     write_table(posterior, directory / "posterior.ecsv")
+    if "log10_mhm" in posterior.colnames:
+        fig = plot_half_mode_posterior(posterior)
+        fig.suptitle(f"{posterior.meta['inference']['n_systems']} system(s), "
+                     f"{posterior.meta['inference']['n_pairs']} tested pairs", fontsize=9)
+        fig.tight_layout()
+        save_figure(fig, directory / "posterior.png", 120)
+        (directory / "report.txt").write_text(report_text + "\n")
+        return
     systems = posterior.meta.get("systems", [])
     bound = systems[0]["paper_bound"] if len(systems) == 1 else None
     ax = plot_abundance_posterior(posterior, paper_bound=bound,

@@ -20,6 +20,7 @@ from lensdual.inference import (  # noqa: E402
     SubhaloPopulation,
     abundance_posterior,
     apply_population,
+    half_mode_posterior,
     simulate_anomalies,
 )
 from lensdual.simulation import noisy_constellation  # noqa: E402
@@ -159,6 +160,79 @@ def test_threads_give_the_serial_result(mocks, tmp_path):
     a = QTable.read(one / "posterior.ecsv", format="ascii.ecsv")
     b = QTable.read(two / "posterior.ecsv", format="ascii.ecsv")
     np.testing.assert_array_equal(a["log_likelihood"], b["log_likelihood"])
+
+
+# ---------------------------------------------------------------- the half-mode mass
+
+
+def test_half_mode_grid_end_to_end(mocks, tmp_path, capsys):
+    """log_mhm a list with WDM: the joint posterior, its report (both marginals) and figure."""
+    from lensdual._inference_run import run_inference
+
+    inference = {**SMALL, "n_mocks": 20, "seed": 1, "model": "WDM", "log_mhm": [9, 6]}
+    cfg = write_config(tmp_path / "hm.toml", inference, [_system(mocks[0], name="mock A")])
+    config = load_inference_config(cfg)
+    assert config.half_mode and config.log_mhm == (6.0, 9.0)
+    out = tmp_path / "out"
+    assert main(["infer", str(cfg), "--outdir", str(out)]) == 0
+    text = capsys.readouterr().out
+    for name in OUTPUTS:
+        assert (out / name).is_file(), name
+    post = QTable.read(out / "posterior.ecsv", format="ascii.ecsv")
+    m = post.meta["inference"]
+    assert "log10_mhm" in post.colnames and len(post) == 2 * 6
+    assert sorted(set(post["log10_mhm"].tolist())) == [6.0, 9.0]
+    assert 6 <= m["log10_mhm_median"] <= m["log10_mhm_upper_95"] <= 9
+    (system,) = post.meta["systems"]
+    assert system["weight_source"] == "composite" and 0 < system["weight"] <= 1
+    assert 6 <= system["log10_mhm_upper_95"] <= 9
+    report = (out / "report.txt").read_text()
+    assert report.strip() in text
+    assert "half-mode mass" in report and "95 % upper limit" in report
+    assert f"{m['log10_mhm_upper_95']:.2f}" in report
+    assert f"{m['median'].to_value(u.kpc**-2):.3g}" in report
+    # the same seed for every mass: the lightest mass's forward model is a single-mass run's,
+    # and the posterior is half_mode_posterior of the forward models
+    run = run_inference(load_inference_config(
+        write_config(tmp_path / "hm1.toml", {**inference, "weight": 1},
+                     [_system(mocks[0], name="mock A")])))
+    single = run_inference(load_inference_config(
+        write_config(tmp_path / "one.toml", {**inference, "weight": 1, "log_mhm": 6},
+                     [_system(mocks[0], name="mock A")])))
+    assert [len(per_mass) for per_mass in run.simulations] == [1, 1]
+    np.testing.assert_array_equal(run.simulations[0][0].delta, single.simulations[0].delta)
+    tab = QTable.read(mocks[0], format="ascii.ecsv")
+    expected = half_mode_posterior(tab, run.simulations, weights=1.0)
+    np.testing.assert_allclose(run.posterior["log_likelihood"], expected["log_likelihood"])
+    assert "log10_mhm" not in single.posterior.colnames
+
+
+def test_half_mode_grid_problems(mocks, tmp_path):
+    ok = [_system(mocks[0])]
+    wdm = {**SMALL, "model": "WDM"}
+    cases = [
+        ({**SMALL, "log_mhm": [6, 8]},
+         '[inference] log_mhm: a list of half-mode masses (the joint posterior) needs '
+         'model = "WDM"'),
+        ({**wdm, "log_mhm": [7]},
+         "[inference] log_mhm: a list needs at least two half-mode masses"),
+        ({**wdm, "log_mhm": []},
+         "[inference] log_mhm: a list needs at least two half-mode masses"),
+        ({**wdm, "log_mhm": [6, 7, 6.0]},
+         "[inference] log_mhm: each half-mode mass once, got 6 more than once"),
+        ({**wdm, "log_mhm": [6, "7"]},
+         "[inference] log_mhm: expected a number or a list of finite numbers (log10 Msun), "
+         "got a list holding a string ('7')"),
+        ({**wdm, "log_mhm": [6, 13]},
+         "[inference] log_mhm: log_mhm must be <= 12"),
+    ]
+    for inference, expected in cases:
+        problems = _problems(write_config(tmp_path / "bad.toml", inference, ok))
+        assert len(problems) == 1 and problems[0].startswith(expected), (inference, problems)
+    # a single number keeps its meaning
+    config = load_inference_config(write_config(tmp_path / "one.toml", {**wdm, "log_mhm": 7},
+                                                ok))
+    assert config.log_mhm == 7.0 and not config.half_mode
 
 
 # ---------------------------------------------------------------- the output directory

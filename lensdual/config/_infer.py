@@ -89,8 +89,11 @@ class InferenceConfig:
         The constellations, in the order of the file.
     model : str
         ``"CDM"`` or ``"WDM"``.
-    log_mhm : float or None
-        log10 of the WDM half-mode mass (WDM only).
+    log_mhm : float, tuple of float or None
+        log10 of the WDM half-mode mass (WDM only); a tuple (at least two
+        distinct values, sorted) is the grid of the joint posterior on
+        ``sigma_sub`` and the half-mode mass
+        (:func:`~lensdual.inference.half_mode_posterior`).
     log_m_host : float
         log10 of the host halo's mass.
     sigma_sub : tuple of float
@@ -111,7 +114,7 @@ class InferenceConfig:
     outdir: Path
     systems: tuple
     model: str = _d("model")
-    log_mhm: float | None = _d("log_mhm")
+    log_mhm: float | tuple | None = _d("log_mhm")
     log_m_host: float = _d("log_m_host")
     sigma_sub: tuple = _d("sigma_sub")
     n_sigma_sub: int = _d("n_sigma_sub")
@@ -119,6 +122,12 @@ class InferenceConfig:
     seed: int = _d("seed")
     weight: str | float = _d("weight")
     n_mocks: int = _d("n_mocks")
+
+    @property
+    def half_mode(self):
+        """Whether the run is the joint posterior on ``sigma_sub`` and the half-mode mass
+        (``log_mhm`` is a grid)."""
+        return isinstance(self.log_mhm, tuple)
 
     @property
     def grid(self):
@@ -199,7 +208,7 @@ class _InferenceValidator(_Validator):
         self.unknown_keys(table, (*_KEYS[sec], "system"), sec)
         out = {k: self.get(table, k, sec) for k in ("model", "log_m_host", "n_sigma_sub",
                                                      "n_realisations", "seed", "n_mocks")}
-        out["log_mhm"] = self.get(table, "log_mhm", sec)
+        out["log_mhm"] = self.log_mhm(table.get("log_mhm", _ABSENT), out["model"])
         if out["model"] == "WDM" and out["log_mhm"] is None:
             self.add('[inference] log_mhm: required with model = "WDM" (log10 of the '
                      "half-mode mass, Msun)")
@@ -214,21 +223,56 @@ class _InferenceValidator(_Validator):
                      f"abundances (the slope and curvature of the log-likelihood), got {n}")
         return out
 
+    def log_mhm(self, value, model):
+        """A number, or with WDM a list of at least two distinct numbers (the grid of the
+        joint posterior with the half-mode mass), returned as a sorted tuple."""
+        if not isinstance(value, list):
+            return self.get_real({} if value is _ABSENT else {"log_mhm": value}, "log_mhm",
+                                 "inference", _d("log_mhm"))
+        where = "[inference] log_mhm"
+        if model == "CDM":
+            self.add(f'{where}: a list of half-mode masses (the joint posterior) needs '
+                     'model = "WDM"')
+            return _BAD
+        bad = [v for v in value if isinstance(v, bool) or not isinstance(v, (int, float))
+               or not math.isfinite(v)]
+        if bad:
+            self.add(f"{where}: expected a number or a list of finite numbers (log10 Msun), "
+                     f"got a list holding {_describe(bad[0])}")
+            return _BAD
+        values = [float(v) for v in value]
+        if len(values) < 2:
+            self.add(f"{where}: a list needs at least two half-mode masses (the grid of the "
+                     f"joint posterior), got {len(values)}; give one number for a single one")
+            return _BAD
+        twice = sorted({v for v in values if values.count(v) > 1})
+        if twice:
+            repeated = ", ".join(f"{v:g}" for v in twice)
+            self.add(f"{where}: each half-mode mass once, got {repeated} more than once")
+            return _BAD
+        return tuple(sorted(values))
+
     def population(self, out):
-        """The population's own bounds (log_m_host, log_mhm), checked by building one."""
+        """The population's own bounds (log_m_host, log_mhm), checked by building one
+        (one per half-mode mass of a grid)."""
         values = [out[k] for k in ("model", "log_m_host", "log_mhm")]
         if self.problems or not _valid(*values):
             return
         from ..inference import SubhaloPopulation
 
-        try:
-            SubhaloPopulation(0.5, 1.0, model=out["model"], log_m_host=out["log_m_host"],
-                              log_mhm=out["log_mhm"])
-        except ValueError as exc:
-            key = "log_mhm" if "log_mhm" in str(exc) else "log_m_host"
-            self.add(f"[inference] {key}: {exc}")
-        except ImportError as exc:
-            self.add(f"[inference]: {exc}")
+        masses = out["log_mhm"] if isinstance(out["log_mhm"], tuple) else (out["log_mhm"],)
+        for log_mhm in masses:
+            try:
+                SubhaloPopulation(0.5, 1.0, model=out["model"], log_m_host=out["log_m_host"],
+                                  log_mhm=log_mhm)
+            except ValueError as exc:
+                key = "log_mhm" if "log_mhm" in str(exc) else "log_m_host"
+                self.add(f"[inference] {key}: {exc}")
+                if key == "log_m_host":
+                    return
+            except ImportError as exc:
+                self.add(f"[inference]: {exc}")
+                return
 
     def bounds(self, value):
         if value is _ABSENT:

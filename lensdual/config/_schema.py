@@ -331,8 +331,10 @@ INFERENCE_FIELDS = (
     _F("inference", "model", "string", "CDM",
        'the dark-matter model of the sub-haloes (lensdual.inference.MODELS)',
        choices=tuple(MODELS)),
-    _F("inference", "log_mhm", "real", None,
-       'log10 of the WDM half-mode mass [Msun]; required with model = "WDM", not with "CDM"'),
+    _F("inference", "log_mhm", "real or [real, ...]", None,
+       'log10 of the WDM half-mode mass [Msun]; required with model = "WDM", not with "CDM"; '
+       "a list of at least two (e.g. [5, 6, 7, 8, 9, 10]) runs the joint posterior on "
+       "sigma_sub and the half-mode mass"),
     _F("inference", "log_m_host", "real", 15.0,
        "log10 of the host halo's mass [Msun] (pyHalo's host scaling of sigma_sub)"),
     _F("inference", "sigma_sub", "[min, max]", (1e-3, 0.3),
