@@ -396,11 +396,13 @@ def test_inference_numbers_are_the_benchmarks_outputs(tmp_path):
     # recovered" and the WDM draw's upper limit is "below the truth"
     assert "_static/inference/half_mode_coverage.txt" in page
     assert "_static/inference/half_mode.txt" in page
-    cov, _ = module.read_half_mode_coverage(folder / "half_mode_coverage.txt")
-    for key in ("sigma_sub", "log10_mhm"):
-        assert abs(cov[key]["cov68"] - module.TARGET68[0]) <= module.TARGET68[1]
-        assert abs(cov[key]["cov95"] - module.TARGET95[0]) <= module.TARGET95[1]
-    assert abs(cov["sigma_sub"]["bias_median"]) <= module.MAX_BIAS
+    for name in ("half_mode_coverage.txt", "half_mode_coverage_macs1149.txt"):
+        assert f"_static/inference/{name}" in page
+        cov, _ = module.read_half_mode_coverage(folder / name)
+        for key in ("sigma_sub", "log10_mhm"):
+            assert abs(cov[key]["cov68"] - module.TARGET68[0]) <= module.TARGET68[1]
+            assert abs(cov[key]["cov95"] - module.TARGET95[0]) <= module.TARGET95[1]
+        assert abs(cov["sigma_sub"]["bias_median"]) <= module.MAX_BIAS
     lo, hi = map(float, sub["inf_hm_ex_cdm_sigma95"].split(" to "))
     assert lo <= float(sub["inf_hm_ex_sigma_truth"]) <= hi
     assert float(sub["inf_hm_ex_wdm_upper"]) < float(sub["inf_hm_ex_wdm_truth"])

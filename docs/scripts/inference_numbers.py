@@ -25,7 +25,9 @@ prose quotes from them, so the prose cannot drift from the listings:
   example: ten constellations under CDM and under WDM);
 - ``half_mode_coverage.txt``: ``benchmarks/inference_half_mode_coverage.py
   --n-universes 200 --n-systems 5 --out
-  docs/_static/inference/half_mode_coverage.txt``.
+  docs/_static/inference/half_mode_coverage.txt``, and
+  ``half_mode_coverage_macs1149.txt`` the same with ``--family
+  macs1149_lenstool``.
 
 Run from the repository root after rerunning one of them::
 
@@ -291,6 +293,17 @@ def half_mode_numbers(example_path, coverage_path):
     return sub
 
 
+def half_mode_second_family(path):
+    """The same coverage on a second family (``inf_hm2_*``)."""
+    cov, _ = read_half_mode_coverage(path)
+    sub = {}
+    for name, key in (("sigma", "sigma_sub"), ("mhm", "log10_mhm")):
+        for c in ("cov68", "cov95"):
+            sub[f"inf_hm2_{name}_{c}"] = _pct(cov[key][c])
+    sub["inf_hm2_bias"] = f"{cov['sigma_sub']['bias_median']:+.2f}"
+    return sub
+
+
 def compute(folder=OUT):
     """The substitutions (name -> text) from the stored outputs under ``folder``."""
     sub = coverage_numbers(read_coverage(folder / "coverage.txt"),
@@ -301,6 +314,7 @@ def compute(folder=OUT):
     sub |= wdm_numbers(*read_wdm(folder / "wdm.txt"))
     sub |= posterior_numbers(folder / "posterior.txt")
     sub |= half_mode_numbers(folder / "half_mode.txt", folder / "half_mode_coverage.txt")
+    sub |= half_mode_second_family(folder / "half_mode_coverage_macs1149.txt")
     return sub
 
 
