@@ -11,7 +11,8 @@ prose cannot drift from them:
 
 Run from the repository root after rerunning a benchmark::
 
-    python benchmarks/finite_size_bias.py --out docs/_static/scenes/finite_size_bias.txt
+    python benchmarks/finite_size_bias.py --pipeline-seeds 30 \
+        --out docs/_static/scenes/finite_size_bias.txt
     python benchmarks/acceptance_pixels.py --seeds 20 --output docs/_static/scenes/acceptance.txt
     python docs/scripts/mock_images_numbers.py
 """
