@@ -114,6 +114,45 @@ def _quantile(log_grid, cdf, q):
     return float(np.interp(q, cdf, log_grid))
 
 
+def _log_likelihood(tables, simulations, weights):
+    """The weighted log-likelihood of the constellations ``tables`` on the grid of their
+    ``simulations`` (lists, one per constellation), checked; returns it, the number
+    of tested pairs and the weights as a list."""
+    if not tables or len(tables) != len(simulations):
+        raise ValueError(f"give one simulation per constellation: {len(tables)} table(s), "
+                         f"{len(simulations)} simulation(s)")
+    grid = simulations[0].sigma_sub
+    for s in simulations[1:]:
+        if s.sigma_sub.shape != grid.shape or not np.allclose(s.sigma_sub, grid, rtol=1e-12):
+            raise ValueError("the simulations must share one sigma_sub grid")
+    models = {_model_key(s.population) for s in simulations}
+    if len(models) > 1:
+        raise ValueError("the simulations must share one dark-matter model (model, mass range, "
+                         f"slope, half-mode mass); got {sorted(models, key=str)}")
+    if weights is None:
+        weights = [1.0] * len(tables)
+    weights = list(np.atleast_1d(np.asarray(weights, dtype=float)))
+    if len(weights) != len(tables) or not all(0 < w <= 1 for w in weights):
+        raise ValueError(f"weights must be one number in (0, 1] per constellation, got {weights}")
+    logl = np.zeros(grid.size)
+    n_pairs = 0
+    for t, s, w in zip(tables, simulations, weights, strict=True):
+        ll, n = _system_log_likelihood(t, s)
+        logl += w * ll
+        n_pairs += n
+    if not np.isfinite(logl).any():
+        raise ValueError("the data have zero likelihood on the whole grid (no finite "
+                         "simulated anomaly)")
+    return logl, n_pairs, weights
+
+
+def _marginal(log_grid, dens):
+    """The normalised density on ``log_grid`` and its cdf (trapezoids)."""
+    dens = dens / np.trapezoid(dens, log_grid)
+    cdf = np.concatenate([[0.0], np.cumsum(0.5 * (dens[1:] + dens[:-1]) * np.diff(log_grid))])
+    return dens, cdf / cdf[-1]
+
+
 def abundance_posterior(tables, simulations, *, weights=None):
     r"""Posterior on the sub-halo abundance ``sigma_sub`` from one or many constellations.
 
@@ -165,38 +204,11 @@ def abundance_posterior(tables, simulations, *, weights=None):
         simulations = [simulations]
     tables = list(tables)
     simulations = list(simulations)
-    if not tables or len(tables) != len(simulations):
-        raise ValueError(f"give one simulation per constellation: {len(tables)} table(s), "
-                         f"{len(simulations)} simulation(s)")
+    logl, n_pairs, weights = _log_likelihood(tables, simulations, weights)
     grid = simulations[0].sigma_sub
-    for s in simulations[1:]:
-        if s.sigma_sub.shape != grid.shape or not np.allclose(s.sigma_sub, grid, rtol=1e-12):
-            raise ValueError("the simulations must share one sigma_sub grid")
-    models = {_model_key(s.population) for s in simulations}
-    if len(models) > 1:
-        raise ValueError("the simulations must share one dark-matter model (model, mass range, "
-                         f"slope, half-mode mass); got {sorted(models, key=str)}")
-    if weights is None:
-        weights = [1.0] * len(tables)
-    weights = list(np.atleast_1d(np.asarray(weights, dtype=float)))
-    if len(weights) != len(tables) or not all(0 < w <= 1 for w in weights):
-        raise ValueError(f"weights must be one number in (0, 1] per constellation, got {weights}")
-    logl = np.zeros(grid.size)
-    n_pairs = 0
-    for t, s, w in zip(tables, simulations, weights, strict=True):
-        ll, n = _system_log_likelihood(t, s)
-        logl += w * ll
-        n_pairs += n
     log_grid = np.log10(grid.to_value(u.kpc**-2))
-    if not np.isfinite(logl).any():
-        raise ValueError("the data have zero likelihood on the whole grid (no finite "
-                         "simulated anomaly)")
     w = np.exp(logl - np.nanmax(logl))
-    w = np.where(np.isfinite(w), w, 0.0)
-    norm = np.trapezoid(w, log_grid)
-    dens = w / norm
-    cdf = np.concatenate([[0.0], np.cumsum(0.5 * (dens[1:] + dens[:-1]) * np.diff(log_grid))])
-    cdf = cdf / cdf[-1]
+    dens, cdf = _marginal(log_grid, np.where(np.isfinite(w), w, 0.0))
     out = QTable()
     out["sigma_sub"] = grid.to(u.kpc**-2)
     out["log10_sigma_sub"] = log_grid
@@ -220,13 +232,6 @@ def abundance_posterior(tables, simulations, *, weights=None):
         "population": repr(simulations[0].population),
     }
     return out
-
-
-def _marginal(log_grid, dens):
-    """The normalised density on ``log_grid`` and its cdf (trapezoids)."""
-    dens = dens / np.trapezoid(dens, log_grid)
-    cdf = np.concatenate([[0.0], np.cumsum(0.5 * (dens[1:] + dens[:-1]) * np.diff(log_grid))])
-    return dens, cdf / cdf[-1]
 
 
 def half_mode_posterior(tables, simulations, *, weights=None):
@@ -298,17 +303,14 @@ def half_mode_posterior(tables, simulations, *, weights=None):
         raise ValueError("apart from log_mhm the simulations must share one population model "
                          f"(mass range, slope); got {sorted(keys, key=str)}")
     order = np.argsort(log_mhm)
+    grid = slices[order[0]][0].sigma_sub
     lls = []
-    meta = None
     for k in order:
-        post = abundance_posterior(tables, slices[k], weights=weights)
-        if meta is None:
-            meta = post.meta["inference"]
-            grid = post["sigma_sub"]
-        elif (len(post) != len(grid)
-              or not np.allclose(post["sigma_sub"].value, grid.value, rtol=1e-12)):
+        other = slices[k][0].sigma_sub
+        if other.shape != grid.shape or not np.allclose(other, grid, rtol=1e-12):
             raise ValueError("the simulations must share one sigma_sub grid")
-        lls.append(np.asarray(post["log_likelihood"], dtype=float))
+        ll, n_pairs, used = _log_likelihood(tables, slices[k], weights)
+        lls.append(ll)
     logl = np.array(lls)  # (M, S)
     log_m = log_mhm[order]
     log_s = np.log10(grid.to_value(u.kpc**-2))
@@ -341,12 +343,12 @@ def half_mode_posterior(tables, simulations, *, weights=None):
         "log10_mhm_upper_95": qm(0.95),
         "marginal_sigma_sub": marg_s.tolist(),
         "marginal_log10_mhm": marg_m.tolist(),
-        "n_pairs": meta["n_pairs"],
-        "n_systems": meta["n_systems"],
+        "n_pairs": n_pairs,
+        "n_systems": len(tables),
         "prior": (f"log-uniform on sigma_sub in [{grid[0]:.4g}, {grid[-1]:.4g}] and on "
                   f"log10_mhm in [{log_m[0]:g}, {log_m[-1]:g}]"),
-        "n_realisations": meta["n_realisations"],
-        "weights": meta["weights"],
+        "n_realisations": int(slices[order[0]][0].delta.shape[1]),
+        "weights": [float(w) for w in used],
         "populations": [repr(slices[k][0].population) for k in order],
     }
     return out
