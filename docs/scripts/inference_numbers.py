@@ -284,24 +284,26 @@ def half_mode_numbers(example_path, coverage_path):
     cov, summary = read_half_mode_coverage(coverage_path)
     n = re.match(r"\w+: (\d+) universes x (\d+) constellations", summary)
     sub["inf_hm_universes"], sub["inf_hm_systems"] = n.groups()
+    sub |= _half_mode_coverage(cov, "inf_hm")
+    for name, key in (("sigma", "sigma_sub"), ("mhm", "log10_mhm")):
+        sub[f"inf_hm_{name}_err"] = _pct(cov[key]["cov68_err"])
+    sub["inf_hm_width"] = f"{cov['log10_mhm']['width95']:.1f}"
+    return sub
+
+
+def _half_mode_coverage(cov, prefix):
+    """Both marginals' 68 and 95 % coverage and the abundance's bias, named ``prefix_*``."""
+    sub = {}
     for name, key in (("sigma", "sigma_sub"), ("mhm", "log10_mhm")):
         for c in ("cov68", "cov95"):
-            sub[f"inf_hm_{name}_{c}"] = _pct(cov[key][c])
-        sub[f"inf_hm_{name}_err"] = _pct(cov[key]["cov68_err"])
-    sub["inf_hm_bias"] = f"{cov['sigma_sub']['bias_median']:+.2f}"
-    sub["inf_hm_width"] = f"{cov['log10_mhm']['width95']:.1f}"
+            sub[f"{prefix}_{name}_{c}"] = _pct(cov[key][c])
+    sub[f"{prefix}_bias"] = f"{cov['sigma_sub']['bias_median']:+.2f}"
     return sub
 
 
 def half_mode_second_family(path):
     """The same coverage on a second family (``inf_hm2_*``)."""
-    cov, _ = read_half_mode_coverage(path)
-    sub = {}
-    for name, key in (("sigma", "sigma_sub"), ("mhm", "log10_mhm")):
-        for c in ("cov68", "cov95"):
-            sub[f"inf_hm2_{name}_{c}"] = _pct(cov[key][c])
-    sub["inf_hm2_bias"] = f"{cov['sigma_sub']['bias_median']:+.2f}"
-    return sub
+    return _half_mode_coverage(read_half_mode_coverage(path)[0], "inf_hm2")
 
 
 def compute(folder=OUT):
