@@ -3,6 +3,7 @@
 Run on demand (minutes per family)::
 
     python benchmarks/joint_calibration.py [--families F1,F2] [--n-const 50]
+        [--snr-definition conservative]
 
 For every cell (lens family x number of sources x position noise x flux
 error) clean constellations (:func:`lensdual.simulation.clean_constellation`,
@@ -39,7 +40,7 @@ from _shared_data import use_shared_data
 from astropy import units as u
 from calibration import _ffr_limits
 
-from lensdual.duality import _joint_pass, check_duality
+from lensdual.duality import _joint_pass, check_duality, profile_snr
 from lensdual.simulation import FAMILIES, clean_constellation, noisy_constellation
 
 use_shared_data()
@@ -55,8 +56,12 @@ def _raise_l1(t, rows, factor=1.25):
     return t
 
 
-def _power(r, snr_threshold=3.0):
+def _power(r, snr_threshold=3.0, snr_definition="log"):
     """Joint and geometric flags of every pair with its L1 flux raised by 25 %."""
+    profile = None
+    if snr_definition == "conservative":
+        def profile(h, sd):
+            return profile_snr(r, h, sd)
     ln_flux = np.log(np.asarray(r["mu_flux"], dtype=float)) + ANOMALY
     ln_flux_err = np.asarray(r["mu_flux_err"], dtype=float) / np.asarray(r["mu_flux"], float)
     g_ok = np.isin(np.asarray(r["mu_size_status"]), ("ok", "misfit"))
@@ -66,15 +71,16 @@ def _power(r, snr_threshold=3.0):
     f_ok = np.asarray(r["field_status"]) == "ok"
     field = (np.asarray(r["ln_mu_field"], dtype=float),
              np.asarray(r["ln_mu_field_err"], dtype=float) ** 2, f_ok)
-    _, _, signif, tested, *_ = _joint_pass(ln_flux, ln_flux_err, geo, field, snr_threshold)
+    _, _, signif, tested, *_ = _joint_pass(ln_flux, ln_flux_err, geo, field, snr_threshold,
+                                           profile)
     joint = tested & (signif > snr_threshold)
     geo_only = _joint_pass(ln_flux, ln_flux_err, geo,
-                           (field[0], field[1], np.zeros_like(f_ok)), snr_threshold)
+                           (field[0], field[1], np.zeros_like(f_ok)), snr_threshold, profile)
     geo_flag = geo_only[3] & (geo_only[2] > snr_threshold)
     return joint, geo_flag
 
 
-def run_cell(tables, sigma_mas, flux_err, n_noise, masking, seed=0):
+def run_cell(tables, sigma_mas, flux_err, n_noise, masking, seed=0, snr_definition="log"):
     rng = np.random.default_rng(seed)
     sigma = sigma_mas / 1000.0
     acc = {k: [] for k in ("tested", "field", "fails", "flag", "flag_geo", "tested_geo",
@@ -87,7 +93,8 @@ def run_cell(tables, sigma_mas, flux_err, n_noise, masking, seed=0):
                                     seed=rng)
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                r = check_duality(t, sigma_pos=sigma * u.arcsec, test="joint")
+                r = check_duality(t, sigma_pos=sigma * u.arcsec, test="joint",
+                                  snr_definition=snr_definition)
             f_ok = np.asarray(r["field_status"]) == "ok"
             acc["tested"].append(np.asarray(r["tested"], dtype=bool))
             acc["field"].append(f_ok)
@@ -99,7 +106,7 @@ def run_cell(tables, sigma_mas, flux_err, n_noise, masking, seed=0):
             pull = (np.asarray(r["ln_mu_field"], float) - np.log(mu_true)) \
                 / np.asarray(r["ln_mu_field_err"], float)
             acc["pull"].append(np.where(f_ok, pull, np.nan))
-            joint, geo_flag = _power(r)
+            joint, geo_flag = _power(r, snr_definition=snr_definition)
             acc["pow"].append(joint)
             acc["pow_geo"].append(geo_flag)
             acc["const"].append(np.full(len(r), c))
@@ -113,7 +120,7 @@ def run_cell(tables, sigma_mas, flux_err, n_noise, masking, seed=0):
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")
                     rm = check_duality(_raise_l1(t, (a, b)), sigma_pos=sigma * u.arcsec,
-                                       test="joint")
+                                       test="joint", snr_definition=snr_definition)
                 masked.append(bool(rm["anomalous"][a] and rm["anomalous"][b]))
     cat = {k: np.concatenate(v) for k, v in acc.items()}
     tested, const = cat["tested"], cat["const"]
@@ -145,6 +152,8 @@ def main(argv=None):
     parser.add_argument("--seed", type=int, default=0, help="first constellation seed")
     parser.add_argument("--masking", action="store_true",
                         help="also the two-neighbour masking trial (a second run per draw)")
+    parser.add_argument("--snr-definition", default="log", choices=("log", "conservative"),
+                        help="check_duality's snr_definition")
     args = parser.parse_args(argv)
     cols = ("n", "tested", "field", "fails", "ffr", "ffr_l95", "ffr_u95", "ffr_geo",
             "field_pull_w", "pow25", "pow25_geo", "mask25")
@@ -160,7 +169,8 @@ def main(argv=None):
             for s in map(float, args.noise.split(",")):
                 for fe in map(float, args.flux_err.split(",")):
                     t0 = time.perf_counter()
-                    r = run_cell(tables, s, fe, args.n_noise, args.masking)
+                    r = run_cell(tables, s, fe, args.n_noise, args.masking,
+                                 snr_definition=args.snr_definition)
                     print(f"{name} {n_src} {s:g} {fe:g} "
                           + " ".join(f"{r[c]:.3g}" for c in cols)
                           + f"  # {time.perf_counter() - t0:.0f} s", flush=True)

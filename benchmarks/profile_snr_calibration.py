@@ -15,7 +15,8 @@ flagged at significance 3 by two SNRs of the same estimate:
 - ``log``: ``|ln R - ln mu_size| / sqrt(err_flux^2 + err_size^2)``, the
   default of :func:`lensdual.duality.check_duality`;
 - ``profile``: :func:`lensdual.duality.profile_snr`
-  (``snr_definition="profile"``), from the Jacobian and its covariance.
+  (``snr_definition="profile"``), from the Jacobian and its covariance;
+- ``cons``: the smaller of the two (``snr_definition="conservative"``).
 
 Both use Student's t with the degrees of freedom of ``check_duality``.
 Reported per cell: the false-flag rate of each with its one-sided 95 %
@@ -48,6 +49,7 @@ from lensdual.simulation import FAMILIES, clean_constellation
 
 FLUX_ERR = 0.01  # per image
 TESTABLE = ("ok", "misfit")
+SNRS = ("log", "profile", "cons")
 
 
 def _limits(k, n):
@@ -71,7 +73,7 @@ def run_cell(family, n_sources, sigma_mas, n_const, n_noise, seed=0):
     rng = np.random.default_rng(seed)
     sig = sigma_mas / 1000.0
     fl = np.sqrt(2.0) * FLUX_ERR
-    out = {f"{d}_{a}": [] for d in ("log", "profile") for a in ("0", "p25", "m20")}
+    out = {f"{d}_{a}": [] for d in SNRS for a in ("0", "p25", "m20")}
     for k in range(n_const):
         t = clean_constellation(family, n_sources, seed=seed + k)
         t1 = np.column_stack([t["x1"].to_value(u.arcsec), t["y1"].to_value(u.arcsec)])
@@ -91,6 +93,7 @@ def run_cell(family, n_sources, sigma_mas, n_const, n_noise, seed=0):
                 with np.errstate(invalid="ignore"):
                     snr = {"log": np.abs(ln_r - ln_size) / tot,
                            "profile": profile_snr(size, ln_r, np.full(n_sources, fl))}
+                snr["cons"] = np.fmin(snr["log"], snr["profile"])
                 for d, x in snr.items():
                     ok = tested & np.isfinite(x)
                     sig_ = duality_significance(np.where(ok, x, 0.0), np.where(ok, tdof, np.inf))
@@ -164,20 +167,21 @@ def main(argv=None):
         _jspace(args)
         return
     print("family n_sources noise_mas n ffr_log [l95, u95] ffr_profile [l95, u95] "
-          "pow25_log pow25_profile powm20_log powm20_profile")
+          "ffr_cons [l95, u95] pow25_log pow25_profile pow25_cons powm20_log powm20_profile "
+          "powm20_cons")
     for fam in args.families.split(","):
         for n in map(int, args.n_sources.split(",")):
             for s in map(float, args.noise.split(",")):
                 r = run_cell(fam, n, s, args.n_const, args.n_noise, args.seed)
                 m = r["log_0"].size
                 cells = []
-                for d in ("log", "profile"):
+                for d in SNRS:
                     k = int(r[f"{d}_0"].sum())
                     lo, hi = _limits(k, m)
                     cells.append(f"{k / m:.4f} [{lo:.4f}, {hi:.4f}]")
                 pw = " ".join(f"{r[f'{d}_{a}'].mean():.3f}" for a in ("p25", "m20")
-                              for d in ("log", "profile"))
-                print(f"{fam} {n} {s:g} {m} {cells[0]} {cells[1]} {pw}", flush=True)
+                              for d in SNRS)
+                print(f"{fam} {n} {s:g} {m} {' '.join(cells)} {pw}", flush=True)
 
 
 if __name__ == "__main__":

@@ -42,7 +42,7 @@ POSITION_COLUMNS = _pairs_table.POSITION_COLUMNS
 DEFAULT_SNR_THRESHOLD = 3.0
 
 #: Definitions of the duality signal-to-noise ratio, see :func:`check_duality`.
-SNR_DEFINITIONS = ("log", "paper", "profile")
+SNR_DEFINITIONS = ("log", "paper", "profile", "conservative")
 
 #: The tests of :func:`check_duality`: ``"geometric"`` (the flux ratio against
 #: ``mu_size``) and ``"joint"`` (against ``mu_size`` and the neighbours' flux
@@ -418,10 +418,16 @@ def check_duality(
         ``"profile"`` (method ``"adaptive"`` only): the profile-likelihood
         SNR of the hypothesis ``|det J| = mu_flux``, the distance from the
         estimated Jacobian (with its covariance ``jacobian_cov``) and the
-        flux ratio to that hypothesis, in the column ``snr_profile``; it
+        flux ratio to that hypothesis, in the column ``snr_profile`` (the
+        Jacobian's covariance it reads in ``jacobian_cov``); it
         equals ``"log"`` where the error of ``ln mu_size`` is small and does
         not assume ``mu_size`` log-normal where it is large (see
         :ref:`profile-snr`). Its degrees of freedom are those of ``"log"``.
+        ``"conservative"`` (method ``"adaptive"`` only): the smaller of the
+        ``"log"`` and ``"profile"`` SNRs, so that a pair is flagged only
+        where both reject; for lenses whose magnification ratio varies
+        several-fold over the constellation (compact galaxy-scale arcs),
+        where the ``"log"`` SNR over-flags (see :ref:`profile-snr`).
     weight_power, min_angle
         Estimator settings, see :func:`~lensdual.estimators.relative_jacobian`.
     chromatic_alpha : float
@@ -565,9 +571,9 @@ def check_duality(
     bands = pair_bands(tab)
     if test == "joint":
         _check_joint_input(bands, snr_definition, method)
-    if snr_definition == "profile" and method != "adaptive":
-        raise ValueError("snr_definition='profile' needs method 'adaptive' (the covariance of "
-                         f"its Jacobian), got method {method!r}")
+    if snr_definition in ("profile", "conservative") and method != "adaptive":
+        raise ValueError(f"snr_definition={snr_definition!r} needs method 'adaptive' (the "
+                         f"covariance of its Jacobian), got method {method!r}")
     theta1, theta2 = _positions(tab)
     _pairs_table.check_distinct_arcs(tab)
     flux = flux_ratios(tab)  # validates the flux columns before the bootstrap runs
@@ -622,11 +628,7 @@ def check_duality(
     tab["duality_ratio_err"] = ratio * ln_total
     tab["snr"] = snr
     tab["snr_paper"] = snr_paper
-    chosen = snr if snr_definition == "log" else snr_paper
-    if snr_definition == "profile":
-        chosen = tab["snr_profile"] = profile_snr(size, np.log(np.asarray(flux["mu_flux"],
-                                                                          dtype=float)),
-                                                  ln_flux_err)
+    chosen = _chosen_snr(tab, size, flux, snr_definition)
     tested = (np.isfinite(chosen) & np.isin(np.asarray(size["mu_size_status"]), TESTABLE_STATUS)
               & (dof > 0))
     dof = np.where(tested, dof, np.nan)
@@ -643,7 +645,8 @@ def check_duality(
     tab["anomalous"] = tested & (signif > snr_threshold)
     joint_meta = {}
     if test == "joint":
-        joint_meta = _joint_test(tab, theta2, flux, sigma_pos, keep, snr_threshold)
+        joint_meta = _joint_test(tab, theta2, flux, sigma_pos, keep, snr_threshold,
+                                 _profile_of(size) if snr_definition == "conservative" else None)
 
     tab.meta["bands"] = bands
     meta = {
@@ -663,6 +666,29 @@ def check_duality(
     meta.update(_family_summary(np.asarray(tab["p_value"], dtype=float), snr_threshold))
     tab.meta["duality"] = meta
     return tab
+
+
+def _chosen_snr(tab, size, flux, snr_definition):
+    """The SNR ``snr_definition`` names, from the ``snr`` and ``snr_paper``
+    columns of ``tab``; for "profile" and "conservative" it adds ``snr_profile``
+    and ``jacobian_cov`` to ``tab``."""
+    if snr_definition in ("log", "paper"):
+        return np.asarray(tab["snr" if snr_definition == "log" else "snr_paper"], dtype=float)
+    tab["jacobian_cov"] = size["jacobian_cov"]
+    prof = tab["snr_profile"] = profile_snr(size, np.log(np.asarray(flux["mu_flux"], float)),
+                                            np.asarray(flux["ln_mu_flux_err"], float))
+    if snr_definition == "conservative":
+        # flagged only where both the linearised and the profile SNR reject
+        return np.fmin(np.asarray(tab["snr"], dtype=float), prof)
+    return prof
+
+
+def _profile_of(size):
+    """``profile(h, sd)``: :func:`profile_snr` of ``size``'s Jacobians for the
+    targets ``h`` with the extra errors ``sd`` (the joint test's)."""
+    def profile(ln_target, sd):
+        return profile_snr(size, ln_target, sd)
+    return profile
 
 
 def profile_snr(size, ln_mu_flux, ln_flux_err):
@@ -703,9 +729,10 @@ def _check_joint_input(bands, snr_definition, method):
             f"test='joint' needs at least two bands, got {list(bands)}: with one band the "
             "chromatic check cannot keep mis-paired sources out of the neighbours' flux "
             "field; use test='geometric'")
-    if snr_definition != "log":
-        raise ValueError("test='joint' uses snr_definition='log' (the paper's definition "
-                         "has no flux error to combine)")
+    if snr_definition not in ("log", "conservative"):
+        raise ValueError(f"test='joint' uses snr_definition 'log' or 'conservative', got "
+                         f"{snr_definition!r} (the paper's definition has no flux error to "
+                         "combine)")
 
 
 def _ws_dof(total_var, parts):
@@ -740,8 +767,40 @@ class _JointPass(NamedTuple):
     prediction_var: np.ndarray
 
 
-def _joint_pass(ln_flux, ln_flux_err, geo, field, snr_threshold):
+def _joint_profile_snr(profile, ln_flux, ln_flux_err, f, f_var, g_ok, f_ok):
+    """The profile-likelihood SNR of the joint test (NaN where the geometry is
+    not tested).
+
+    ``profile(h, sd)`` is :func:`profile_snr` of the pair's Jacobian for
+    targets ``h`` with extra errors ``sd``, whose square is the profile
+    statistic ``P(h, sd^2)``. With the geometry alone the SNR is
+    ``sqrt(P(R, v_R))``; with the field ``f`` (variance ``v_f``) too, the
+    likelihood ratio of the flux ratio tied to the common ``ln mu`` against
+    free: ``(R - f)^2 / (v_R + v_f) + P(w, v_c) - P(f, v_f)``, ``w`` and
+    ``v_c`` the inverse-variance mean of ``R`` and ``f`` and its variance.
+    """
+    out = np.full(ln_flux.shape, np.nan)
+    geo_only = g_ok & ~f_ok
+    if geo_only.any():
+        out[geo_only] = profile(ln_flux, ln_flux_err)[geo_only]
+    both = g_ok & f_ok
+    if both.any():
+        with np.errstate(invalid="ignore", divide="ignore"):
+            v_r, v_f = ln_flux_err**2, np.where(both, f_var, 1.0)
+            v_c = 1.0 / (1.0 / v_r + 1.0 / v_f)
+            w = (ln_flux / v_r + np.where(both, f, 0.0) / v_f) * v_c
+            t2 = ((ln_flux - f) ** 2 / (v_r + v_f) + profile(w, np.sqrt(v_c)) ** 2
+                  - profile(np.where(both, f, 0.0), np.sqrt(v_f)) ** 2)
+        out[both] = np.sqrt(np.maximum(t2, 0.0))[both]
+    return out
+
+
+def _joint_pass(ln_flux, ln_flux_err, geo, field, snr_threshold, profile=None):
     """One pass of the joint test.
+
+    With ``profile`` (the callable of :func:`_joint_profile_snr`), the SNR
+    where the geometry is tested is the smaller of the linearised one and the
+    profile-likelihood one (``snr_definition="conservative"``).
 
     Returns a `_JointPass`. ``outlier`` marks the pairs left out of the others' flux field
     in the next pass: the flagged pairs, and those whose flux ratio is off
@@ -767,6 +826,9 @@ def _joint_pass(ln_flux, ln_flux_err, geo, field, snr_threshold):
         g_share = np.where(g_ok, pred_var**2 * w_g, 0.0)
         dof = _ws_dof(total_var, [(g_share, g_dof)])
         snr = np.abs(ln_flux - pred) / np.sqrt(total_var)
+        if profile is not None:
+            snr = np.where(g_ok, np.fmin(snr, _joint_profile_snr(
+                profile, ln_flux, ln_flux_err, f, f_var, g_ok, f_ok)), snr)
         off_field = np.abs(ln_flux - f) / np.sqrt(ln_flux_err**2 + f_var)
     tested = (g_ok | f_ok) & ~fails & np.isfinite(snr) & (dof > 0)
     signif = _significance_of(snr, dof, tested)
@@ -777,12 +839,14 @@ def _joint_pass(ln_flux, ln_flux_err, geo, field, snr_threshold):
                       pred_var)
 
 
-def _joint_passes(pos2, ln_flux, ln_flux_err, sig2, geo, keep, resolved, snr_threshold):
+def _joint_passes(pos2, ln_flux, ln_flux_err, sig2, geo, keep, resolved, snr_threshold,
+                  profile=None):
     """The joint test on arrays, pass by pass until the left-out pairs settle.
 
     ``pos2`` (N, 2) and ``sig2`` (N,) in arcsec; ``geo`` as in :func:`_joint_pass`;
     ``keep`` the pairs that may inform the field; ``resolved`` where the
-    adaptive fits passed. Returns ``(result, field, flagged)``: the last pass's
+    adaptive fits passed; ``profile`` as in :func:`_joint_pass`. Returns
+    ``(result, field, flagged)``: the last pass's
     `_JointPass`, its flux field (:func:`lensdual.flux_field.field_arrays`)
     and the pairs left out of the others' field.
     """
@@ -794,15 +858,16 @@ def _joint_passes(pos2, ln_flux, ln_flux_err, sig2, geo, keep, resolved, snr_thr
         field = field_arrays(pos2, ln_flux, ln_flux_err, sig2, usable & ~flagged, resolved)
         f_ok = (field.status == "ok") & keep
         result = _joint_pass(ln_flux, ln_flux_err, geo, (field.value, field.var, f_ok),
-                             snr_threshold)
+                             snr_threshold, profile)
         if np.array_equal(result.outlier, flagged):
             break
         flagged = result.outlier
     return result, field, flagged
 
 
-def _joint_test(tab, theta2, flux, sigma_pos, keep, snr_threshold):
-    """Replace the test columns of ``tab`` by the joint test's (see check_duality)."""
+def _joint_test(tab, theta2, flux, sigma_pos, keep, snr_threshold, profile=None):
+    """Replace the test columns of ``tab`` by the joint test's (see check_duality);
+    ``profile`` as in :func:`_joint_pass`."""
     from .estimators.core import as_sigma
 
     n = len(tab)
@@ -816,7 +881,7 @@ def _joint_test(tab, theta2, flux, sigma_pos, keep, snr_threshold):
     result, field, flagged = _joint_passes(
         np.asarray(theta2.to_value(u.arcsec), dtype=float), ln_flux, ln_flux_err,
         as_sigma(sigma_pos, n)[1], geo, keep, np.asarray(tab["mu_size_status"]) == "ok",
-        snr_threshold)
+        snr_threshold, profile)
     snr, dof, signif, tested = result.snr, result.dof, result.significance, result.tested
     tab["significance_geometric"] = tab["significance"]
     tab["anomalous_geometric"] = tab["anomalous"]

@@ -14,7 +14,7 @@ from lensdual.simulation import (
 from lensdual.simulation import families as fam_module
 
 LENSTRONOMY_FAMILIES = ("cluster_fold", "cluster_cusp", "galaxy_fold", "smacs_analog",
-                        "galaxy_sie_compact", "group_fold")
+                        "galaxy_sie_compact", "group_fold", "galaxy_epl_compact")
 
 
 def _system_or_skip(family):

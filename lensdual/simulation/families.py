@@ -112,6 +112,17 @@ separations on an arc):
     arcsec from the centre, between the galaxy and cluster scales: ``|mu| ~
     11-25``, ``mu_true`` 0.92-1.45 (rising towards the satellite), baselines
     1.1-2.4 arcsec. Held out like the previous one.
+``galaxy_epl_compact``
+    A second compact galaxy-scale lens, for developing the estimator and the
+    test where the magnification ratio varies tenfold across a
+    constellation, so that ``galaxy_sie_compact`` stays held out: an
+    elliptical power law steeper than isothermal (``EPL_NUMBA``, slope 2.15,
+    theta_E = 1.2 arcsec, q = 0.68, position angle 40 deg, z = 0.45, source
+    at z = 2) in an external shear of 0.07 (angle -25 deg); the fold pair on
+    the Einstein ring, images 0.9-1.5 arcsec from the lens centre, sources
+    over the 60 % of its tangential caustic nearest the fold: ``|mu| ~
+    1.1-90``, ``mu_true`` 0.08-11, varying by a factor of 14-120 over a
+    constellation of 40 sources (2-10 for 8).
 
 How the regions were found
 --------------------------
@@ -138,6 +149,15 @@ arcsec apart and any other image of the source more than 0.9 arcsec from
 them, and the Jacobian keeps the sign of its arc along the segments between
 neighbouring images (no critical curve crosses an arc's constellation). The
 rounded values are hard-coded in :data:`FAMILY_PARAMETERS`.
+
+``galaxy_epl_compact`` is the exception: its region (the caustic shrunk by
+0.015 arcsec, cut 0.295 arcsec from the fold, 60 % of its width) reaches the
+fold and two cusps, and of 4000 random sources in it 1.9 % do not have
+exactly one image on either arc and the images of those nearest the fold
+come within 0.02 arcsec of each other. :func:`clean_constellation` leaves
+such sources out (one image per arc, every image 0.08 arcsec from the
+others, the sign of the Jacobian along the arcs), so its constellations
+pass the same checks.
 """
 
 import copy
@@ -170,7 +190,7 @@ __all__ = [
 FAMILIES = ("cluster_fold", "cluster_cusp", "galaxy_fold", "smacs_analog", "smacs_lenstool",
             "macs1149_lenstool", "a2744_lenstool", "a370_lenstool", "as1063_lenstool",
             "as1063_s13_lenstool", "galaxy_sie_compact", "a2744_s3_lenstool",
-            "macs1149_s5_lenstool", "group_fold")
+            "macs1149_s5_lenstool", "group_fold", "galaxy_epl_compact")
 
 #: The environment variables that name the folders of the real Lenstool models
 #: the ``*_lenstool`` families are built on: ``LENSDUAL_SMACS0723_DIR`` the folder
@@ -460,6 +480,33 @@ FAMILY_PARAMETERS = {
                    "grid_spacing": 0.1 * u.arcsec},
         "link_length": 1.0 * u.arcsec,
     },
+    # a second compact galaxy-scale lens, for developing the estimator where
+    # the magnification ratio varies tenfold over a constellation, so that
+    # galaxy_sie_compact stays held out: the tangential caustic shrunk by 0.015
+    # arcsec (a ray from the caustic's centroid every 10 deg, stopped 0.015"
+    # from the caustic), cut 0.295" from the fold of the L1/L2 pair (caustic
+    # point (0.016, 0.212), inward normal (0.218, -0.976), critical point
+    # (1.22, 0.21)): the caustic is 0.49" wide along that normal
+    "galaxy_epl_compact": {
+        "description": ("compact elliptical power law (slope 2.15) + external shear, fold pair "
+                        "on the Einstein ring, sources over most of the tangential caustic"),
+        "z_lens": 0.45,
+        "z_source": 2.0,
+        "galaxy": {"profile": "EPL_NUMBA", "theta_E": 1.2 * u.arcsec, "slope": 2.15,
+                   "axis_ratio": 0.68, "position_angle": 40.0 * u.deg},
+        "shear": {"gamma": 0.07, "angle": -25.0 * u.deg},
+        "polygon": ((0.179, 0.0), (0.181, 0.032), (0.185, 0.067), (0.196, 0.113),
+                    (0.220, 0.184), (0.286, 0.341), (0.150, 0.260), (0.081, 0.223),
+                    (0.036, 0.206), (0.0, 0.195), (-0.034, 0.189), (-0.068, 0.187),
+                    (-0.110, 0.189), (-0.170, 0.202), (-0.262, 0.219), (-0.206, 0.119),
+                    (-0.190, 0.069), (-0.182, 0.032), (-0.179, 0.0), (-0.181, -0.032),
+                    (-0.185, -0.067), (-0.196, -0.113), (-0.205, -0.139), (0.186, -0.052),
+                    (0.182, -0.032)) * u.arcsec,
+        "reference": ((1.12, -0.62), (0.86, 0.75)) * u.arcsec,
+        "finder": {"center": (0.0, 0.0) * u.arcsec, "half_width": 2.5 * u.arcsec,
+                   "grid_spacing": 0.05 * u.arcsec},
+        "link_length": 0.5 * u.arcsec,
+    },
 }
 
 
@@ -540,6 +587,7 @@ _LENS_BUILDERS = {
     "group_fold": _cluster_components,
     "galaxy_fold": _galaxy_components,
     "galaxy_sie_compact": _galaxy_components,
+    "galaxy_epl_compact": _galaxy_components,
     "smacs_analog": _smacs_analog_system,
 }
 
