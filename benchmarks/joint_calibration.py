@@ -40,7 +40,7 @@ from _shared_data import use_shared_data
 from astropy import units as u
 from calibration import _ffr_limits
 
-from lensdual.duality import _joint_pass, check_duality, profile_snr
+from lensdual.duality import _joint_pass, _profile_of, check_duality
 from lensdual.simulation import FAMILIES, clean_constellation, noisy_constellation
 
 use_shared_data()
@@ -58,10 +58,7 @@ def _raise_l1(t, rows, factor=1.25):
 
 def _power(r, snr_threshold=3.0, snr_definition="log"):
     """Joint and geometric flags of every pair with its L1 flux raised by 25 %."""
-    profile = None
-    if snr_definition == "conservative":
-        def profile(h, sd):
-            return profile_snr(r, h, sd)
+    profile = _profile_of(r) if snr_definition == "conservative" else None
     ln_flux = np.log(np.asarray(r["mu_flux"], dtype=float)) + ANOMALY
     ln_flux_err = np.asarray(r["mu_flux_err"], dtype=float) / np.asarray(r["mu_flux"], float)
     g_ok = np.isin(np.asarray(r["mu_size_status"]), ("ok", "misfit"))

@@ -683,11 +683,47 @@ def _chosen_snr(tab, size, flux, snr_definition):
     return prof
 
 
+def _profile_parts(size):
+    """The flattened Jacobians (N, 4), their covariances and the variance of
+    ``ln mu_size`` the covariance does not carry (the model and centre terms)."""
+    jac = np.ascontiguousarray(np.asarray(size["jacobian"], dtype=float).reshape(-1, 4))
+    cov = np.ascontiguousarray(np.asarray(size["jacobian_cov"], dtype=float))
+    ln_sd = np.asarray(size["ln_mu_size_err"], dtype=float)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        det = jac[:, 0] * jac[:, 3] - jac[:, 1] * jac[:, 2]
+        grad = np.column_stack([jac[:, 3], -jac[:, 2], -jac[:, 1], jac[:, 0]]) / det[:, None]
+        var_jac = np.einsum("ni,nij,nj->n", grad, cov, grad)
+        var_rest = np.where(np.isfinite(det), np.maximum(ln_sd * ln_sd - var_jac, 0.0), np.nan)
+    return jac, cov, var_rest
+
+
+def _profile_rows(parts, ln_target, extra_sd, rows=None):
+    """The profile SNR of the pairs ``rows`` (a boolean mask; all by default)
+    for the targets ``ln_target`` with the extra errors ``extra_sd``; NaN
+    elsewhere and where a pair has no estimate."""
+    jac, cov, var_rest = parts
+    var = var_rest + np.asarray(extra_sd, dtype=float) ** 2
+    ln_target = np.broadcast_to(np.asarray(ln_target, dtype=float), var.shape)
+    ok = np.isfinite(var) & np.isfinite(ln_target)
+    if rows is not None:
+        ok &= rows
+    out = np.full(var.shape, np.nan)
+    res = np.empty(int(ok.sum()))
+    _profile_kernels.profile_snr(np.ascontiguousarray(jac[ok]), np.ascontiguousarray(cov[ok]),
+                                 np.ascontiguousarray(var[ok]),
+                                 np.ascontiguousarray(ln_target[ok]), res)
+    out[ok] = res
+    return out
+
+
 def _profile_of(size):
-    """``profile(h, sd)``: :func:`profile_snr` of ``size``'s Jacobians for the
-    targets ``h`` with the extra errors ``sd`` (the joint test's)."""
-    def profile(ln_target, sd):
-        return profile_snr(size, ln_target, sd)
+    """``profile(h, sd, rows)``: :func:`profile_snr` of ``size``'s Jacobians for the
+    targets ``h`` with the extra errors ``sd``, on the pairs ``rows`` (the joint
+    test's)."""
+    parts = _profile_parts(size)
+
+    def profile(ln_target, sd, rows=None):
+        return _profile_rows(parts, ln_target, sd, rows)
     return profile
 
 
@@ -699,24 +735,7 @@ def profile_snr(size, ln_mu_flux, ln_flux_err):
     ``ln|det J|``), the rest of it and the flux ratio's variance enter in
     ``ln|det J|`` (:mod:`lensdual._profile_kernels`). NaN where the pair has
     no estimate."""
-    jac = np.ascontiguousarray(np.asarray(size["jacobian"], dtype=float).reshape(-1, 4))
-    cov = np.ascontiguousarray(np.asarray(size["jacobian_cov"], dtype=float))
-    ln_sd = np.asarray(size["ln_mu_size_err"], dtype=float)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        det = jac[:, 0] * jac[:, 3] - jac[:, 1] * jac[:, 2]
-        grad = np.column_stack([jac[:, 3], -jac[:, 2], -jac[:, 1], jac[:, 0]]) / det[:, None]
-        var_jac = np.einsum("ni,nij,nj->n", grad, cov, grad)
-        # the model and centre terms: what the Jacobian's covariance does not carry
-        var_rest = np.maximum(ln_sd * ln_sd - var_jac, 0.0) + np.asarray(ln_flux_err) ** 2
-    out = np.full(len(det), np.nan)
-    ok = np.isfinite(var_rest) & np.isfinite(ln_mu_flux) & np.isfinite(det)
-    res = np.empty(int(ok.sum()))
-    _profile_kernels.profile_snr(np.ascontiguousarray(jac[ok]), np.ascontiguousarray(cov[ok]),
-                                 np.ascontiguousarray(var_rest[ok]),
-                                 np.ascontiguousarray(np.asarray(ln_mu_flux, dtype=float)[ok]),
-                                 res)
-    out[ok] = res
-    return out
+    return _profile_rows(_profile_parts(size), ln_mu_flux, ln_flux_err)
 
 
 def _check_joint_input(bands, snr_definition, method):
@@ -771,9 +790,9 @@ def _joint_profile_snr(profile, ln_flux, ln_flux_err, f, f_var, g_ok, f_ok):
     """The profile-likelihood SNR of the joint test (NaN where the geometry is
     not tested).
 
-    ``profile(h, sd)`` is :func:`profile_snr` of the pair's Jacobian for
-    targets ``h`` with extra errors ``sd``, whose square is the profile
-    statistic ``P(h, sd^2)``. With the geometry alone the SNR is
+    ``profile(h, sd, rows)`` is :func:`profile_snr` of the pairs' Jacobians
+    for targets ``h`` with extra errors ``sd`` on the pairs ``rows``, whose
+    square is the profile statistic ``P(h, sd^2)``. With the geometry alone the SNR is
     ``sqrt(P(R, v_R))``; with the field ``f`` (variance ``v_f``) too, the
     likelihood ratio of the flux ratio tied to the common ``ln mu`` against
     free: ``(R - f)^2 / (v_R + v_f) + P(w, v_c) - P(f, v_f)``, ``w`` and
@@ -782,15 +801,16 @@ def _joint_profile_snr(profile, ln_flux, ln_flux_err, f, f_var, g_ok, f_ok):
     out = np.full(ln_flux.shape, np.nan)
     geo_only = g_ok & ~f_ok
     if geo_only.any():
-        out[geo_only] = profile(ln_flux, ln_flux_err)[geo_only]
+        out[geo_only] = profile(ln_flux, ln_flux_err, geo_only)[geo_only]
     both = g_ok & f_ok
     if both.any():
         with np.errstate(invalid="ignore", divide="ignore"):
             v_r, v_f = ln_flux_err**2, np.where(both, f_var, 1.0)
             v_c = 1.0 / (1.0 / v_r + 1.0 / v_f)
-            w = (ln_flux / v_r + np.where(both, f, 0.0) / v_f) * v_c
-            t2 = ((ln_flux - f) ** 2 / (v_r + v_f) + profile(w, np.sqrt(v_c)) ** 2
-                  - profile(np.where(both, f, 0.0), np.sqrt(v_f)) ** 2)
+            f_b = np.where(both, f, 0.0)
+            w = (ln_flux / v_r + f_b / v_f) * v_c
+            t2 = ((ln_flux - f) ** 2 / (v_r + v_f) + profile(w, np.sqrt(v_c), both) ** 2
+                  - profile(f_b, np.sqrt(v_f), both) ** 2)
         out[both] = np.sqrt(np.maximum(t2, 0.0))[both]
     return out
 
@@ -931,7 +951,7 @@ _smooth_map = spline_map
 
 def _null_block(task):
     """SNRs of one block of null realisations (module level: picklable)."""
-    (block, entropy, size, t1, t2, sigma, mu_true, ln_flux_err, wp, joint) = task
+    (block, entropy, size, t1, t2, sigma, mu_true, ln_flux_err, wp, joint, conservative) = task
     from .estimators.core import adaptive_batch
 
     rng = np.random.default_rng(np.random.SeedSequence(entropy, spawn_key=(block,)))
@@ -941,32 +961,45 @@ def _null_block(task):
     ln_flux = np.log(mu_true)[None, :] + ln_flux_err[None, :] * rng.standard_normal((size, n))
     if joint is not None:
         return _null_block_joint(t1, t2, noise1, noise2, sigma, wp, ln_flux, ln_flux_err,
-                                 *joint)
-    mu_size, ln_sd, ok, size_dof = adaptive_batch(t1, t2, noise1, noise2, sigma, wp)
+                                 *joint, conservative)
+    mu_size, ln_sd, ok, size_dof, *jac = adaptive_batch(t1, t2, noise1, noise2, sigma, wp,
+                                                         with_jacobian=conservative)
     with np.errstate(divide="ignore", invalid="ignore"):
         total = np.hypot(ln_flux_err[None, :], ln_sd)
         snr = np.abs(ln_flux - np.log(mu_size)) / total
+        if conservative:
+            prof = profile_snr(_batch_size_table(*jac, ln_sd), ln_flux.ravel(),
+                               np.broadcast_to(ln_flux_err, ln_flux.shape).ravel())
+            snr = np.fmin(snr, prof.reshape(snr.shape))
         dof = _snr_dof(total, ln_sd, size_dof)
         ok = ok & np.isfinite(snr) & (dof > 0)
         signif = duality_significance(np.where(ok, snr, 0.0), np.where(ok, dof, np.inf))
     return np.where(ok, signif, np.nan)
 
 
+def _batch_size_table(jac, cov, ln_sd):
+    """The columns :func:`profile_snr` reads, flattened over realisations and pairs."""
+    return {"jacobian": jac.reshape(-1, 2, 2), "jacobian_cov": cov.reshape(-1, 4, 4),
+            "ln_mu_size_err": ln_sd.ravel()}
+
+
 def _null_block_joint(t1, t2, noise1, noise2, sigma, wp, ln_flux, ln_flux_err, keep,
-                      snr_threshold):
+                      snr_threshold, conservative=False):
     """Joint-test significances of one block of null realisations."""
     from .estimators.core import adaptive_batch
 
-    mu_size, ln_sd, ok, size_dof, fit_ok = adaptive_batch(t1, t2, noise1, noise2, sigma, wp,
-                                                           with_ok=True)
+    mu_size, ln_sd, ok, size_dof, fit_ok, *jac = adaptive_batch(
+        t1, t2, noise1, noise2, sigma, wp, with_ok=True, with_jacobian=conservative)
     out = np.full(ln_flux.shape, np.nan)
     with np.errstate(divide="ignore", invalid="ignore"):
         ln_size = np.log(mu_size)
         g_ok = ok & np.isfinite(ln_size) & np.isfinite(ln_sd) & ~(size_dof <= 0)
     for b in range(ln_flux.shape[0]):
         geo = (ln_size[b], ln_sd[b] ** 2, size_dof[b], g_ok[b])
+        profile = (_profile_of(_batch_size_table(jac[0][b], jac[1][b], ln_sd[b]))
+                   if conservative else None)
         result, _, _ = _joint_passes(t2 + noise2[b], ln_flux[b], ln_flux_err, sigma[1], geo,
-                                     keep, fit_ok[b], snr_threshold)
+                                     keep, fit_ok[b], snr_threshold, profile)
         out[b] = np.where(result.tested, result.significance, np.nan)
     return out
 
@@ -983,7 +1016,7 @@ def _seed_entropy(seed):
 
 def null_calibration(pairs, *, sigma_pos, n_realisations=1000,
                      snr_threshold=DEFAULT_SNR_THRESHOLD, seed=None, client=None, chunk_size=4,
-                     weight_power=2, test=DEFAULT_TEST):
+                     weight_power=2, test=DEFAULT_TEST, snr_definition="log"):
     """Empirical false-alarm rate and p-values of the duality test on a null like the data.
 
     A smooth, model-independent map from arc L2 to arc L1 is fitted to the
@@ -1032,6 +1065,9 @@ def null_calibration(pairs, *, sigma_pos, n_realisations=1000,
         of :func:`check_duality`; the pairs that are doubtful in ``pairs``
         inform no prediction. The null's field is the smooth map's
         ``ln |det J|``: as smooth as the map (see Notes).
+    snr_definition : {"log", "conservative"}
+        The SNR of the observed and the null significances, as in
+        :func:`check_duality`.
 
     Returns
     -------
@@ -1117,8 +1153,12 @@ def null_calibration(pairs, *, sigma_pos, n_realisations=1000,
     chunk = as_int(chunk_size, "chunk_size", minimum=1)
     entropy = _seed_entropy(seed)
     check_client(client)
+    if snr_definition not in ("log", "conservative"):
+        raise ValueError(f"null_calibration takes snr_definition 'log' or 'conservative', got "
+                         f"{snr_definition!r}")
     observed = check_duality(pairs, "adaptive", sigma_pos=sigma_pos,
-                             snr_threshold=snr_threshold, weight_power=weight_power, test=test)
+                             snr_threshold=snr_threshold, weight_power=weight_power, test=test,
+                             snr_definition=snr_definition)
     theta1, theta2 = _positions(observed)
     t1 = np.ascontiguousarray(theta1.to_value(u.arcsec))
     t2 = np.ascontiguousarray(theta2.to_value(u.arcsec))
@@ -1147,7 +1187,7 @@ def null_calibration(pairs, *, sigma_pos, n_realisations=1000,
     joint = ((np.asarray(observed["doubt"]) == "", float(snr_threshold)) if test == "joint"
              else None)
     args = [(b, entropy, sizes[b], mapped, t2, sigma, mu_true, ln_flux_err, float(weight_power),
-             joint) for b in range(n_blocks)]
+             joint, snr_definition == "conservative") for b in range(n_blocks)]
     if client is None:  # one block per task, in threads over the cores we may use
         with ThreadPoolExecutor(min(_available_threads(), n_blocks)) as pool:
             parts = run_tasks(_null_tasks, [[a] for a in args], pool)

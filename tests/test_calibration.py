@@ -553,13 +553,20 @@ def test_reverse_map_where_the_forward_fit_is_untestable(monkeypatch):
     # the null calibration's batches follow the same rule, copy by copy
     noise1 = s * rng.standard_normal((3, len(t1), 2))
     noise2 = s * rng.standard_normal((3, len(t1), 2))
-    det_b, sd_b, ok_b, dof_b = core.adaptive_batch(t1, t2, noise1, noise2, sig)
+    det_b, sd_b, ok_b, dof_b, jac_b, cov_b = core.adaptive_batch(t1, t2, noise1, noise2, sig,
+                                                                 with_jacobian=True)
+    n_rev = 0
     for k in range(3):
-        jk, _, sdk, stk, dofk, _ = core._adaptive(t1 + noise1[k], t2 + noise2[k], sig, 2.0)
+        jk, ck, sdk, stk, dofk, revk = core._adaptive(t1 + noise1[k], t2 + noise2[k], sig, 2.0)
         np.testing.assert_allclose(det_b[k], np.abs(np.linalg.det(jk)), rtol=1e-10)
+        # the Jacobians and covariances the profile SNR reads, reversed pairs included
+        np.testing.assert_allclose(jac_b[k][ok_b[k]], jk[ok_b[k]], rtol=1e-10)
+        np.testing.assert_allclose(cov_b[k][ok_b[k]], ck[ok_b[k]], rtol=1e-8, atol=1e-300)
+        n_rev += int(revk.sum())
         np.testing.assert_array_equal(ok_b[k], np.isin(stk, ok_codes))
         np.testing.assert_array_equal(sd_b[k][ok_b[k]], sdk[ok_b[k]])
         np.testing.assert_array_equal(dof_b[k][ok_b[k]], dofk[ok_b[k]])
+    assert n_rev > 0
     # without the reverse map those pairs stay untestable
     monkeypatch.setattr(_adaptive, "SETTINGS", _adaptive.SETTINGS._replace(reverse=False))
     _, _, _, st_off, _, rev_off = core._adaptive(o1, o2, sig, 2.0)
@@ -717,6 +724,28 @@ def test_null_calibration_rates_and_chunking():
     serial = null_calibration(pairs, sigma_pos=3 * u.mas, n_realisations=300, seed=7,
                               client=Serial(), chunk_size=3)
     np.testing.assert_array_equal(serial["null_snr"], null["null_snr"])
+
+
+def test_null_calibration_with_the_conservative_snr():
+    """snr_definition="conservative": the observed significances are
+    check_duality's, and each null significance is at most the log SNR's of the
+    same realisation (the smaller of the log and the profile SNR), lower on
+    some where the profile is."""
+    pairs = _pairs(n=14, seed=2)
+    kw = dict(sigma_pos=20 * u.mas, n_realisations=100, seed=7)
+    log = null_calibration(pairs, **kw)
+    cons = null_calibration(pairs, snr_definition="conservative", **kw)
+    observed = check_duality(pairs, sigma_pos=20 * u.mas, snr_definition="conservative")
+    np.testing.assert_allclose(np.asarray(cons["significance"], float),
+                               np.asarray(observed["significance"], float), equal_nan=True)
+    a, b = np.asarray(cons["null_snr"]), np.asarray(log["null_snr"])
+    both = np.isfinite(a) & np.isfinite(b)
+    assert both.mean() > 0.9
+    assert np.all(a[both] <= b[both] + 1e-12)
+    assert np.any(a[both] < b[both] - 0.01)
+    assert cons.meta["false_alarm_rate"] <= log.meta["false_alarm_rate"]
+    with pytest.raises(ValueError, match="snr_definition 'log' or 'conservative'"):
+        null_calibration(pairs, snr_definition="paper", **kw)
 
 
 @pytest.mark.parametrize(

@@ -462,6 +462,14 @@ def test_null_calibration_of_the_joint_test():
     geometric = null_calibration(t, sigma_pos=0.01 * u.arcsec, n_realisations=100, seed=2)
     assert geometric.meta["test"] == "geometric"
     assert not np.array_equal(geometric["null_snr"], null["null_snr"], equal_nan=True)
+    # with the conservative SNR: the observed significances are check_duality's
+    cons = null_calibration(t, sigma_pos=0.01 * u.arcsec, n_realisations=100, seed=2,
+                            test="joint", snr_definition="conservative")
+    observed = check_duality(t, sigma_pos=0.01 * u.arcsec, test="joint",
+                             snr_definition="conservative")
+    assert np.allclose(cons["significance"], observed["significance"], equal_nan=True)
+    assert cons["p_value_empirical"][7] == pytest.approx(1 / 101)
+    assert cons.meta["false_alarm_rate"] < 0.01
 
 
 def test_the_report_says_which_test_ran():

@@ -295,7 +295,7 @@ def test_joint_profile_snr_matches_direct_minimisation():
     "conservative") is the likelihood ratio of the flux ratio tied to the
     common ln mu, found here by brute force; with the geometry alone it is the
     geometric profile SNR."""
-    from lensdual.duality import _joint_profile_snr
+    from lensdual.duality import _joint_profile_snr, _profile_of
 
     rng = np.random.default_rng(8)
     n = 6
@@ -315,10 +315,13 @@ def test_joint_profile_snr_matches_direct_minimisation():
     g_ok = np.ones(n, bool)
     f_ok = np.array([True] * 4 + [False] * 2)
 
-    def profile(h, sd):
+    def profile(h, sd, rows=None):
         return profile_snr(size, h, sd)
 
     got = _joint_profile_snr(profile, ln_r, ln_r_err, f, f_var, g_ok, f_ok)
+    # the library's callable, which runs the kernel on the rows needed only
+    np.testing.assert_allclose(_joint_profile_snr(_profile_of(size), ln_r, ln_r_err, f, f_var,
+                                                  g_ok, f_ok), got, rtol=1e-12)
     for i in range(4):
         ref = _reference_joint_t(jac[i], cov[i], var_g[i], ln_r[i], ln_r_err[i] ** 2, f[i],
                                  f_var[i], rng)

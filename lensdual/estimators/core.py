@@ -389,20 +389,23 @@ def _kernel_arrays(t1, t2, nbr, noise1, noise2, sigma):
 
 
 def adaptive_batch(t1, t2, noise1, noise2, sigma, wp=2.0,
-                    max_neighbours=DEFAULT_MAX_NEIGHBOURS, with_ok=False):
+                    max_neighbours=DEFAULT_MAX_NEIGHBOURS, with_ok=False,
+                    with_jacobian=False):
     """The adaptive estimator on noisy copies ``t + noise`` (shape (B, N, 2)).
 
     Returns ``|det J|``, the error of its logarithm, whether the status is
     "ok" or "misfit" (the pair is tested) and the error's degrees of freedom,
     each of shape (B, N); with ``with_ok``, also whether the status is "ok"
-    (the fit passed its chi-square test). No validation: for
+    (the fit passed its chi-square test); with ``with_jacobian``, then the
+    Jacobians (B, N, 2, 2) and their covariances (B, N, 4, 4) too (those of
+    :func:`_adaptive`). No validation: for
     :func:`lensdual.duality.null_calibration`. The neighbour rows are those
     of ``t2`` (the copies re-rank the points within them); as in
     :func:`_adaptive`, pairs with no testable L2-to-L1 fit take the
     L1-to-L2 map's (neighbour rows of ``t1``) where that one is testable.
     """
-    det, ln_sd, status, dof = _adaptive_batch_forward(t1, t2, noise1, noise2, sigma, wp,
-                                                      max_neighbours)
+    det, ln_sd, status, dof, jac, jcov = _adaptive_batch_forward(t1, t2, noise1, noise2, sigma,
+                                                                 wp, max_neighbours)
     testable = _testable_codes(status)
     fit_ok = status == _adaptive_kernels.ADAPTIVE_OK
     # the reverse map where the forward one is not testable (as _adaptive), on
@@ -411,33 +414,37 @@ def adaptive_batch(t1, t2, noise1, noise2, sigma, wp=2.0,
             else np.empty(0, int))
     if rows.size:
         # and on their untestable pairs only
-        dr, sr, str_, dfr = _adaptive_batch_forward(t2, t1, noise2[rows], noise1[rows],
-                                                    np.ascontiguousarray(sigma[::-1]), wp,
-                                                    max_neighbours, need=~testable[rows])
+        dr, sr, str_, dfr, jr, cr = _adaptive_batch_forward(
+            t2, t1, noise2[rows], noise1[rows], np.ascontiguousarray(sigma[::-1]), wp,
+            max_neighbours, need=~testable[rows])
         r, c = np.nonzero(_reverse_wins(status[rows], str_, dr))
         det[rows[r], c] = 1.0 / dr[r, c]
+        if with_jacobian and r.size:
+            inv = np.linalg.inv(jr[r, c])
+            jac[rows[r], c] = inv
+            jcov[rows[r], c] = inverse_covariance(inv, cr[r, c])
         ln_sd[rows[r], c] = sr[r, c]
         dof[rows[r], c] = dfr[r, c]
         testable[rows[r], c] = True
         fit_ok[rows[r], c] = str_[r, c] == _adaptive_kernels.ADAPTIVE_OK
-    if with_ok:
-        return np.abs(det), ln_sd, testable, dof, fit_ok
-    return np.abs(det), ln_sd, testable, dof
+    out = (np.abs(det), ln_sd, testable, dof) + ((fit_ok,) if with_ok else ())
+    return out + ((jac, jcov) if with_jacobian else ())
 
 
 def _adaptive_batch_forward(t1, t2, noise1, noise2, sigma, wp, max_neighbours, need=None):
     """The adaptive kernel on noisy copies, L2-to-L1 map only: signed
-    determinants, errors, status codes and degrees of freedom, each (B, N);
+    determinants, errors, status codes and degrees of freedom, each (B, N),
+    the Jacobians and their covariances;
     where ``need`` (B, N) is given, for those pairs only (the others NaN and
     "failed")."""
     b, n = noise1.shape[:2]
     nbr = _neighbour_rows(t2, max_neighbours)
     need = np.ones((b, n), dtype=bool) if need is None else np.ascontiguousarray(need)
-    jac, _, ln_sd, status, dof = outputs = _adaptive_outputs(b, n)
+    jac, jcov, ln_sd, status, dof = outputs = _adaptive_outputs(b, n)
     _adaptive_kernels.run_adaptive(*_kernel_arrays(t1, t2, nbr, noise1, noise2, sigma),
                                    *_adaptive_settings(nbr, n, wp), need, *outputs)
     det = jac[..., 0, 0] * jac[..., 1, 1] - jac[..., 0, 1] * jac[..., 1, 0]
-    return det, ln_sd, status, dof
+    return det, ln_sd, status, dof, jac, jcov
 
 
 def _warn_adaptive(status):
