@@ -251,6 +251,7 @@ def _cmd_run(args):
                            catalogs=catalogs, manual_pairs=manual, progress=progress,
                            null_realisations=config.null_realisations,
                            oversampling=oversampling, test=config.test,
+                           snr_definition=config.snr_definition,
                            max_magnification=config.max_magnification,
                            source_model=config.source_model)
         read_warnings = [f"{w.category.__name__}: {w.message}" for w in caught]

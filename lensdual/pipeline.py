@@ -165,7 +165,7 @@ def analyse(images, *, psf=None, estimator=DEFAULT_METHOD, sigma_pos="auto",
             seed=DEFAULT_SEED,
             catalogs=None, manual_pairs=None, progress=None, null_realisations=0,
             oversampling=None, test=DEFAULT_TEST, max_magnification=None,
-            source_model="point"):
+            source_model="point", snr_definition="log"):
     """Run the pipeline from images of two arcs to the duality table.
 
     Parameters
@@ -206,6 +206,10 @@ def analyse(images, *, psf=None, estimator=DEFAULT_METHOD, sigma_pos="auto",
     test : {"geometric", "joint"}
         The duality test of :func:`~lensdual.duality.check_duality` and of
         the null calibration (default ``"geometric"``); ``"joint"`` needs
+        ``estimator="adaptive"``.
+    snr_definition : {"log", "conservative"}
+        The SNR of :func:`~lensdual.duality.check_duality` and of the null
+        calibration (default ``"log"``); ``"conservative"`` needs
         ``estimator="adaptive"``.
     source_model : {"point", "resolved"}
         The photometry of the pairs (:func:`~lensdual.photometry.measure_pairs`):
@@ -298,11 +302,11 @@ def analyse(images, *, psf=None, estimator=DEFAULT_METHOD, sigma_pos="auto",
                 sigma = sigma_pos
             result = check_duality(measured, estimator, sigma_pos=sigma,
                                    n_bootstrap=n_bootstrap, snr_threshold=snr_threshold,
-                                   seed=seed, test=test)
+                                   seed=seed, test=test, snr_definition=snr_definition)
         if null_realisations and estimator == "adaptive":
             with progress.step(f"null calibration ({null_realisations} realisations)"):
                 _add_null_calibration(result, measured, sigma, null_realisations,
-                                      snr_threshold, seed, test)
+                                      snr_threshold, seed, test, snr_definition)
     messages = list(dict.fromkeys(f"{w.category.__name__}: {w.message}" for w in caught))
     return Analysis(cats, pairs, result, sigma, messages)
 
@@ -439,12 +443,13 @@ def _doubt_faint(measured, bands, doubt):
 
 
 def _add_null_calibration(result, measured, sigma, n_realisations, snr_threshold, seed,
-                          test=DEFAULT_TEST):
+                          test=DEFAULT_TEST, snr_definition="log"):
     """Run the null calibration and record it in ``result`` (in place)."""
     from .duality import null_calibration
 
     null = null_calibration(measured, sigma_pos=sigma, n_realisations=n_realisations,
-                            snr_threshold=snr_threshold, seed=seed, test=test)
+                            snr_threshold=snr_threshold, seed=seed, test=test,
+                            snr_definition=snr_definition)
     result["p_value_empirical"] = null["p_value_empirical"]
     keys = ("n_realisations", "false_alarm_rate", "nominal_false_alarm_rate",
             "expected_false_flags", "p_any_false_flag", "family_wise_p_empirical",

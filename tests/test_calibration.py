@@ -746,6 +746,14 @@ def test_null_calibration_with_the_conservative_snr():
     assert cons.meta["false_alarm_rate"] <= log.meta["false_alarm_rate"]
     with pytest.raises(ValueError, match="snr_definition 'log' or 'conservative'"):
         null_calibration(pairs, snr_definition="paper", **kw)
+    # the pipeline's null calibration passes the definition on
+    from lensdual.pipeline import _add_null_calibration
+
+    result = observed.copy()
+    _add_null_calibration(result, pairs, 20 * u.mas, 100, 3.0, 7,
+                          snr_definition="conservative")
+    np.testing.assert_array_equal(np.asarray(result["p_value_empirical"]),
+                                  np.asarray(cons["p_value_empirical"]))
 
 
 @pytest.mark.parametrize(

@@ -210,8 +210,8 @@ def test_run_default_outdir_is_relative_to_the_config(demo_dir, tmp_path):
 
 
 def test_run_passes_the_source_model_to_the_photometry(demo_dir, tmp_path, monkeypatch):
-    """``[analysis] source_model`` reaches the analysis (stopped there: the fit
-    itself is tested in tests/test_resolved_photometry.py)."""
+    """``[analysis] source_model`` and ``snr_definition`` reach the analysis
+    (stopped there: the fit itself is tested in tests/test_resolved_photometry.py)."""
     import shutil
 
     import lensdual.cli
@@ -229,12 +229,14 @@ def test_run_passes_the_source_model_to_the_photometry(demo_dir, tmp_path, monke
     shutil.copytree(demo_dir / "data", copy / "data")
     text = (demo_dir / "run.toml").read_text()
     assert "[analysis]" in text
-    text = text.replace("[analysis]", '[analysis]\nsource_model = "resolved"', 1)
+    text = text.replace("[analysis]", '[analysis]\nsource_model = "resolved"\n'
+                        'snr_definition = "conservative"', 1)
     (copy / "run.toml").write_text(text)
     monkeypatch.setattr(lensdual.cli, "analyse", analyse)
     with pytest.raises(Stop):
         main(["run", str(copy / "run.toml"), "--quiet"])
     assert seen["source_model"] == "resolved"
+    assert seen["snr_definition"] == "conservative"
 
 
 def _bad_configs(demo_dir):

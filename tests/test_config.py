@@ -460,6 +460,12 @@ BAD = [
     ("joint-needs-adaptive", _both(_set("analysis", "test", "joint"),
                                    _set("analysis", "estimator", "quad")),
      '[analysis] test: "joint" needs estimator = "adaptive", got estimator = "quad"'),
+    ("snr-definition-unknown", _set("analysis", "snr_definition", "profile"),
+     "[analysis] snr_definition: 'profile' is not one of 'log', 'conservative'"),
+    ("conservative-needs-adaptive", _both(_set("analysis", "snr_definition", "conservative"),
+                                          _set("analysis", "estimator", "2v")),
+     '[analysis] snr_definition: "conservative" needs estimator = "adaptive", got '
+     'estimator = "2v"'),
 ]
 
 
@@ -824,4 +830,7 @@ def test_the_joint_test_is_read(data_dir):
     cfg.setdefault("pairing", {})["max_magnification"] = 50.0
     loaded = load_config(write(data_dir, "joint_test", cfg))
     assert (loaded.test, loaded.null_realisations) == ("joint", 200)
+    assert loaded.snr_definition == "log"
+    cfg["analysis"]["snr_definition"] = "conservative"
+    assert load_config(write(data_dir, "joint_cons", cfg)).snr_definition == "conservative"
     assert loaded.max_magnification == 50.0

@@ -337,6 +337,7 @@ class RunConfig:
     sigma_pos: u.Quantity | str = _d("analysis", "sigma_pos")
     n_bootstrap: int = _d("analysis", "n_bootstrap")
     test: str = _d("analysis", "test")
+    snr_definition: str = _d("analysis", "snr_definition")
     source_model: str = _d("analysis", "source_model")
     snr_threshold: float = _d("analysis", "snr_threshold")
     seed: int = _d("analysis", "seed")
@@ -587,11 +588,13 @@ class _Validator:
         elif sigma != "auto":
             sigma = self.get_angle(table, "sigma_pos", sec, prefix='expected "auto" or an angle; ')
         out["sigma_pos"] = sigma
-        for key in ("n_bootstrap", "test", "source_model", "snr_threshold", "seed"):
+        for key in ("n_bootstrap", "test", "snr_definition", "source_model", "snr_threshold",
+                    "seed"):
             out[key] = self.get(table, key, sec)
-        if out["test"] == "joint" and out["estimator"] not in ("adaptive", _BAD):
-            self.add(f'[{sec}] test: "joint" needs estimator = "adaptive", got estimator = '
-                     f'"{out["estimator"]}"')
+        for key, value in (("test", "joint"), ("snr_definition", "conservative")):
+            if out[key] == value and out["estimator"] not in ("adaptive", _BAD):
+                self.add(f'[{sec}] {key}: "{value}" needs estimator = "adaptive", got '
+                         f'estimator = "{out["estimator"]}"')
         null = self.get(table, "null_realisations", sec)
         if null is not _BAD and 0 < null < MIN_NULL_REALISATIONS:
             self.add(f"[{sec}] null_realisations: must be 0 (off) or >= "

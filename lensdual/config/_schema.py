@@ -215,6 +215,11 @@ FIELDS = (
        'the duality test: "geometric" (the flux ratio against mu_size) or "joint" (against '
        "mu_size and the neighbours' flux ratios; needs estimator \"adaptive\" and two bands)",
        choices=tuple(TESTS)),
+    _F("analysis", "snr_definition", "string", "log",
+       'the SNR of the test: "log" (linearised in ln mu_size) or "conservative" (the smaller of '
+       "that and the profile-likelihood SNR, a flag needs both; for compact galaxy-scale lenses; "
+       'needs estimator "adaptive")',
+       choices=("log", "conservative")),
     _F("analysis", "source_model", "string", "point",
        'the sources\' model in the PSF photometry: "point" (the PSF) or "resolved" (the PSF '
        "convolved with an elliptical Gaussian of free size, for star clusters the lens "
