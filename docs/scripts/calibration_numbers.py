@@ -20,7 +20,9 @@ cannot drift from them:
   ``--save-dir``, then ``--from-saves`` on the three folders);
 - ``joint/calibration_heldout.txt``: ``benchmarks/joint_calibration.py
   --masking`` on the held-out families (the geometric test's false flags,
-  ``ffr_geo``, on the compact galaxy-scale fold at 20 mas).
+  ``ffr_geo``, on the compact galaxy-scale fold at 20 mas);
+- ``profile_snr/calibration.txt``: ``benchmarks/profile_snr_calibration.py``
+  (the conservative SNR's false flags on the compact fold and Abell 370).
 
 The calibration page's tables of the validation suite are the CSV files that
 ``benchmarks/calibration_tables.py --csv`` writes from its stored seed-0 run,
@@ -294,6 +296,32 @@ def null_numbers(dev, heldout, demo, first_lines):
     return sub
 
 
+def read_profile_table(path):
+    """The cells of ``benchmarks/profile_snr_calibration.py``'s table: per row the
+    family, sources, noise and the false-flag rate of each SNR (log, profile,
+    cons)."""
+    rows = []
+    for line in path.read_text().splitlines():
+        parts = line.replace("[", " ").replace("]", " ").replace(",", " ").split()
+        if not parts or parts[0].startswith("#") or parts[0] == "family":
+            continue
+        rows.append({"family": parts[0], "sources": int(parts[1]), "noise_mas": float(parts[2]),
+                     "log": float(parts[4]), "profile": float(parts[7]),
+                     "cons": float(parts[10])})
+    return rows
+
+
+def profile_numbers(rows):
+    """The conservative SNR's largest false-flag rate on the compact galaxy-scale
+    folds and Abell 370 with 20-40 sources, against the linearised SNR's."""
+    sub = {}
+    for key, family in (("compact", "galaxy_sie_compact"), ("a370", "a370_lenstool")):
+        cells = [r for r in rows if r["family"] == family]
+        sub[f"cal_{key}_cons"] = (f"{_pct(max(r['cons'] for r in cells))} % (the linearised "
+                                  f"SNR's: up to {_pct(max(r['log'] for r in cells))} %)")
+    return sub
+
+
 def joint_numbers(rows):
     """The geometric test's false flags on the compact fold at 20 mas with 20-40
     sources, both flux errors (the joint-test page's held-out table)."""
@@ -396,6 +424,7 @@ def compute(folder=STATIC):
     sub |= null_numbers(*(read_null_table(p) for p in paths),
                         [p.read_text().split("\n", 1)[0] for p in paths])
     sub |= joint_numbers(read_joint_table(folder / "joint" / "calibration_heldout.txt"))
+    sub |= profile_numbers(read_profile_table(folder / "profile_snr" / "calibration.txt"))
     seed0 = read_cells(folder / "calibration" / "suite_seed0.txt")
     seed100 = read_cells(folder / "calibration" / "suite_seed100.txt")
     sub |= other_seed_numbers(seed100)
