@@ -309,6 +309,9 @@ class RunConfig:
         Number of bootstrap resamplings.
     test : str
         The duality test, one of `lensdual.duality.TESTS`.
+    snr_definition : str
+        The test's SNR, ``"log"`` or ``"conservative"`` (see
+        `lensdual.duality.check_duality`).
     source_model : str
         The sources' model in the PSF photometry, ``"point"`` or ``"resolved"``
         (see `lensdual.photometry.psf_photometry`).
