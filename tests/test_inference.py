@@ -324,6 +324,24 @@ def test_posterior_matches_gaussian_closed_form():
     assert np.trapezoid(post["posterior"], log_grid) == pytest.approx(1.0)
 
 
+def test_the_conservative_snr_gives_the_same_anomalies():
+    """A result of snr_definition="conservative" has the log anomalies and errors
+    (only its flags differ): the same posterior; the paper's definition is refused."""
+    rng = np.random.default_rng(3)
+    sigma = np.geomspace(0.001, 1.0, 5) * KPC2
+    delta = rng.normal(0, 0.1, 4)
+    sims = rng.standard_normal((4, 500, 5)) * 0.1
+    log = abundance_posterior(_table(delta, 0.05),
+                              _fake_simulation([1, 2, 3, 4], sigma, sims))
+    t = _table(delta, 0.05)
+    t.meta["duality"]["snr_definition"] = "conservative"
+    cons = abundance_posterior(t, _fake_simulation([1, 2, 3, 4], sigma, sims))
+    np.testing.assert_array_equal(cons["posterior"], log["posterior"])
+    t.meta["duality"]["snr_definition"] = "paper"
+    with pytest.raises(ValueError, match="snr_definition='log'"):
+        abundance_posterior(t, _fake_simulation([1, 2, 3, 4], sigma, sims))
+
+
 def test_flat_likelihood_gives_the_prior():
     sigma = np.geomspace(0.001, 1.0, 7) * KPC2
     post = abundance_posterior(_table(np.zeros(3), 0.05),

@@ -29,7 +29,8 @@ def pair_anomalies(table):
     Parameters
     ----------
     table : `~astropy.table.Table`
-        A :func:`~lensdual.check_duality` result (``snr_definition="log"``).
+        A :func:`~lensdual.check_duality` result (``snr_definition="log"``, or
+        ``"conservative"``, whose anomalies and errors are the same).
 
     Returns
     -------
@@ -49,9 +50,11 @@ def pair_anomalies(table):
     if meta is None or "mu_flux" not in table.colnames:
         raise ValueError("the constellation has no flux ratios tested for duality: measure its "
                          "fluxes and run check_duality (or the pipeline) first")
-    if meta.get("snr_definition", "log") != "log":
+    if meta.get("snr_definition", "log") not in ("log", "conservative"):
+        # "conservative" flags by the smaller of two SNRs; its anomalies and their
+        # errors are the log ones
         raise ValueError("the anomalies are log ratios: run check_duality with "
-                         "snr_definition='log'")
+                         "snr_definition='log' (or 'conservative')")
     tested = np.asarray(table["tested"], dtype=bool)
     if not tested.any():
         raise ValueError("no pair of the constellation was tested for duality")
