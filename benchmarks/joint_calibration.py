@@ -3,7 +3,7 @@
 Run on demand (minutes per family)::
 
     python benchmarks/joint_calibration.py [--families F1,F2] [--n-const 50]
-        [--snr-definition conservative]
+        [--snr-definition conservative] [--fainter]
 
 For every cell (lens family x number of sources x position noise x flux
 error) clean constellations (:func:`lensdual.simulation.clean_constellation`,
@@ -151,7 +151,13 @@ def main(argv=None):
                         help="also the two-neighbour masking trial (a second run per draw)")
     parser.add_argument("--snr-definition", default="log", choices=("log", "conservative"),
                         help="check_duality's snr_definition")
+    parser.add_argument("--fainter", action="store_true",
+                        help="the power columns on a 20 %% fainter L1 image instead of a 25 %% "
+                             "brighter one (still named pow25, pow25_geo)")
     args = parser.parse_args(argv)
+    global ANOMALY
+    if args.fainter:
+        ANOMALY = np.log(0.8)
     cols = ("n", "tested", "field", "fails", "ffr", "ffr_l95", "ffr_u95", "ffr_geo",
             "field_pull_w", "pow25", "pow25_geo", "mask25")
     print("family n_sources noise_mas flux_err " + " ".join(cols))

@@ -151,7 +151,8 @@ def test_joint_status_numbers_are_read_from_the_tables():
     folder = STATIC / "joint"
     sub = (module.compute(module.read_table(folder / "calibration_dev.txt"),
                           module.held_out_rows(folder))
-           | module.history_numbers(folder) | module.variant_numbers(folder))
+           | module.history_numbers(folder) | module.variant_numbers(folder)
+           | module.conservative_numbers(folder))
     assert_files_match(module.include_files(sub), folder, "docs/scripts/joint_status.py")
     page = (ROOT / "docs" / "joint_test.rst").read_text()
     assert ".. include:: _static/joint/status.inc" in page
@@ -166,6 +167,14 @@ def test_joint_status_numbers_are_read_from_the_tables():
         assert f".. literalinclude:: _static/joint/{name}" in page
     assert int(sub["jt_gate_field_now"]) > int(sub["jt_gate_field_strict"])
     assert int(sub["jt_gate_pow_now"]) > int(sub["jt_gate_pow_strict"])
+    # the conservative SNR's tables are on the page; its failing cells, counted here
+    for name in module.CONSERVATIVE_TABLES:
+        assert f".. literalinclude:: _static/joint/{name}" in page
+        table = (folder / name).read_text().splitlines()
+        head = table[0].split()
+        l95 = [float(r.split()[head.index("ffr_l95")]) for r in table[1:]]
+        key = "jt_cons_cells_fail" if "dev" in name else "jt_cons_held_fail"
+        assert sub[key] == str(sum(x > 0.005 for x in l95))
 
 
 def test_the_demo_times_quoted_are_the_benchmark_s():
