@@ -78,11 +78,22 @@ def _secular(q, yh, lam):
 
 
 @njit(**JIT_OPTIONS)
+def _secular_slope(q, yh, lam):
+    d = 0.0
+    for i in range(4):
+        r = 1.0 - 2.0 * lam * q[i]
+        d += 4.0 * q[i] * q[i] * yh[i] * yh[i] / (r * r * r)
+    return d
+
+
+@njit(**JIT_OPTIONS)
 def _quadric_d2(q, yh, target):
     """The squared whitened distance from ``yh`` to ``sum q y^2 = target``
     (``q`` sorted, two negative and two positive: the form of ``det``): the
-    root of the secular equation by bisection between 0 and the pole on the
-    side of the target, where it is monotonic."""
+    root of the secular equation between 0 and the pole on the side of the
+    target, where it is increasing, by Newton steps kept inside the bracket
+    (a bisection step where Newton would leave it), to the bracket's float
+    resolution or an exact root."""
     f0 = _secular(q, yh, 0.0)
     if f0 == target:
         return 0.0
@@ -90,15 +101,28 @@ def _quadric_d2(q, yh, target):
         a, b = 0.0, 0.5 / q[3]
     else:
         a, b = 0.5 / q[0], 0.0
+    lam = 0.5 * (a + b)
     for _ in range(_N_BISECT):
+        f = _secular(q, yh, lam) - target
+        if f == 0.0:
+            break
+        if f > 0.0:
+            b = lam
+        else:
+            a = lam
         mid = 0.5 * (a + b)
         if mid == a or mid == b:
             break
-        if _secular(q, yh, mid) > target:
-            b = mid
+        slope = _secular_slope(q, yh, lam)
+        step = lam - f / slope if slope > 0.0 else mid
+        # Newton where it lands well inside the bracket, else bisection
+        if a < step < b and abs(step - lam) < 0.5 * (b - a):
+            if abs(step - lam) <= 4e-16 * abs(lam):
+                lam = step  # converged to the float resolution of lam
+                break
+            lam = step
         else:
-            a = mid
-    lam = 0.5 * (a + b)
+            lam = mid
     d2 = 0.0
     for i in range(4):
         r = 1.0 - 2.0 * lam * q[i]
