@@ -7,7 +7,9 @@ prose cannot drift from them:
   photometry's bias on clusters of one half-light radius, and the whole
   pipeline on the point and the realistic scenes);
 - ``scenes/acceptance.txt``: ``benchmarks/acceptance_pixels.py --seeds 20``
-  (detection, photometry and pairing on mocks of the SMACS0723 analogue).
+  (detection, photometry and pairing on mocks of the SMACS0723 analogue);
+- ``performance/demo_time_realistic.txt``: ``benchmarks/bench_demo_time.py
+  --scene realistic`` (the realistic demo's wall time).
 
 Run from the repository root after rerunning a benchmark::
 
@@ -158,10 +160,23 @@ def acceptance_numbers(path):
     return sub
 
 
+def demo_time_numbers(path):
+    """``bench_demo_time.py --scene realistic``: the realistic demo's warm wall time
+    and the load it was measured at."""
+    lines = Path(path).read_text().splitlines()
+    m = search(r"summary: first (\d+) s, warm (\d+)-(\d+) s", lines, path)
+    low, high = m.group(2), m.group(3)
+    load = search(r"^load average at start: ([\d.]+)", lines, path).group(1)
+    cores = search(r"^cores: (\d+)", lines, path).group(1)
+    return {"mock_demo_warm": low if low == high else f"{low}-{high}",
+            "mock_demo_cores": cores, "mock_demo_load": load}
+
+
 def compute(folder=OUT):
     """The substitutions (name -> text) from the stored outputs under ``folder``."""
     return (finite_size_numbers(folder / "finite_size_bias.txt")
-            | acceptance_numbers(folder / "acceptance.txt"))
+            | acceptance_numbers(folder / "acceptance.txt")
+            | demo_time_numbers(folder.parent / "performance" / "demo_time_realistic.txt"))
 
 
 def main(out=OUT):
