@@ -424,7 +424,8 @@ def check_duality(
         not assume ``mu_size`` log-normal where it is large (see
         :ref:`profile-snr`). Its degrees of freedom are those of ``"log"``.
         ``"conservative"`` (method ``"adaptive"`` only): the smaller of the
-        ``"log"`` and ``"profile"`` SNRs, so that a pair is flagged only
+        ``"log"`` and ``"profile"`` SNRs (the ``"log"`` one where the pair's
+        Jacobian covariance gives no profile), so that a pair is flagged only
         where both reject; for lenses whose magnification ratio varies
         several-fold over the constellation (compact galaxy-scale arcs),
         where the ``"log"`` SNR over-flags (see :ref:`profile-snr`).

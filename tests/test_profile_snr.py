@@ -360,3 +360,25 @@ def test_joint_test_with_the_conservative_definition():
     # close to the linearised SNR on this cluster-scale fold at 5 mas
     np.testing.assert_allclose(np.asarray(cons["snr"])[both], np.asarray(log["snr"])[both],
                                rtol=0.2, atol=0.1)
+
+
+def test_conservative_falls_back_to_the_log_snr_without_a_profile():
+    """Where a pair's Jacobian covariance gives no profile SNR (not positive
+    definite), the conservative SNR is the log one; elsewhere the smaller."""
+    from astropy.table import QTable
+
+    from lensdual.duality import _chosen_snr
+
+    jac = np.array([[[2.0, 0.1], [0.2, -0.5]]] * 3)
+    cov = np.array([np.eye(4) * 0.04, np.full((4, 4), np.nan), np.eye(4) * 0.04])
+    size = {"jacobian": jac, "jacobian_cov": cov, "ln_mu_size_err": np.full(3, 0.3)}
+    det = abs(np.linalg.det(jac[0]))
+    flux = {"mu_flux": np.array([det * 0.3, det * 0.3, det * 1.01]),
+            "ln_mu_flux_err": np.full(3, 0.02)}
+    tab = QTable({"snr": np.array([4.0, 4.0, 0.05])})
+    got = _chosen_snr(tab, size, flux, "conservative")
+    prof = np.asarray(tab["snr_profile"])
+    assert np.isnan(prof[1]) and np.isfinite(prof[[0, 2]]).all()
+    assert got[1] == 4.0
+    np.testing.assert_array_equal(got[[0, 2]], np.fmin([4.0, 0.05], prof[[0, 2]]))
+    assert got[0] < 4.0  # the profile is the smaller where ln|det J| is far from log-normal
