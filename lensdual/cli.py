@@ -176,7 +176,8 @@ def _cmd_demo(args):
         analysis = analyse(images, psf=demo.psf, estimator=args.estimator, sigma_pos="auto",
                            n_bootstrap=args.n_bootstrap, snr_threshold=args.snr_threshold,
                            seed=args.seed, progress=progress,
-                           null_realisations=null_realisations, test=args.test)
+                           null_realisations=null_realisations, test=args.test,
+                           snr_definition=args.snr_definition)
         comparison = compare_with_truth(analysis.result, truth, centre)
         report = format_report(analysis, ["", truth_paragraph(comparison)])
         with atomic_directory(args.outdir, removed) as tmp:
@@ -188,6 +189,7 @@ def _cmd_demo(args):
                 if args.write_config:
                     config, header = write_run_inputs(
                         mocks, tmp, estimator=args.estimator, test=args.test,
+                        snr_definition=args.snr_definition,
                         n_bootstrap=args.n_bootstrap,
                         snr_threshold=args.snr_threshold, seed=args.seed, centre=centre,
                         parametric=args.parametric, null_realisations=null_realisations,
@@ -503,6 +505,10 @@ def build_parser():
                       help="the duality test: geometric (the flux ratio against mu_size) or "
                            "joint (against mu_size and the neighbours' flux ratios, needs "
                            "13 or more sources to use them)")
+    demo.add_argument("--snr-definition", choices=("log", "conservative"), default="log",
+                      help="the test's SNR: log (linearised in ln mu_size) or conservative "
+                           "(the smaller of that and the profile-likelihood SNR: a flag needs "
+                           "both; for compact galaxy-scale lenses; estimator adaptive)")
     demo.add_argument("--snr-threshold", type=_positive_float, default=3.0,
                       help="a pair is anomalous above this duality SNR")
     demo.add_argument("--write-config", action="store_true",

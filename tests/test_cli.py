@@ -440,3 +440,30 @@ def test_demo_table_matches_the_stored_reference(demo_dir):
                 assert got.unit == want.unit, name
         else:
             assert list(got) == list(want), name
+
+
+def test_demo_passes_the_snr_definition(tmp_path, monkeypatch):
+    """``lensdual demo --snr-definition conservative`` reaches the analysis, and
+    the run configuration the demo writes keeps it (stopped at the analysis)."""
+    import lensdual.cli
+    from lensdual._outputs import write_run_inputs
+
+    class Stop(Exception):
+        pass
+
+    seen = {}
+
+    def analyse(*args, **kwargs):
+        seen.update(kwargs)
+        raise Stop
+
+    monkeypatch.setattr(lensdual.cli, "analyse", analyse)
+    with pytest.raises(Stop):
+        main(["demo", "--snr-definition", "conservative", "--n-sources", "6", "--quiet",
+              "--null-realisations", "0", "--outdir", str(tmp_path / "out")])
+    assert seen["snr_definition"] == "conservative"
+    kw = dict(estimator="adaptive", n_bootstrap=200, snr_threshold=3.0, seed=0, centre=None)
+    config, _ = write_run_inputs({}, tmp_path, snr_definition="conservative", **kw)
+    assert config["analysis"]["snr_definition"] == "conservative"
+    config, _ = write_run_inputs({}, tmp_path, **kw)
+    assert "snr_definition" not in config["analysis"]
