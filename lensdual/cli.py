@@ -54,7 +54,7 @@ from .demo import (
     simulate_demo,
     truth_paragraph,
 )
-from .duality import DEFAULT_TEST, TESTS
+from .duality import DEFAULT_TEST, LOG_SNR_DEFINITIONS, TESTS
 from .exceptions import PipelineError
 from .pipeline import analyse, analyse_knots
 
@@ -505,7 +505,7 @@ def build_parser():
                       help="the duality test: geometric (the flux ratio against mu_size) or "
                            "joint (against mu_size and the neighbours' flux ratios, needs "
                            "13 or more sources to use them)")
-    demo.add_argument("--snr-definition", choices=("log", "conservative"), default="log",
+    demo.add_argument("--snr-definition", choices=list(LOG_SNR_DEFINITIONS), default="log",
                       help="the test's SNR: log (linearised in ln mu_size) or conservative "
                            "(the smaller of that and the profile-likelihood SNR: a flag needs "
                            "both; for compact galaxy-scale lenses; estimator adaptive)")

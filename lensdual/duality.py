@@ -30,7 +30,8 @@ from .estimators import DEFAULT_METHOD, DEFAULT_N_BOOTSTRAP, TESTABLE_STATUS, si
 from .estimators.core import FEW_PAIRS_HINT, determined_parity
 from .exceptions import LensdualWarning
 
-__all__ = ["POSITION_COLUMNS", "SNR_DEFINITIONS", "TESTS", "check_duality", "pair_bands",
+__all__ = ["POSITION_COLUMNS", "SNR_DEFINITIONS", "LOG_SNR_DEFINITIONS", "TESTS",
+           "check_duality", "pair_bands",
            "flux_ratios", "holm_adjust", "null_calibration", "gaussian_p_value",
            "duality_significance", "DEFAULT_SNR_THRESHOLD", "DEFAULT_TEST"]
 
@@ -43,6 +44,14 @@ DEFAULT_SNR_THRESHOLD = 3.0
 
 #: Definitions of the duality signal-to-noise ratio, see :func:`check_duality`.
 SNR_DEFINITIONS = ("log", "paper", "profile", "conservative")
+
+#: The definitions whose anomalies are ``ln`` ratios with the flux ratio's error
+#: combined: those the joint test, the null calibration and the abundance
+#: posterior take.
+LOG_SNR_DEFINITIONS = ("log", "conservative")
+
+# the definitions that read the adaptive Jacobian's covariance
+_PROFILE_DEFINITIONS = ("profile", "conservative")
 
 #: The tests of :func:`check_duality`: ``"geometric"`` (the flux ratio against
 #: ``mu_size``) and ``"joint"`` (against ``mu_size`` and the neighbours' flux
@@ -572,7 +581,7 @@ def check_duality(
     bands = pair_bands(tab)
     if test == "joint":
         _check_joint_input(bands, snr_definition, method)
-    if snr_definition in ("profile", "conservative") and method != "adaptive":
+    if snr_definition in _PROFILE_DEFINITIONS and method != "adaptive":
         raise ValueError(f"snr_definition={snr_definition!r} needs method 'adaptive' (the "
                          f"covariance of its Jacobian), got method {method!r}")
     theta1, theta2 = _positions(tab)
@@ -629,7 +638,8 @@ def check_duality(
     tab["duality_ratio_err"] = ratio * ln_total
     tab["snr"] = snr
     tab["snr_paper"] = snr_paper
-    chosen = _chosen_snr(tab, size, flux, snr_definition)
+    profile = _profile_of(size) if snr_definition in _PROFILE_DEFINITIONS else None
+    chosen = _chosen_snr(tab, size, flux, snr_definition, profile)
     tested = (np.isfinite(chosen) & np.isin(np.asarray(size["mu_size_status"]), TESTABLE_STATUS)
               & (dof > 0))
     dof = np.where(tested, dof, np.nan)
@@ -647,7 +657,7 @@ def check_duality(
     joint_meta = {}
     if test == "joint":
         joint_meta = _joint_test(tab, theta2, flux, sigma_pos, keep, snr_threshold,
-                                 _profile_of(size) if snr_definition == "conservative" else None)
+                                 profile if snr_definition == "conservative" else None)
 
     tab.meta["bands"] = bands
     meta = {
@@ -669,15 +679,16 @@ def check_duality(
     return tab
 
 
-def _chosen_snr(tab, size, flux, snr_definition):
+def _chosen_snr(tab, size, flux, snr_definition, profile=None):
     """The SNR ``snr_definition`` names, from the ``snr`` and ``snr_paper``
-    columns of ``tab``; for "profile" and "conservative" it adds ``snr_profile``
-    and ``jacobian_cov`` to ``tab``."""
-    if snr_definition in ("log", "paper"):
+    columns of ``tab``; for "profile" and "conservative" (``profile`` the
+    callable of :func:`_profile_of` on ``size``) it adds ``snr_profile`` and
+    ``jacobian_cov`` to ``tab``."""
+    if snr_definition not in _PROFILE_DEFINITIONS:
         return np.asarray(tab["snr" if snr_definition == "log" else "snr_paper"], dtype=float)
     tab["jacobian_cov"] = size["jacobian_cov"]
-    prof = tab["snr_profile"] = profile_snr(size, np.log(np.asarray(flux["mu_flux"], float)),
-                                            np.asarray(flux["ln_mu_flux_err"], float))
+    prof = tab["snr_profile"] = profile(np.log(np.asarray(flux["mu_flux"], float)),
+                                        np.asarray(flux["ln_mu_flux_err"], float))
     if snr_definition == "conservative":
         # flagged only where both the linearised and the profile SNR reject
         return np.fmin(np.asarray(tab["snr"], dtype=float), prof)
@@ -749,7 +760,7 @@ def _check_joint_input(bands, snr_definition, method):
             f"test='joint' needs at least two bands, got {list(bands)}: with one band the "
             "chromatic check cannot keep mis-paired sources out of the neighbours' flux "
             "field; use test='geometric'")
-    if snr_definition not in ("log", "conservative"):
+    if snr_definition not in LOG_SNR_DEFINITIONS:
         raise ValueError(f"test='joint' uses snr_definition 'log' or 'conservative', got "
                          f"{snr_definition!r} (the paper's definition has no flux error to "
                          "combine)")
@@ -1154,7 +1165,7 @@ def null_calibration(pairs, *, sigma_pos, n_realisations=1000,
     chunk = as_int(chunk_size, "chunk_size", minimum=1)
     entropy = _seed_entropy(seed)
     check_client(client)
-    if snr_definition not in ("log", "conservative"):
+    if snr_definition not in LOG_SNR_DEFINITIONS:
         raise ValueError(f"null_calibration takes snr_definition 'log' or 'conservative', got "
                          f"{snr_definition!r}")
     observed = check_duality(pairs, "adaptive", sigma_pos=sigma_pos,

@@ -367,7 +367,7 @@ def test_conservative_falls_back_to_the_log_snr_without_a_profile():
     definite), the conservative SNR is the log one; elsewhere the smaller."""
     from astropy.table import QTable
 
-    from lensdual.duality import _chosen_snr
+    from lensdual.duality import _chosen_snr, _profile_of
 
     jac = np.array([[[2.0, 0.1], [0.2, -0.5]]] * 3)
     cov = np.array([np.eye(4) * 0.04, np.full((4, 4), np.nan), np.eye(4) * 0.04])
@@ -376,7 +376,7 @@ def test_conservative_falls_back_to_the_log_snr_without_a_profile():
     flux = {"mu_flux": np.array([det * 0.3, det * 0.3, det * 1.01]),
             "ln_mu_flux_err": np.full(3, 0.02)}
     tab = QTable({"snr": np.array([4.0, 4.0, 0.05])})
-    got = _chosen_snr(tab, size, flux, "conservative")
+    got = _chosen_snr(tab, size, flux, "conservative", _profile_of(size))
     prof = np.asarray(tab["snr_profile"])
     assert np.isnan(prof[1]) and np.isfinite(prof[[0, 2]]).all()
     assert got[1] == 4.0

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 from astropy import units as u
 
-from ..duality import DEFAULT_SNR_THRESHOLD, DEFAULT_TEST, TESTS
+from ..duality import DEFAULT_SNR_THRESHOLD, DEFAULT_TEST, LOG_SNR_DEFINITIONS, TESTS
 from ..estimators import DEFAULT_METHOD, DEFAULT_N_BOOTSTRAP, METHODS
 from ..inference import MIN_REALISATIONS, MODELS
 from ..pairing import DEFAULT_MAX_MAGNIFICATION
@@ -219,7 +219,7 @@ FIELDS = (
        'the SNR of the test: "log" (linearised in ln mu_size) or "conservative" (the smaller of '
        "that and the profile-likelihood SNR, a flag needs both; for compact galaxy-scale lenses; "
        'needs estimator "adaptive")',
-       choices=("log", "conservative")),
+       choices=LOG_SNR_DEFINITIONS),
     _F("analysis", "source_model", "string", "point",
        'the sources\' model in the PSF photometry: "point" (the PSF) or "resolved" (the PSF '
        "convolved with an elliptical Gaussian of free size, for star clusters the lens "

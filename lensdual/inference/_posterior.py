@@ -7,6 +7,7 @@ from astropy import units as u
 from astropy.table import QTable, Table
 from scipy import special, stats
 
+from ..duality import LOG_SNR_DEFINITIONS
 from ..exceptions import EstimatorWarning
 from ._forward import AnomalySimulation
 
@@ -50,7 +51,7 @@ def pair_anomalies(table):
     if meta is None or "mu_flux" not in table.colnames:
         raise ValueError("the constellation has no flux ratios tested for duality: measure its "
                          "fluxes and run check_duality (or the pipeline) first")
-    if meta.get("snr_definition", "log") not in ("log", "conservative"):
+    if meta.get("snr_definition", "log") not in LOG_SNR_DEFINITIONS:
         # "conservative" flags by the smaller of two SNRs; its anomalies and their
         # errors are the log ones
         raise ValueError("the anomalies are log ratios: run check_duality with "
