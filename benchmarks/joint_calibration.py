@@ -40,7 +40,7 @@ from _shared_data import use_shared_data
 from astropy import units as u
 from calibration import _ffr_limits
 
-from lensdual.duality import _joint_pass, _profile_of, check_duality
+from lensdual.duality import LOG_SNR_DEFINITIONS, _joint_pass, _profile_of, check_duality
 from lensdual.simulation import FAMILIES, clean_constellation, noisy_constellation
 
 use_shared_data()
@@ -149,7 +149,7 @@ def main(argv=None):
     parser.add_argument("--seed", type=int, default=0, help="first constellation seed")
     parser.add_argument("--masking", action="store_true",
                         help="also the two-neighbour masking trial (a second run per draw)")
-    parser.add_argument("--snr-definition", default="log", choices=("log", "conservative"),
+    parser.add_argument("--snr-definition", default="log", choices=LOG_SNR_DEFINITIONS,
                         help="check_duality's snr_definition")
     parser.add_argument("--fainter", action="store_true",
                         help="the power columns on a 20 %% fainter L1 image instead of a 25 %% "

@@ -209,22 +209,31 @@ def test_run_default_outdir_is_relative_to_the_config(demo_dir, tmp_path):
     assert (copy / "run-output" / "pairs.ecsv").is_file()
 
 
-def test_run_passes_the_source_model_to_the_photometry(demo_dir, tmp_path, monkeypatch):
-    """``[analysis] source_model`` and ``snr_definition`` reach the analysis
-    (stopped there: the fit itself is tested in tests/test_resolved_photometry.py)."""
-    import shutil
+class _StopAtAnalysis(Exception):
+    """Raised by :func:`_stop_at_analysis`'s stand-in for ``analyse``."""
 
+
+def _stop_at_analysis(monkeypatch):
+    """Replace the command line's ``analyse`` by one that records its keyword
+    arguments and raises `_StopAtAnalysis`; the dict it records into."""
     import lensdual.cli
-
-    class Stop(Exception):
-        pass
 
     seen = {}
 
     def analyse(*args, **kwargs):
         seen.update(kwargs)
-        raise Stop
+        raise _StopAtAnalysis
 
+    monkeypatch.setattr(lensdual.cli, "analyse", analyse)
+    return seen
+
+
+def test_run_passes_the_source_model_to_the_photometry(demo_dir, tmp_path, monkeypatch):
+    """``[analysis] source_model`` and ``snr_definition`` reach the analysis
+    (stopped there: the fit itself is tested in tests/test_resolved_photometry.py)."""
+    import shutil
+
+    seen = _stop_at_analysis(monkeypatch)
     copy = tmp_path / "copy"
     shutil.copytree(demo_dir / "data", copy / "data")
     text = (demo_dir / "run.toml").read_text()
@@ -232,8 +241,7 @@ def test_run_passes_the_source_model_to_the_photometry(demo_dir, tmp_path, monke
     text = text.replace("[analysis]", '[analysis]\nsource_model = "resolved"\n'
                         'snr_definition = "conservative"', 1)
     (copy / "run.toml").write_text(text)
-    monkeypatch.setattr(lensdual.cli, "analyse", analyse)
-    with pytest.raises(Stop):
+    with pytest.raises(_StopAtAnalysis):
         main(["run", str(copy / "run.toml"), "--quiet"])
     assert seen["source_model"] == "resolved"
     assert seen["snr_definition"] == "conservative"
@@ -445,20 +453,10 @@ def test_demo_table_matches_the_stored_reference(demo_dir):
 def test_demo_passes_the_snr_definition(tmp_path, monkeypatch):
     """``lensdual demo --snr-definition conservative`` reaches the analysis, and
     the run configuration the demo writes keeps it (stopped at the analysis)."""
-    import lensdual.cli
     from lensdual._outputs import write_run_inputs
 
-    class Stop(Exception):
-        pass
-
-    seen = {}
-
-    def analyse(*args, **kwargs):
-        seen.update(kwargs)
-        raise Stop
-
-    monkeypatch.setattr(lensdual.cli, "analyse", analyse)
-    with pytest.raises(Stop):
+    seen = _stop_at_analysis(monkeypatch)
+    with pytest.raises(_StopAtAnalysis):
         main(["demo", "--snr-definition", "conservative", "--n-sources", "6", "--quiet",
               "--null-realisations", "0", "--outdir", str(tmp_path / "out")])
     assert seen["snr_definition"] == "conservative"

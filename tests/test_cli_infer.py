@@ -81,16 +81,22 @@ def _problems(path, outdir=None):
 # ---------------------------------------------------------------- end to end
 
 
+def _infer(cfg, out, capsys):
+    """``lensdual infer cfg --outdir out``: it succeeds and writes every output;
+    its printed text and the posterior table."""
+    assert main(["infer", str(cfg), "--outdir", str(out)]) == 0
+    text = capsys.readouterr().out
+    for name in OUTPUTS:
+        assert (out / name).is_file(), name
+    return text, QTable.read(out / "posterior.ecsv", format="ascii.ecsv")
+
+
 def test_infer_end_to_end(mocks, tmp_path, capsys):
     """One mock with its composite weight: the outputs, the report, the posterior's meta."""
     cfg = write_config(tmp_path / "one.toml", {**SMALL, "n_mocks": 20, "seed": 1},
                        [_system(mocks[0], name="mock A")])
     out = tmp_path / "out"
-    assert main(["infer", str(cfg), "--outdir", str(out)]) == 0
-    text = capsys.readouterr().out
-    for name in OUTPUTS:
-        assert (out / name).is_file(), name
-    post = QTable.read(out / "posterior.ecsv", format="ascii.ecsv")
+    text, post = _infer(cfg, out, capsys)
     m = post.meta["inference"]
     assert len(post) == 6 and m["n_systems"] == 1
     assert m["interval_95"][0] < m["median"] < m["interval_95"][1]
@@ -174,11 +180,7 @@ def test_half_mode_grid_end_to_end(mocks, tmp_path, capsys):
     config = load_inference_config(cfg)
     assert config.half_mode and config.log_mhm == (6.0, 9.0)
     out = tmp_path / "out"
-    assert main(["infer", str(cfg), "--outdir", str(out)]) == 0
-    text = capsys.readouterr().out
-    for name in OUTPUTS:
-        assert (out / name).is_file(), name
-    post = QTable.read(out / "posterior.ecsv", format="ascii.ecsv")
+    text, post = _infer(cfg, out, capsys)
     m = post.meta["inference"]
     assert "log10_mhm" in post.colnames and len(post) == 2 * 6
     assert sorted(set(post["log10_mhm"].tolist())) == [6.0, 9.0]
