@@ -1,8 +1,8 @@
 """The flux ratios of slightly resolved star clusters: PSF photometry against the resolved fit.
 
-Run on demand (about 15 minutes of CPU)::
+Run on demand (about an hour of CPU)::
 
-    python benchmarks/resolved_photometry.py [--reps 40] [--seeds 2] \
+    python benchmarks/resolved_photometry.py [--reps 120] [--seeds 30] \
         [--output docs/_static/scenes/resolved_photometry.txt]
 
 Part 1, stamps at the stretches of cluster arcs (|mu_t| 10-30, beyond the
@@ -207,8 +207,8 @@ def demo_table(rec, seeds):
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--reps", type=int, default=40, help="realisations per stamp row")
-    parser.add_argument("--seeds", type=int, default=2, help="demo seeds of part 2")
+    parser.add_argument("--reps", type=int, default=120, help="realisations per stamp row")
+    parser.add_argument("--seeds", type=int, default=30, help="demo seeds of part 2")
     add_output_argument(parser)
     args = parser.parse_args(argv)
     start = time.process_time()

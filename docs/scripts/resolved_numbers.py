@@ -10,6 +10,7 @@ table. Run from the repository root after rerunning the benchmark::
 """
 
 import math
+import re
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -18,6 +19,11 @@ RECORD = "resolved_photometry.txt"
 METHODS = ("point", "resolved", "joint")
 #: The anomaly of the benchmark's last table: image 1's tangential magnification x 1.3.
 ANOMALY = 1.3
+#: Standard error of the median of n Gaussian values, times sqrt(n) / sd: sqrt(pi / 2).
+MEDIAN_SE = math.sqrt(math.pi / 2)
+#: Standard error of the 16-84 % half-width of n Gaussian values, times sqrt(n) / sd
+#: (from the asymptotic covariance of the two sample quantiles).
+HALF_WIDTH_SE = 0.96
 
 
 def _numbers(line):
@@ -25,13 +31,15 @@ def _numbers(line):
 
 
 def read_record(path):
-    """The three tables of the record: stamp rows, anomaly rows and demo rows, each a
-    list of dicts."""
+    """The three tables of the record: stamp rows (with ``n``, the realisations per
+    row), anomaly rows and demo rows (with ``pairs``), each a list of dicts."""
     stamps, anomaly, demo = [], [], []
     part = None
+    reps = 0
     for line in Path(path).read_text().splitlines():
         if line.startswith("1. Stamps"):
             part = "stamps"
+            reps = int(re.search(r"(\d+) noise realisations", line).group(1))
         elif line.startswith("   A true anomaly"):
             part = "anomaly"
         elif line.startswith("2. The demo"):
@@ -40,7 +48,7 @@ def read_record(path):
             continue
         v = _numbers(line)
         if part == "stamps":
-            row = {"r": v[0], "mu1": v[1], "mu2": v[2]}
+            row = {"r": v[0], "mu1": v[1], "mu2": v[2], "n": reps}
             for k, m in enumerate(METHODS):
                 row[m] = {"bias": v[3 + 3 * k], "sd": v[4 + 3 * k], "pull": v[5 + 3 * k]}
             stamps.append(row)
@@ -48,7 +56,8 @@ def read_record(path):
             anomaly.append({"r": v[0], **dict(zip(METHODS, v[3:6], strict=True))})
         elif part == "demo":
             demo.append({"r": v[0], "point": {"bias": v[1], "width": v[2], "pull": v[3]},
-                         "resolved": {"bias": v[4], "width": v[5], "pull": v[6]}})
+                         "resolved": {"bias": v[4], "width": v[5], "pull": v[6]},
+                         "pairs": int(v[7])})
     return stamps, anomaly, demo
 
 
@@ -76,10 +85,15 @@ def compute(stamps, anomaly, demo):
     sub["rs_noise_cost"] = _range([s["resolved"]["sd"] / s["point"]["sd"] for s in points],
                                   "{:.1f}")
     sub["rs_reps_rows"] = str(len(stamps))
+    n = min(s["n"] for s in stamps)
+    sub["rs_reps"] = str(n)
+    sd = max(s["resolved"]["sd"] for s in stamps)
+    sub["rs_bias_se"] = f"{100 * MEDIAN_SE * sd / math.sqrt(n):.1f} %"
+    sub["rs_pull_se"] = f"{HALF_WIDTH_SE / math.sqrt(n):.2f}"
     for row in anomaly:
         for m in METHODS:
             lost = -row[m] / math.log(ANOMALY)
-            sub[f"rs_{m}_lost{int(row['r'])}"] = f"{100 * lost:.0f} %"
+            sub[f"rs_{m}_lost{int(row['r'])}"] = f"{int(round(100 * lost))} %"
     sub["rs_joint_lost"] = sub["rs_joint_lost20"]
     sub["rs_resolved_lost"] = sub["rs_resolved_lost20"]
     for row in demo:
@@ -90,6 +104,10 @@ def compute(stamps, anomaly, demo):
     sub["rs_demo_width_cost"] = f"{zero['resolved']['width'] / zero['point']['width']:.1f}"
     sub["rs_demo_resolved_maxbias"] = f"{100 * max(abs(r['resolved']['bias']) for r in demo):.1f} %"
     sub["rs_demo_resolved_pulls"] = _range([r["resolved"]["pull"] for r in demo])
+    pairs = [r["pairs"] for r in demo]
+    sub["rs_demo_pairs"] = _range(pairs, "{:.0f}")
+    width = max(r["resolved"]["width"] for r in demo)
+    sub["rs_demo_bias_se"] = f"{100 * MEDIAN_SE * width / math.sqrt(min(pairs)):.1f} %"
     return sub
 
 
