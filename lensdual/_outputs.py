@@ -394,7 +394,7 @@ def parametric_outputs(analysis, directory, *, lenstool=None, fit=False, model=N
 
 def write_run_inputs(mocks, directory, *, estimator, n_bootstrap, snr_threshold, seed,
                      centre, parametric=False, null_realisations=0, fit_settings=None,
-                     test="geometric", snr_definition="log"):
+                     test="geometric", snr_definition="log", source_model="point"):
     """FITS images, error maps and PSFs of the mocks, and a config that reads them.
 
     ``fit_settings`` (with ``sigma_pos`` and ``fix_centre``) are the demo's
@@ -410,6 +410,8 @@ def write_run_inputs(mocks, directory, *, estimator, n_bootstrap, snr_threshold,
                      "n_bootstrap": int(n_bootstrap), "test": test,
                      **({"snr_definition": snr_definition}
                         if snr_definition != "log" else {}),
+                     **({"source_model": source_model}
+                        if source_model != "point" else {}),
                      "snr_threshold": float(snr_threshold),
                      "seed": int(seed), "null_realisations": int(null_realisations)},
         "bands": {}, "arcs": {"L1": {}, "L2": {}},

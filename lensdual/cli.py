@@ -56,6 +56,7 @@ from .demo import (
 )
 from .duality import DEFAULT_TEST, LOG_SNR_DEFINITIONS, TESTS
 from .exceptions import PipelineError
+from .photometry._psf import SOURCE_MODELS
 from .pipeline import analyse, analyse_knots
 
 __all__ = ["main", "build_parser"]
@@ -177,7 +178,8 @@ def _cmd_demo(args):
                            n_bootstrap=args.n_bootstrap, snr_threshold=args.snr_threshold,
                            seed=args.seed, progress=progress,
                            null_realisations=null_realisations, test=args.test,
-                           snr_definition=args.snr_definition)
+                           snr_definition=args.snr_definition,
+                           source_model=args.source_model)
         comparison = compare_with_truth(analysis.result, truth, centre)
         report = format_report(analysis, ["", truth_paragraph(comparison)])
         with atomic_directory(args.outdir, removed) as tmp:
@@ -189,7 +191,7 @@ def _cmd_demo(args):
                 if args.write_config:
                     config, header = write_run_inputs(
                         mocks, tmp, estimator=args.estimator, test=args.test,
-                        snr_definition=args.snr_definition,
+                        snr_definition=args.snr_definition, source_model=args.source_model,
                         n_bootstrap=args.n_bootstrap,
                         snr_threshold=args.snr_threshold, seed=args.seed, centre=centre,
                         parametric=args.parametric, null_realisations=null_realisations,
@@ -509,6 +511,10 @@ def build_parser():
                       help="the test's SNR: log (linearised in ln mu_size) or conservative "
                            "(the smaller of that and the profile-likelihood SNR: a flag needs "
                            "both; for compact galaxy-scale lenses; estimator adaptive)")
+    demo.add_argument("--source-model", choices=list(SOURCE_MODELS), default="point",
+                      help="the photometry's source model: point (the PSF) or resolved "
+                           "(the PSF convolved with an elliptical Gaussian of free shape, "
+                           "for star clusters the PSF resolves, as in --scene realistic)")
     demo.add_argument("--snr-threshold", type=_positive_float, default=3.0,
                       help="a pair is anomalous above this duality SNR")
     demo.add_argument("--write-config", action="store_true",
