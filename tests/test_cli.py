@@ -450,39 +450,26 @@ def test_demo_table_matches_the_stored_reference(demo_dir):
             assert list(got) == list(want), name
 
 
-def test_demo_passes_the_snr_definition(tmp_path, monkeypatch):
-    """``lensdual demo --snr-definition conservative`` reaches the analysis, and
-    the run configuration the demo writes keeps it (stopped at the analysis)."""
+@pytest.mark.parametrize("option, key, value, default", [
+    ("--snr-definition", "snr_definition", "conservative", "log"),
+    ("--source-model", "source_model", "resolved", "point"),
+])
+def test_demo_passes_analysis_options(tmp_path, monkeypatch, option, key, value, default):
+    """``lensdual demo --snr-definition conservative`` and ``--source-model
+    resolved`` reach the analysis, and the run configuration the demo writes
+    keeps them (its default is left out; stopped at the analysis; that
+    ``lensdual run`` reads the keys is tested above); an unknown value is a
+    usage error."""
     from lensdual._outputs import write_run_inputs
 
     seen = _stop_at_analysis(monkeypatch)
     with pytest.raises(_StopAtAnalysis):
-        main(["demo", "--snr-definition", "conservative", "--n-sources", "6", "--quiet",
+        main(["demo", option, value, "--n-sources", "6", "--quiet",
               "--null-realisations", "0", "--outdir", str(tmp_path / "out")])
-    assert seen["snr_definition"] == "conservative"
+    assert seen[key] == value
     kw = dict(estimator="adaptive", n_bootstrap=200, snr_threshold=3.0, seed=0, centre=None)
-    config, _ = write_run_inputs({}, tmp_path, snr_definition="conservative", **kw)
-    assert config["analysis"]["snr_definition"] == "conservative"
-    config, _ = write_run_inputs({}, tmp_path, **kw)
-    assert "snr_definition" not in config["analysis"]
-
-
-def test_demo_passes_the_source_model(tmp_path, monkeypatch):
-    """``lensdual demo --source-model resolved`` reaches the analysis and the run
-    configuration the demo writes keeps it (stopped at the analysis; that
-    ``lensdual run`` reads the key is tested above); an unknown model is a usage
-    error."""
-    from lensdual._outputs import write_run_inputs
-
-    seen = _stop_at_analysis(monkeypatch)
-    with pytest.raises(_StopAtAnalysis):
-        main(["demo", "--source-model", "resolved", "--n-sources", "6", "--quiet",
-              "--null-realisations", "0", "--outdir", str(tmp_path / "out")])
-    assert seen["source_model"] == "resolved"
-    kw = dict(estimator="adaptive", n_bootstrap=200, snr_threshold=3.0, seed=0, centre=None)
-    config, _ = write_run_inputs({}, tmp_path, source_model="resolved", **kw)
-    assert config["analysis"]["source_model"] == "resolved"
-    config, _ = write_run_inputs({}, tmp_path, **kw)
-    assert "source_model" not in config["analysis"]
-    assert main(["demo", "--source-model", "extended", "--outdir",
-                 str(tmp_path / "bad")]) == 2
+    config, _ = write_run_inputs({}, tmp_path, **{key: value}, **kw)
+    assert config["analysis"][key] == value
+    config, _ = write_run_inputs({}, tmp_path, **{key: default}, **kw)
+    assert key not in config["analysis"]
+    assert main(["demo", option, "neither", "--outdir", str(tmp_path / "bad")]) == 2
