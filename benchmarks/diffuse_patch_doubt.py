@@ -34,9 +34,9 @@ import argparse
 import sys
 import time
 import warnings
-from pathlib import Path
 
 import numpy as np
+from _output import add_output_argument
 from scipy import stats
 from scipy.ndimage import gaussian_filter, shift
 
@@ -197,7 +197,7 @@ def main(argv=None):
     parser.add_argument("--seeds", type=int, default=12)
     parser.add_argument("--scenes", nargs="+", default=["realistic", "point"],
                         choices=["realistic", "point"])
-    parser.add_argument("--output", type=Path, default=None, help="also write the results here")
+    add_output_argument(parser)
     args = parser.parse_args(argv)
     start = time.process_time()
     seeds = tuple(range(args.seeds))
