@@ -70,20 +70,21 @@ def read_bias_rows(path):
 
 
 def read_pipeline_rows(path):
-    """Part 2 of ``finite_size_bias.py``'s output: ``{scene: row}``."""
+    """Part 2 of ``finite_size_bias.py``'s output: ``{(scene, photometry): row}``."""
     rows = {}
-    pattern = re.compile(r"^\s*(point|realistic)\s+(\d+) / (\d+)\s+(-|\d+ of \d+)\s+"
-                         r"(\d+) of (\d+)\s+([\d.]+)\s+([\d.]+)\s*$")
+    pattern = re.compile(r"^\s*(point|realistic)\s+(point|resolved)\s+(\d+) / (\d+)\s+"
+                         r"(-|\d+ of \d+)\s+(\d+) of (\d+)\s+([\d.]+)\s+([\d.]+)\s*$")
     for line in Path(path).read_text().splitlines():
         m = pattern.match(line)
         if m is None:
             continue
-        rows[m.group(1)] = {"false": int(m.group(2)), "tested": int(m.group(3)),
-                            "patch": m.group(4), "subhalo": int(m.group(5)),
-                            "seeds": int(m.group(6)), "size_err": float(m.group(7)),
-                            "ratio_err": float(m.group(8))}
-    if set(rows) != {"point", "realistic"}:
-        raise ValueError(f"{path}: no rows of part 2 for both scenes")
+        rows[m.group(1), m.group(2)] = {
+            "false": int(m.group(3)), "tested": int(m.group(4)), "patch": m.group(5),
+            "subhalo": int(m.group(6)), "seeds": int(m.group(7)),
+            "size_err": float(m.group(8)), "ratio_err": float(m.group(9))}
+    expected = {("point", "point"), ("realistic", "point"), ("realistic", "resolved")}
+    if set(rows) != expected:
+        raise ValueError(f"{path}: part 2 lacks rows {sorted(expected - set(rows))}")
     return rows
 
 
@@ -115,7 +116,8 @@ def finite_size_numbers(path):
     sub["mock_median_noise"] = f"{min(noise):.3f}-{max(noise):.3f}"
 
     pipe = read_pipeline_rows(path)
-    point, real = pipe["point"], pipe["realistic"]
+    point, real = pipe["point", "point"], pipe["realistic", "point"]
+    resolved = pipe["realistic", "resolved"]
     sub["mock_clean_pairs"] = str(real["tested"])
     sub["mock_false_real"] = str(real["false"])
     sub["mock_false_point"] = str(point["false"])
@@ -129,6 +131,15 @@ def finite_size_numbers(path):
     sub["mock_patch_flagged"] = real["patch"]
     sub["mock_ratio_err_real"] = f"{100 * real['ratio_err']:.1f}"
     sub["mock_ratio_err_point"] = f"{100 * point['ratio_err']:.1f}"
+    # the realistic scene again, with the resolved fit
+    k, n = resolved["false"], resolved["tested"]
+    limit = 1.0 if k == n else beta.ppf(CONFIDENCE, k + 1, n - k)
+    sub["mock_res_pairs"] = str(n)
+    sub["mock_res_false"] = str(k)
+    sub["mock_res_false_limit"] = f"{100 * limit:.1f}"
+    sub["mock_res_subhalo"] = f"{resolved['subhalo']} of {resolved['seeds']}"
+    sub["mock_res_patch"] = resolved["patch"]
+    sub["mock_res_ratio_err"] = f"{100 * resolved['ratio_err']:.1f}"
     return sub
 
 
