@@ -1,6 +1,6 @@
 """What finite-size star clusters do to today's PSF photometry and to the duality test.
 
-Run on demand (about 40 minutes of CPU with ``--pipeline-seeds 30``)::
+Run on demand (about 25 minutes of CPU with ``--pipeline-seeds 30``)::
 
     python benchmarks/finite_size_bias.py [--seeds 3] [--pipeline-seeds 4] [--out FILE]
 
