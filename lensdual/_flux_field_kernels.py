@@ -237,9 +237,9 @@ def _gather(i, order, count, dropped, m_check, pos, y, s, sig2, chosen, d, yy, s
 
 
 @njit(**JIT_OPTIONS)
-def predict_all(pos, y, s, sig2, usable, resolved, n_local, n_check, min_check, cond_max,
-                max_unresolved, t_drop, max_drop, value, var, dev, var_dev, sens, status,
-                n_used, n_dropped):
+def predict_all(pos, y, s, sig2, usable, resolved, n_local, n_gate, n_check, min_check,
+                cond_max, max_unresolved, t_drop, max_drop, value, var, dev, var_dev, sens,
+                status, n_used, n_dropped):
     """The leave-one-out prediction of every pair (steps 0, 1 and 3, and what step 2
     reads): fills ``value`` (the quadratic's prediction), ``var`` (its variance from
     the neighbours' errors and the pair's position error), ``dev`` (the quadratic's
@@ -248,10 +248,11 @@ def predict_all(pos, y, s, sig2, usable, resolved, n_local, n_check, min_check, 
     ``n_used`` and ``n_dropped``.
 
     A pair is predicted where it is ``resolved`` and at most ``max_unresolved`` of
-    its quadratic's neighbours are not. Up to ``max_drop`` neighbours are
-    dropped, one at a time, while the largest studentised deletion residual of
-    the quadratic's neighbours (:func:`_worst_neighbour`) exceeds ``t_drop``;
-    the next nearest take their places in both fits.
+    its ``n_gate`` nearest neighbours are not; its quadratic has ``n_local``. Up to
+    ``max_drop`` neighbours are dropped, one at a time, while the largest
+    studentised deletion residual of the quadratic's neighbours
+    (:func:`_worst_neighbour`) exceeds ``t_drop``; the next nearest take their
+    places in both fits.
     """
     n = y.size
     dist = np.empty(n)
@@ -289,7 +290,7 @@ def predict_all(pos, y, s, sig2, usable, resolved, n_local, n_check, min_check, 
             continue
         order = others[:count][np.argsort(dist[:count], kind="mergesort")]
         n_unresolved = 0
-        for k in range(min(n_local, count)):
+        for k in range(min(n_gate, count)):
             if not resolved[order[k]]:
                 n_unresolved += 1
         if not resolved[i] or n_unresolved > max_unresolved:
@@ -329,3 +330,53 @@ def predict_all(pos, y, s, sig2, usable, resolved, n_local, n_check, min_check, 
         dev[i] = v2 - v3
         var_dev[i] = _dev_variance(a, a2, s_eff, s_eff2, m_local, m_check)
         sens[i] = _cubic_sensitivity(dw2, a2, m_local)
+
+
+@njit(**JIT_OPTIONS)
+def _bias_nll(ln_tau2, d2, sens, var_dev):
+    """Minus the log likelihood (up to a constant) of ``d ~ N(0, tau^2 sens + var_dev)``."""
+    t = np.exp(ln_tau2)
+    total = 0.0
+    for k in range(d2.size):
+        v = t * sens[k] + var_dev[k]
+        total += np.log(v) + d2[k] / v
+    return 0.5 * total
+
+
+@njit(**JIT_OPTIONS)
+def max_likelihood_ln_tau2(d2, sens, var_dev, lo, hi, n_grid, xatol):
+    """The ``ln tau^2`` in ``[lo, hi]`` that minimises :func:`_bias_nll`: the best of
+    ``n_grid`` equally spaced values, refined by golden-section search between its
+    two grid neighbours until the bracket is narrower than ``xatol``."""
+    step = (hi - lo) / (n_grid - 1)
+    best = 0
+    f_best = np.inf
+    for g in range(n_grid):
+        f = _bias_nll(lo + g * step, d2, sens, var_dev)
+        if f < f_best:
+            f_best = f
+            best = g
+    a = lo + max(best - 1, 0) * step
+    b = lo + min(best + 1, n_grid - 1) * step
+    inv_phi = 0.5 * (np.sqrt(5.0) - 1.0)
+    c = b - inv_phi * (b - a)
+    d = a + inv_phi * (b - a)
+    fc = _bias_nll(c, d2, sens, var_dev)
+    fd = _bias_nll(d, d2, sens, var_dev)
+    while b - a > xatol:
+        if fc < fd:
+            b = d
+            d = c
+            fd = fc
+            c = b - inv_phi * (b - a)
+            fc = _bias_nll(c, d2, sens, var_dev)
+        else:
+            a = c
+            c = d
+            fc = fd
+            d = a + inv_phi * (b - a)
+            fd = _bias_nll(d, d2, sens, var_dev)
+    x = 0.5 * (a + b)
+    if _bias_nll(x, d2, sens, var_dev) <= f_best:
+        return x
+    return lo + best * step

@@ -35,7 +35,15 @@ The prediction at pair ``i`` (see :ref:`joint-test` for the specification):
    fitted gradient times that error is added too;
 4. the leave-one-out residuals of all pairs, over their errors, must have the
    median absolute value of a unit Gaussian (0.674): where they are wider,
-   one common model variance is added to every prediction until they are.
+   one common model variance is added to every prediction until they are;
+5. steps 1 to 4 are made for every neighbourhood size of the quadratic from
+   :data:`N_LOCAL` to :data:`N_CHECK` (:data:`N_LOCAL_SIZES`), and the
+   prediction is their average weighted by each size's leave-one-out log
+   score on the pair's :data:`N_CHECK` nearest other pairs (pseudo-Bayesian
+   model averaging, ``size_weights``); its variance is the weighted mean
+   of the sizes' variances plus the spread of their predictions about the
+   average. Steps 0's gate, the status and the neighbour counts are those of
+   the :data:`N_LOCAL` fits.
 """
 
 from typing import NamedTuple
@@ -43,17 +51,18 @@ from typing import NamedTuple
 import numpy as np
 from astropy import units as u
 from astropy.table import QTable
-from scipy.optimize import brentq, minimize_scalar
+from scipy.optimize import brentq
 from scipy.stats import binom, norm
 
 from . import _flux_field_kernels as _kernels
 from .estimators._adaptive import SETTINGS as ADAPTIVE_SETTINGS
 from .estimators.core import as_sigma
 
-__all__ = ["flux_field_prediction", "FIELD_STATUS", "N_LOCAL", "N_CHECK", "MAX_UNRESOLVED",
-           "DROP_LEVEL", "MAX_DROP"]
+__all__ = ["flux_field_prediction", "FIELD_STATUS", "N_LOCAL", "N_CHECK", "N_LOCAL_SIZES",
+           "MAX_UNRESOLVED", "DROP_LEVEL", "MAX_DROP"]
 
-#: Neighbours of the quadratic fit (6 coefficients, so 4 residual degrees of freedom).
+#: Fewest neighbours of the quadratic fit (6 coefficients, so 4 residual degrees of
+#: freedom): the resolution gate of step 0 and the first of :data:`N_LOCAL_SIZES`.
 N_LOCAL = 10
 #: Neighbours of the cubic fit (10 coefficients) that bounds the quadratic's truncation error.
 N_CHECK = 16
@@ -85,6 +94,11 @@ DROP_LEVEL = 0.05
 MAX_DROP = 2
 #: The studentised deletion residual beyond which a neighbour is dropped (Bonferroni).
 _T_DROP = float(norm.isf(DROP_LEVEL / (2 * N_LOCAL)))
+#: Neighbourhood sizes of the quadratic fit whose predictions step 5 averages: every
+#: size from N_LOCAL to the cubic check's N_CHECK.
+N_LOCAL_SIZES = tuple(range(N_LOCAL, N_CHECK + 1))
+#: Per size of N_LOCAL_SIZES: (size, the Bonferroni bound of step 1 over that many).
+_SIZE_SETTINGS = tuple((k, float(norm.isf(DROP_LEVEL / (2 * k)))) for k in N_LOCAL_SIZES)
 #: Fewest neighbours of the cubic check: two residual degrees of freedom.
 _MIN_CHECK = 12
 #: Median of |Z| for a unit Gaussian Z.
@@ -93,6 +107,8 @@ _GAUSS_MEDIAN_ABS = 0.6744897501960817
 _MIN_CALIBRATION = 5
 #: Search interval of ln tau^2 in step 2 (tau^2 in the units of ln mu squared).
 _LN_TAU2_BOUNDS = (-40.0, 5.0)
+#: Grid of ln tau^2 over that interval (steps of 0.5) from which step 2's search refines.
+_LN_TAU2_GRID = 91
 #: Largest ratio of the largest to the smallest pivot of a fit's (column-equilibrated)
 #: R factor.
 _COND_MAX = 1e9
@@ -127,15 +143,11 @@ def bias_scale(dev, var_dev, sens):
     over the pairs given (0 where fewer than :data:`_MIN_CALIBRATION`)."""
     if dev.size < _MIN_CALIBRATION:
         return 0.0
-    d2 = dev**2
-
-    def nll(ln_tau2):
-        v = np.exp(ln_tau2) * sens + var_dev
-        return 0.5 * np.sum(np.log(v) + d2 / v)
-
-    res = minimize_scalar(nll, bounds=_LN_TAU2_BOUNDS, method="bounded",
-                          options={"xatol": 1e-8})
-    return float(np.exp(res.x))
+    lo, hi = _LN_TAU2_BOUNDS
+    ln_tau2 = _kernels.max_likelihood_ln_tau2(
+        np.ascontiguousarray(dev**2, dtype=float), np.ascontiguousarray(sens, dtype=float),
+        np.ascontiguousarray(var_dev, dtype=float), lo, hi, _LN_TAU2_GRID, 1e-9)
+    return float(np.exp(ln_tau2))
 
 
 def squared_bias(dev, var_dev, sens, calib):
@@ -160,20 +172,13 @@ class _Field(NamedTuple):
     status: np.ndarray  # FIELD_STATUS per pair
     n_used: np.ndarray  # neighbours of the cubic check
     n_dropped: np.ndarray  # neighbours dropped as off the quadratic through the others
-    model_var: float  # the common model variance of step 4
+    model_var: float  # the common model variance of step 4 (N_LOCAL neighbours)
 
 
-def field_arrays(pos, y, s, sig2, usable=None, resolved=None):
-    """The flux field of checked arrays (arcsec), see the module docstring.
-
-    Pairs with a NaN position, value or error, or a non-positive error, inform
-    nobody; a NaN position gets status "excluded".
-    """
+def _field_of_size(n_local, t_drop, pos, y, s, sig2, placed, finite, usable, resolved):
+    """Steps 0 to 4 with quadratic fits of ``n_local`` neighbours (the resolution gate
+    of step 0 always reads the :data:`N_LOCAL` nearest)."""
     n = y.size
-    placed = np.isfinite(pos).all(axis=1)
-    finite = np.isfinite(y) & np.isfinite(s) & (s > 0) & placed
-    usable = finite if usable is None else usable & finite
-    resolved = np.ones(n, dtype=bool) if resolved is None else resolved
     value, var, dev, var_dev, sens = (np.empty(n) for _ in range(5))
     code = np.empty(n, dtype=np.int64)
     n_used = np.empty(n, dtype=np.int64)
@@ -182,9 +187,9 @@ def field_arrays(pos, y, s, sig2, usable=None, resolved=None):
                          np.where(finite, y, 0.0), np.where(finite, s, 1.0),
                          np.ascontiguousarray(sig2, dtype=float),
                          np.ascontiguousarray(usable, dtype=np.bool_),
-                         np.ascontiguousarray(resolved, dtype=np.bool_), N_LOCAL, N_CHECK,
-                         _MIN_CHECK, _COND_MAX, MAX_UNRESOLVED, _T_DROP, MAX_DROP, value,
-                         var, dev, var_dev, sens, code, n_used, n_dropped)
+                         np.ascontiguousarray(resolved, dtype=np.bool_), n_local, N_LOCAL,
+                         N_CHECK, _MIN_CHECK, _COND_MAX, MAX_UNRESOLVED, t_drop, MAX_DROP,
+                         value, var, dev, var_dev, sens, code, n_used, n_dropped)
     ok = (code == _kernels.OK) & placed
     calib = ok & usable
     var = var + squared_bias(dev, var_dev, sens, calib)
@@ -192,6 +197,74 @@ def field_arrays(pos, y, s, sig2, usable=None, resolved=None):
     status = np.where(placed, np.asarray(FIELD_STATUS)[code], "excluded")
     return _Field(np.where(ok, value, np.nan), np.where(ok, var + model_var, np.nan), status,
                   n_used, n_dropped, model_var)
+
+
+def size_weights(pos, y, s, values, variances, usable):
+    """Step 5: each pair's weights of the neighbourhood sizes, shape ``(K, N)``.
+
+    ``values`` and ``variances`` (K, N) are the predictions of the K sizes
+    (NaN where a size does not predict). A size's score at pair ``i`` is its
+    leave-one-out log score on the :data:`N_CHECK` nearest other pairs that
+    are usable and predicted by every size, ``sum_j ln v_j + (y_j - f_j)^2 /
+    v_j`` with ``v_j = s_j^2 + variance_j`` (minus twice the log predictive
+    density, up to a constant); its weight is ``exp(-score / 2)``,
+    normalised over the sizes that predict ``i``. ``i``'s own residual is not
+    in its scores. Where fewer than :data:`_MIN_CALIBRATION` pairs are
+    scored, the first size takes all the weight.
+    """
+    n_sizes, n = values.shape
+    predicted = np.isfinite(values) & np.isfinite(variances)
+    scored = usable & predicted.all(axis=0)
+    weights = np.zeros((n_sizes, n))
+    if np.count_nonzero(scored) < _MIN_CALIBRATION:
+        weights[0] = predicted[0]
+        return weights
+    idx = np.flatnonzero(scored)
+    v = s[idx] ** 2 + variances[:, idx]
+    terms = np.log(v) + (y[idx] - values[:, idx]) ** 2 / v
+    dist = np.hypot(pos[:, None, 0] - pos[None, idx, 0], pos[:, None, 1] - pos[None, idx, 1])
+    dist[idx == np.arange(n)[:, None]] = np.inf
+    dist[~np.isfinite(dist)] = np.inf
+    m = min(N_CHECK, idx.size - 1)
+    nearest = np.argsort(dist, axis=1, kind="mergesort")[:, :m]
+    score = terms[:, nearest].sum(axis=2)
+    score = np.where(predicted, score, np.inf)
+    best = np.min(score, axis=0)
+    has = np.isfinite(best)
+    weights = np.where(predicted & has, np.exp(-0.5 * (score - np.where(has, best, 0.0))), 0.0)
+    total = weights.sum(axis=0)
+    return np.where(total > 0, weights / np.where(total > 0, total, 1.0), 0.0)
+
+
+def field_arrays(pos, y, s, sig2, usable=None, resolved=None):
+    """The flux field of checked arrays (arcsec), see the module docstring.
+
+    Pairs with a NaN position, value or error, or a non-positive error, inform
+    nobody; a NaN position gets status "excluded". Status, neighbours used and
+    dropped, and the common model variance are those of the :data:`N_LOCAL`
+    neighbour fits; a pair is predicted where those predict it.
+    """
+    n = y.size
+    placed = np.isfinite(pos).all(axis=1)
+    finite = np.isfinite(y) & np.isfinite(s) & (s > 0) & placed
+    usable = finite if usable is None else usable & finite
+    resolved = np.ones(n, dtype=bool) if resolved is None else resolved
+    fields = [_field_of_size(k, t, pos, y, s, sig2, placed, finite, usable, resolved)
+              for k, t in _SIZE_SETTINGS]
+    first = fields[0]
+    ok = np.isfinite(first.value)
+    # a size predicts where its quadratic has that many neighbours (with fewer, a
+    # larger size repeats a smaller one's fit)
+    full = [ok & (f.n_used >= k) for f, (k, _) in zip(fields, _SIZE_SETTINGS, strict=True)]
+    values = np.array([np.where(m, f.value, np.nan) for f, m in zip(fields, full, strict=True)])
+    variances = np.array([np.where(m, f.var, np.nan) for f, m in zip(fields, full, strict=True)])
+    w = size_weights(np.where(placed[:, None], pos, np.nan), y, s, values, variances, usable)
+    used = w > 0
+    value = np.sum(np.where(used, w * values, 0.0), axis=0)
+    spread = np.where(used, values - value, 0.0)
+    var = np.sum(np.where(used, w * (variances + spread**2), 0.0), axis=0)
+    return _Field(np.where(ok, value, np.nan), np.where(ok, var, np.nan), first.status,
+                  first.n_used, first.n_dropped, first.model_var)
 
 
 def flux_field_prediction(theta2, ln_mu_flux, ln_mu_flux_err, *, sigma_pos=None, usable=None,
@@ -235,9 +308,10 @@ def flux_field_prediction(theta2, ln_mu_flux, ln_mu_flux_err, *, sigma_pos=None,
         :data:`FIELD_STATUS`; only ``"ok"`` rows have a prediction) and
         ``field_n`` (neighbours of the cubic check) and ``field_dropped``
         (neighbours dropped from the pair's fits as off the field of the
-        others, step 1). ``meta['field_model_sd']``
-        is the common model error of step 4 (0 where the leave-one-out
-        residuals already scatter as their errors say).
+        others, step 1), both of the :data:`N_LOCAL`-neighbour fits.
+        ``meta['field_model_sd']`` is the common model error of step 4 of those
+        fits (0 where their leave-one-out residuals already scatter as their
+        errors say).
 
     Raises
     ------

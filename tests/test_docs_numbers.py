@@ -378,10 +378,11 @@ def test_inference_numbers_are_the_benchmarks_outputs(tmp_path):
         assert abs(row["bias_median"]) <= module.MAX_BIAS
     # the joint test (coverage_joint.txt, the geometric run's settings): "the 95 %
     # intervals held the truth ... within 95 +- 3 %"; the 68 % ones "in MACS J1149
-    # they miss 68 +- 5 %, by less than their binomial error"; "with weight 1 ...
-    # the correction is needed"; "narrower"; the bias "within the 0.1 dex target
-    # but larger than the geometric test's", "below the truth"; "the coverage is
-    # rises for truths near the lower prior bound ... and falls for the highest truths"
+    # they miss 68 +- 5 %, by more than their binomial error"; "with weight 1 ...
+    # the correction is needed"; "narrower"; the bias "at the 0.1 dex target to two
+    # decimals and larger than the geometric test's", "below the truth"; the
+    # coverage "is no lower for truths near the lower prior bound ... and falls for
+    # the highest truths"
     _, joint = module.read_coverage(folder / "coverage_joint.txt")
     lo68 = module.TARGET68[0] - module.TARGET68[1]
     for family in module.DEVELOPMENT:
@@ -393,14 +394,15 @@ def test_inference_numbers_are_the_benchmarks_outputs(tmp_path):
         assert (abs(w1["cov68"] - module.TARGET68[0]) > module.TARGET68[1]
                 or abs(w1["cov95"] - module.TARGET95[0]) > module.TARGET95[1])
         assert row["width95"] < geo["width95"]
-        assert -module.MAX_BIAS <= row["bias_median"] < 0
+        assert row["bias_median"] < 0
+        assert round(abs(row["bias_median"]), 2) <= module.MAX_BIAS
         assert abs(row["bias_median"]) > abs(geo["bias_median"])
         low, top = module.LOW_BIN, module.TOP_BIN
-        assert row["bins"][low]["cov68"] > geo["bins"][low]["cov68"]
+        assert row["bins"][low]["cov68"] >= geo["bins"][low]["cov68"]
         assert row["bins"][top]["cov68"] < geo["bins"][top]["cov68"]
     smacs, macs = (module.weighted(joint[f]) for f in module.DEVELOPMENT)
     assert abs(smacs["cov68"] - module.TARGET68[0]) <= module.TARGET68[1]
-    assert 0 < lo68 - macs["cov68"] < macs["cov68_err"]
+    assert lo68 - macs["cov68"] > macs["cov68_err"]
     # the half-mode mass: "within the targets"; the example's CDM abundance "is
     # recovered" and the WDM draw's upper limit is "below the truth"
     assert "_static/inference/half_mode_coverage.txt" in page

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from astropy.table import QTable
 
+import lensdual.flux_field as ff
 from lensdual.duality import _joint_pass, check_duality
 from lensdual.flux_field import (
     DROP_LEVEL,
@@ -14,6 +15,7 @@ from lensdual.flux_field import (
     MAX_UNRESOLVED,
     N_CHECK,
     N_LOCAL,
+    N_LOCAL_SIZES,
     flux_field_prediction,
 )
 from lensdual.simulation import clean_constellation, noisy_constellation
@@ -44,32 +46,33 @@ def _deletion_t(xy, y, s, i, idx):
     return t
 
 
-def _neighbours(xy, y, s, i, usable=None):
+def _neighbours(xy, y, s, i, usable=None, n_local=N_LOCAL):
     """Plain numpy: pair i's usable neighbours by distance, with those that step 1
-    drops (the worst deletion residual beyond the Bonferroni bound, up to
-    MAX_DROP of them) removed."""
+    drops (the worst deletion residual of its ``n_local`` nearest beyond the
+    Bonferroni bound, up to MAX_DROP of them) removed."""
     from scipy.stats import norm
 
     n = len(y)
     usable = np.ones(n, bool) if usable is None else usable
     others = np.flatnonzero(usable & (np.arange(n) != i))
     order = list(others[np.argsort(np.hypot(*(xy[others] - xy[i]).T), kind="stable")])
-    bound = norm.isf(DROP_LEVEL / (2 * N_LOCAL))
+    bound = norm.isf(DROP_LEVEL / (2 * n_local))
     for _ in range(MAX_DROP):
-        t = _deletion_t(xy, y, s, i, np.array(order[:N_LOCAL]))
+        t = _deletion_t(xy, y, s, i, np.array(order[:n_local]))
         if t.max() <= bound:
             break
         order.pop(int(np.argmax(t)))
     return np.array(order)
 
 
-def _reference_parts(xy, y, s, i, usable=None):
-    """Plain numpy: the weighted quadratic and cubic fits of pair i's neighbours in raw
-    coordinates (no position errors). Returns the quadratic's prediction, its
-    variance, the difference of the two predictions, that difference's noise
-    variance, and the squared norm of the quadratic's weights applied to the four
-    cubic monomials of its neighbours' offsets whitened to unit second moments."""
-    order = _neighbours(xy, y, s, i, usable)
+def _reference_parts(xy, y, s, i, usable=None, n_local=N_LOCAL):
+    """Plain numpy: the weighted quadratic (``n_local`` neighbours) and cubic fits of
+    pair i's neighbours in raw coordinates (no position errors). Returns the
+    quadratic's prediction, its variance, the difference of the two predictions,
+    that difference's noise variance, and the squared norm of the quadratic's
+    weights applied to the four cubic monomials of its neighbours' offsets whitened
+    to unit second moments."""
+    order = _neighbours(xy, y, s, i, usable, n_local)
 
     def fit(idx, degree):
         d = xy[idx] - xy[i]
@@ -79,25 +82,27 @@ def _reference_parts(xy, y, s, i, usable=None):
         pinv = np.linalg.pinv(design)
         return pinv[0] @ (y[idx] / s[idx]), pinv[0] / s[idx]
 
-    quad, a = fit(order[:N_LOCAL], 2)
+    quad, a = fit(order[:n_local], 2)
     cubic, a3 = fit(order[:N_CHECK], 3)
     a2 = np.zeros(N_CHECK)
-    a2[:N_LOCAL] = a
+    a2[:n_local] = a
     var_d = np.sum((a2 - a3) ** 2 * s[order[:N_CHECK]] ** 2)
-    d = xy[order[:N_LOCAL]] - xy[i]
-    white = d @ np.linalg.cholesky(np.linalg.inv(d.T @ d / N_LOCAL))
+    d = xy[order[:n_local]] - xy[i]
+    white = d @ np.linalg.cholesky(np.linalg.inv(d.T @ d / n_local))
     cubics = np.column_stack([white[:, 0] ** (3 - c) * white[:, 1] ** c for c in range(4)])
-    return quad, np.sum(a**2 * s[order[:N_LOCAL]] ** 2), quad - cubic, var_d, np.sum(
+    return quad, np.sum(a**2 * s[order[:n_local]] ** 2), quad - cubic, var_d, np.sum(
         (a @ cubics) ** 2)
 
 
-def _reference(xy, y, s, usable=None):
-    """Every pair's prediction and its variance before the common model term: the
-    squared bias is the posterior mean under the prior N(0, tau^2 G), tau^2 maximising
-    the likelihood of the differences over a fine grid refined by a scalar search."""
+def _reference_of_size(xy, y, s, usable=None, n_local=N_LOCAL):
+    """Every pair's prediction and its variance before the common model term, with
+    quadratics of ``n_local`` neighbours: the squared bias is the posterior mean under
+    the prior N(0, tau^2 G), tau^2 maximising the likelihood of the differences over a
+    fine grid refined by a scalar search."""
     from scipy.optimize import minimize_scalar
 
-    parts = np.array([_reference_parts(xy, y, s, i, usable) for i in range(len(y))])
+    parts = np.array([_reference_parts(xy, y, s, i, usable, n_local)
+                      for i in range(len(y))])
     quad, var, dev, var_d, g = parts.T
 
     def nll(t):
@@ -106,10 +111,60 @@ def _reference(xy, y, s, usable=None):
 
     grid = np.linspace(-40, 5, 4501)
     start = grid[np.argmin([nll(t) for t in grid])]
-    t = minimize_scalar(nll, bracket=(start - 0.01, start, start + 0.01)).x \
-        if -40 < start < 5 else start
+    t = minimize_scalar(nll, bounds=(start - 0.01, start + 0.01), method="bounded",
+                        options={"xatol": 1e-10}).x if -40 < start < 5 else start
     k = np.exp(t) * g / (np.exp(t) * g + var_d)
     return quad, var + k**2 * dev**2 + k * var_d
+
+
+def _model_variance(resid, var):
+    """Plain numpy, by bisection: the variance t >= 0 at which the median of
+    |resid| / sqrt(var + t) is that of a unit Gaussian's |Z| (0 if it already is)."""
+    from scipy.stats import norm
+
+    def excess(t):
+        return np.median(np.abs(resid) / np.sqrt(var + t)) - norm.ppf(0.75)
+
+    if excess(0.0) <= 0:
+        return 0.0
+    lo, hi = 0.0, 1.0
+    while excess(hi) > 0:
+        hi *= 2
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if excess(mid) > 0 else (lo, mid)
+    return 0.5 * (lo + hi)
+
+
+def _reference(xy, y, s):
+    """Every pair's prediction and its variance, all pairs usable and predicted: the
+    prediction of each neighbourhood size (steps 1-4, the model variance by its own
+    median rule) and their average (step 5), weighted by exp(-score/2), the score
+    being the sum over the N_CHECK nearest other pairs of ln v + r^2 / v, with v
+    the flux variance plus the size's prediction variance and r the residual; the
+    variance is the weighted mean of each size's plus the spread of the
+    predictions about the average. Also returns the N_LOCAL size's model variance."""
+    values, variances, models = [], [], []
+    for k in N_LOCAL_SIZES:
+        quad, var = _reference_of_size(xy, y, s, n_local=k)
+        models.append(_model_variance(y - quad, s**2 + var))
+        values.append(quad)
+        variances.append(var + models[-1])
+    values, variances = np.array(values), np.array(variances)
+    v = s**2 + variances
+    terms = np.log(v) + (y - values) ** 2 / v
+    value = np.empty(len(y))
+    var = np.empty(len(y))
+    for i in range(len(y)):
+        dist = np.hypot(*(xy - xy[i]).T)
+        dist[i] = np.inf
+        near = np.argsort(dist, kind="stable")[:N_CHECK]
+        score = terms[:, near].sum(axis=1)
+        w = np.exp(-0.5 * (score - score.min()))
+        w /= w.sum()
+        value[i] = w @ values[:, i]
+        var[i] = w @ (variances[:, i] + (values[:, i] - value[i]) ** 2)
+    return value, var, models[0]
 
 
 def _field(xy, y, s, **kw):
@@ -140,10 +195,10 @@ def test_prediction_and_error_match_a_plain_numpy_fit(scatter):
     s = rng.uniform(0.01, 0.04, 30)
     y = ln_mu + s * rng.standard_normal(30)
     field = _field(xy, y, s)
-    model = field.meta["field_model_sd"] ** 2
-    value, var = _reference(xy, y, s)
+    value, var, model = _reference(xy, y, s)
     assert np.allclose(field["ln_mu_field"], value, rtol=0, atol=1e-9)
-    assert np.allclose(np.asarray(field["ln_mu_field_err"]) ** 2, var + model, rtol=1e-5)
+    assert np.allclose(np.asarray(field["ln_mu_field_err"]) ** 2, var, rtol=1e-5)
+    assert np.isclose(field.meta["field_model_sd"] ** 2, model, rtol=1e-6, atol=1e-14)
 
 
 def test_position_errors_widen_by_the_gradient(scatter):
@@ -165,24 +220,31 @@ def test_a_pair_never_informs_its_own_prediction(scatter):
     s = np.full(30, 0.02)
     bumped = y.copy()
     bumped[7] += 1.0
-    # pair 7's own prediction does not read its flux ratio
-    assert _field(xy, bumped, s)["ln_mu_field"][7] == pytest.approx(
-        _field(xy, y, s)["ln_mu_field"][7], abs=1e-12)
-    # and where it is not usable, nobody else's does either
+    # no neighbourhood size's prediction of pair 7 reads its flux ratio: it enters
+    # only the weights of step 5, through its neighbours' residuals, and moves the
+    # prediction by a small fraction of its error
+    plain, moved = _field(xy, y, s), _field(xy, bumped, s)
+    shift = abs(moved["ln_mu_field"][7] - plain["ln_mu_field"][7])
+    assert shift < 0.1 * plain["ln_mu_field_err"][7]
+    # where it is not usable (as the joint test leaves out the pairs it flags),
+    # nobody's prediction reads it, its own included
     usable = np.arange(30) != 7
     assert np.allclose(_field(xy, bumped, s, usable=usable)["ln_mu_field"],
                        _field(xy, y, s, usable=usable)["ln_mu_field"], atol=1e-12)
 
 
-def test_unusable_pairs_stay_out_of_the_neighbourhoods(scatter):
+def test_unusable_pairs_stay_out_of_the_neighbourhoods(scatter, monkeypatch):
     xy, rng = scatter
     y = 0.3 * xy[:, 0] + 0.02 * rng.standard_normal(30)
     s = np.full(30, 0.02)
     usable = np.ones(30, bool)
     usable[[2, 5]] = False
-    field = _field(xy, y, s, usable=usable)
-    value = _reference_parts(xy, y, s, 11, usable=usable)[0]
-    assert field["ln_mu_field"][11] == pytest.approx(value, abs=1e-9)
+    # each neighbourhood size on its own
+    for size in ff._SIZE_SETTINGS:
+        monkeypatch.setattr(ff, "_SIZE_SETTINGS", (size,))
+        field = _field(xy, y, s, usable=usable)
+        value = _reference_parts(xy, y, s, 11, usable=usable, n_local=size[0])[0]
+        assert field["ln_mu_field"][11] == pytest.approx(value, abs=1e-9)
 
 
 def test_too_few_neighbours_declines():
@@ -196,14 +258,22 @@ def test_too_few_neighbours_declines():
     assert set(field["field_status"]) == {"ok"}
 
 
-def test_wide_residuals_get_a_common_model_error(scatter):
+def test_wide_residuals_get_a_common_model_error(scatter, monkeypatch):
     xy, rng = scatter
     # neighbours scatter 3x more than their quoted errors
     y = 0.06 * rng.standard_normal(30)
     field = _field(xy, y, np.full(30, 0.02))
     assert field.meta["field_model_sd"] > 0.02
     resid = (y - field["ln_mu_field"]) / np.sqrt(0.02**2 + field["ln_mu_field_err"] ** 2)
-    assert np.median(np.abs(resid)) == pytest.approx(0.6744897501960817, abs=1e-9)
+    # the average of the sizes also carries their spread, so its residuals are at
+    # most as wide as a unit Gaussian's
+    assert np.median(np.abs(resid)) <= 0.6744897501960817
+    # each size's own residuals are brought to exactly that width
+    for size in ff._SIZE_SETTINGS:
+        monkeypatch.setattr(ff, "_SIZE_SETTINGS", (size,))
+        field = _field(xy, y, np.full(30, 0.02))
+        resid = (y - field["ln_mu_field"]) / np.sqrt(0.02**2 + field["ln_mu_field_err"] ** 2)
+        assert np.median(np.abs(resid)) == pytest.approx(0.6744897501960817, abs=1e-9)
 
 
 @pytest.mark.parametrize("bad, match", [
@@ -543,7 +613,6 @@ def _smooth_scene(seed=4, n=30):
 
 
 def test_two_anomalous_neighbours_do_not_pull_each_others_prediction(monkeypatch):
-    import lensdual.flux_field as ff
 
     xy, y, s = _smooth_scene()
     a = 3
@@ -572,11 +641,10 @@ def test_dropped_neighbours_match_a_plain_numpy_deletion_test():
     y = y.copy()
     y[[2, 11, 19]] += [0.3, -0.25, 0.2]
     field = _field(xy, y, s)
-    value, var = _reference(xy, y, s)
+    value, var, _ = _reference(xy, y, s)
     assert np.asarray(field["field_dropped"]).sum() > 3
-    assert np.allclose(field["ln_mu_field"], value, rtol=0, atol=1e-9)
-    assert np.allclose(np.asarray(field["ln_mu_field_err"]) ** 2,
-                       var + field.meta["field_model_sd"] ** 2, rtol=1e-5)
+    assert np.allclose(field["ln_mu_field"], value, rtol=0, atol=1e-8)
+    assert np.allclose(np.asarray(field["ln_mu_field_err"]) ** 2, var, rtol=1e-5)
     for i in (0, 5, 20):
         kept = _neighbours(xy, y, s, i)
         n_all = 29
