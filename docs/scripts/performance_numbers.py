@@ -83,6 +83,8 @@ def null_calibration(path):
                lines, path)
     sub |= dict(zip(("perf_null_reverse", "perf_null_forward", "perf_null_reverse_cost"),
                     m.groups(), strict=True))
+    m = search(r"joint test: log ([\d.]+) s, conservative ([\d.]+) s", lines, path)
+    sub |= dict(zip(("perf_null_joint", "perf_null_joint_cons"), m.groups(), strict=True))
     return sub
 
 
