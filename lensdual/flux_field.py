@@ -52,6 +52,7 @@ import numpy as np
 from astropy import units as u
 from astropy.table import QTable
 from scipy.optimize import brentq
+from scipy.spatial import cKDTree
 from scipy.stats import binom, norm
 
 from . import _flux_field_kernels as _kernels
@@ -222,12 +223,17 @@ def size_weights(pos, y, s, values, variances, usable):
     idx = np.flatnonzero(scored)
     v = s[idx] ** 2 + variances[:, idx]
     terms = np.log(v) + (y[idx] - values[:, idx]) ** 2 / v
-    dist = np.hypot(pos[:, None, 0] - pos[None, idx, 0], pos[:, None, 1] - pos[None, idx, 1])
-    dist[idx == np.arange(n)[:, None]] = np.inf
-    dist[~np.isfinite(dist)] = np.inf
+    # the m nearest scored pairs of every placed pair, itself left out (a k-d tree:
+    # no N x N distance matrix for large constellations)
     m = min(N_CHECK, idx.size - 1)
-    nearest = np.argsort(dist, axis=1, kind="mergesort")[:, :m]
-    score = terms[:, nearest].sum(axis=2)
+    k = min(N_CHECK + 1, idx.size)
+    rows = np.flatnonzero(np.isfinite(pos).all(axis=1))
+    found = idx[cKDTree(pos[idx]).query(pos[rows], k=k)[1].reshape(rows.size, k)]
+    own_last = np.argsort(found == rows[:, None], axis=1, kind="stable")
+    nearest = np.zeros((n, m), dtype=np.int64)
+    nearest[rows] = np.take_along_axis(found, own_last, axis=1)[:, :m]
+    score = np.zeros((n_sizes, n))
+    score[:, rows] = terms[:, np.searchsorted(idx, nearest[rows])].sum(axis=2)
     score = np.where(predicted, score, np.inf)
     best = np.min(score, axis=0)
     has = np.isfinite(best)
