@@ -93,12 +93,11 @@ MAX_UNRESOLVED = _max_unresolved(N_LOCAL, ADAPTIVE_SETTINGS.alpha)
 DROP_LEVEL = 0.05
 #: Most neighbours dropped from one pair's fits.
 MAX_DROP = 2
-#: The studentised deletion residual beyond which a neighbour is dropped (Bonferroni).
-_T_DROP = float(norm.isf(DROP_LEVEL / (2 * N_LOCAL)))
 #: Neighbourhood sizes of the quadratic fit whose predictions step 5 averages: every
 #: size from N_LOCAL to the cubic check's N_CHECK.
 N_LOCAL_SIZES = tuple(range(N_LOCAL, N_CHECK + 1))
-#: Per size of N_LOCAL_SIZES: (size, the Bonferroni bound of step 1 over that many).
+#: Per size of N_LOCAL_SIZES: (size, the studentised deletion residual beyond which
+#: step 1 drops a neighbour: the Bonferroni bound over that many neighbours).
 _SIZE_SETTINGS = tuple((k, float(norm.isf(DROP_LEVEL / (2 * k)))) for k in N_LOCAL_SIZES)
 #: Fewest neighbours of the cubic check: two residual degrees of freedom.
 _MIN_CHECK = 12
@@ -223,17 +222,16 @@ def size_weights(pos, y, s, values, variances, usable):
     idx = np.flatnonzero(scored)
     v = s[idx] ** 2 + variances[:, idx]
     terms = np.log(v) + (y[idx] - values[:, idx]) ** 2 / v
-    # the m nearest scored pairs of every placed pair, itself left out (a k-d tree:
-    # no N x N distance matrix for large constellations)
+    # the m nearest scored pairs of every placed pair (their places in idx), itself
+    # left out (a k-d tree: no N x N distance matrix for large constellations)
     m = min(N_CHECK, idx.size - 1)
     k = min(N_CHECK + 1, idx.size)
     rows = np.flatnonzero(np.isfinite(pos).all(axis=1))
-    found = idx[cKDTree(pos[idx]).query(pos[rows], k=k)[1].reshape(rows.size, k)]
-    own_last = np.argsort(found == rows[:, None], axis=1, kind="stable")
-    nearest = np.zeros((n, m), dtype=np.int64)
-    nearest[rows] = np.take_along_axis(found, own_last, axis=1)[:, :m]
-    score = np.zeros((n_sizes, n))
-    score[:, rows] = terms[:, np.searchsorted(idx, nearest[rows])].sum(axis=2)
+    found = cKDTree(pos[idx]).query(pos[rows], k=k)[1].reshape(rows.size, k)
+    own_last = np.argsort(idx[found] == rows[:, None], axis=1, kind="stable")
+    nearest = np.take_along_axis(found, own_last, axis=1)[:, :m]
+    score = np.full((n_sizes, n), np.inf)
+    score[:, rows] = terms[:, nearest].sum(axis=2)
     score = np.where(predicted, score, np.inf)
     best = np.min(score, axis=0)
     has = np.isfinite(best)
@@ -264,7 +262,7 @@ def field_arrays(pos, y, s, sig2, usable=None, resolved=None):
     full = [ok & (f.n_used >= k) for f, (k, _) in zip(fields, _SIZE_SETTINGS, strict=True)]
     values = np.array([np.where(m, f.value, np.nan) for f, m in zip(fields, full, strict=True)])
     variances = np.array([np.where(m, f.var, np.nan) for f, m in zip(fields, full, strict=True)])
-    w = size_weights(np.where(placed[:, None], pos, np.nan), y, s, values, variances, usable)
+    w = size_weights(pos, y, s, values, variances, usable)
     used = w > 0
     value = np.sum(np.where(used, w * values, 0.0), axis=0)
     spread = np.where(used, values - value, 0.0)

@@ -88,6 +88,12 @@ def read_pipeline_rows(path):
     return rows
 
 
+def _upper_limit(k, n):
+    """The one-sided Clopper-Pearson upper limit, at CONFIDENCE, on the rate of k
+    flags in n pairs."""
+    return 1.0 if k == n else float(beta.ppf(CONFIDENCE, k + 1, n - k))
+
+
 def _signed_pct(x):
     return f"{100 * x:+.0f}"
 
@@ -121,10 +127,7 @@ def finite_size_numbers(path):
     sub["mock_clean_pairs"] = str(real["tested"])
     sub["mock_false_real"] = str(real["false"])
     sub["mock_false_point"] = str(point["false"])
-    # the one-sided Clopper-Pearson upper limit on the rate of k flags in n pairs
-    k, n = real["false"], real["tested"]
-    limit = 1.0 if k == n else beta.ppf(CONFIDENCE, k + 1, n - k)
-    sub["mock_false_limit"] = f"{100 * limit:.1f}"
+    sub["mock_false_limit"] = f"{100 * _upper_limit(real['false'], real['tested']):.1f}"
     sub["mock_confidence"] = f"{100 * CONFIDENCE:.0f}"
     sub["mock_subhalo_real"] = f"{real['subhalo']} of {real['seeds']}"
     sub["mock_subhalo_point"] = f"{point['subhalo']} of {point['seeds']}"
@@ -133,10 +136,9 @@ def finite_size_numbers(path):
     sub["mock_ratio_err_point"] = f"{100 * point['ratio_err']:.1f}"
     # the realistic scene again, with the resolved fit
     k, n = resolved["false"], resolved["tested"]
-    limit = 1.0 if k == n else beta.ppf(CONFIDENCE, k + 1, n - k)
     sub["mock_res_pairs"] = str(n)
     sub["mock_res_false"] = str(k)
-    sub["mock_res_false_limit"] = f"{100 * limit:.1f}"
+    sub["mock_res_false_limit"] = f"{100 * _upper_limit(k, n):.1f}"
     sub["mock_res_subhalo"] = f"{resolved['subhalo']} of {resolved['seeds']}"
     sub["mock_res_patch"] = resolved["patch"]
     sub["mock_res_ratio_err"] = f"{100 * resolved['ratio_err']:.1f}"
