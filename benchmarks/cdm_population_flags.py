@@ -32,6 +32,10 @@ import warnings
 import numpy as np
 from _output import Record, add_output_argument
 
+#: The test these records were made with: the geometric test with the linearised
+#: SNR (the default until the joint test became it).
+GEOMETRIC = {"test": "geometric", "snr_definition": "log"}
+
 #: The one-sided confidence of the upper limit on the false-flag rate.
 CONFIDENCE = 0.95
 #: Bins of the nearest sub-halo's mass [Msun] (the population's range, one per decade).
@@ -74,7 +78,7 @@ def one(seed, n_sources):
         warnings.simplefilter("ignore")
         system, truth = simulate_demo(subhalo="cdm", n_sources=n_sources, seed=seed)
         demo = render_demo(system, truth, seed=seed)
-        analysis = analyse(demo.images, psf=demo.psf, seed=seed)
+        analysis = analyse(demo.images, psf=demo.psf, seed=seed, **GEOMETRIC)
     comparison = compare_with_truth(analysis.result, truth, demo.centre)
     meta = dict(comparison.meta)
     meta["expected_subhaloes"] = truth.meta["subhaloes"].meta["expected_number"]

@@ -10,12 +10,15 @@ paper's over-concentrated one (1e8 Msun, c = 100) and with its 1e8 Msun
 sub-halo on the mass-concentration relation (c = 28.6, "small"), the
 real-data pipeline runs on the images (detection, photometry, automatic
 pairing, PSF astrometry errors as sigma_pos), and the duality test runs with
-the adaptive estimator (the default, geometric test), with quad2, and with
-the adaptive estimator under the joint test (``test="joint"``, geometry and
-the flux field of the other pairs). Reported: pairs tested, clean pairs
-flagged (false flags), whether the sub-haloed pair was flagged and, for the
-joint test, how many pairs got a flux-field prediction (``field_status`` "ok";
-"-" for the other methods).
+the adaptive estimator under the geometric test with the linearised SNR
+("adaptive", the default before the joint test became it), with quad2, with the adaptive estimator
+under the joint test (``test="joint"``, geometry and the flux field of the
+other pairs) with the linearised SNR ("joint"), and as the pipeline runs by
+default ("default": ``test="auto"`` and ``snr_definition="auto"``, the joint
+test with the conservative SNR). Reported: pairs tested, clean pairs flagged
+(false flags), whether the sub-haloed pair was flagged and, for the joint
+tests, how many pairs got a flux-field prediction (``field_status`` "ok"; "-"
+for the other methods).
 """
 
 import argparse
@@ -35,8 +38,11 @@ from lensdual.simulation import render_mock_images
 #: over-concentrated 1e8 Msun (c = 100) and its 1e8 Msun on the mass-concentration
 #: relation (c = 28.6).
 SCENARIOS = ("none", "overconcentrated", "small")
-#: adaptive (geometric test), quad2 (geometric test), adaptive under the joint test.
-METHODS = ("adaptive", "quad2", "joint")
+#: adaptive (geometric test, linearised SNR), quad2 (geometric test), adaptive under
+#: the joint test (linearised SNR), and the pipeline's defaults.
+METHODS = ("adaptive", "quad2", "joint", "default")
+#: The methods with a flux field.
+JOINT = ("joint", "default")
 
 
 def one(seed, subhalo):
@@ -49,18 +55,21 @@ def one(seed, subhalo):
     centre = SkyCoord(meta["LENSRA"] * u.deg, meta["LENSDEC"] * u.deg)
     rows = {}
     for method in METHODS:
-        # analysis.result is the geometric adaptive test of the PSF-measured pairs
-        # (positions and fluxes in both bands); the other rows test the same pairs again
+        # analysis.result is the default test of the PSF-measured pairs (positions
+        # and fluxes in both bands); the other rows test the same pairs again
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            if method == "adaptive":
+            if method == "default":
                 res = analysis.result
-            elif method == "joint":
-                res = check_duality(analysis.result, "adaptive", test="joint",
-                                    sigma_pos=analysis.sigma_pos, seed=seed)
+            elif method in ("adaptive", "joint"):
+                res = check_duality(analysis.result, "adaptive",
+                                    test="geometric" if method == "adaptive" else "joint",
+                                    snr_definition="log", sigma_pos=analysis.sigma_pos,
+                                    seed=seed)
             else:
                 res = check_duality(analysis.result, method, sigma_pos=analysis.sigma_pos,
-                                    n_bootstrap=1000, seed=seed)
+                                    n_bootstrap=1000, seed=seed, test="geometric",
+                                    snr_definition="log")
         comp = compare_with_truth(res, truth, centre)
         sub = np.asarray(comp["subhalo"], dtype=bool)
         flagged = np.asarray(res["anomalous"], dtype=bool)
@@ -75,7 +84,7 @@ def one(seed, subhalo):
             "sub_sig": (float(np.asarray(res["significance"])[sub][0]) if sub.any()
                         else np.nan),
             "field_ok": (int((np.asarray(res["field_status"]) == "ok").sum())
-                         if method == "joint" else None),
+                         if method in JOINT else None),
         }
     return rows
 
@@ -108,7 +117,7 @@ def main(argv=None):
             "field_ok_pairs")
     for (subhalo, method), t in totals.items():
         hit = f"{t['hit']}/{t['runs']}" if subhalo != "none" else "-"
-        field = f"{t['field']}/{t['n']}" if method == "joint" else "-"
+        field = f"{t['field']}/{t['n']}" if method in JOINT else "-"
         rec.say(f"{subhalo} {method} {t['clean']} {t['false']} "
                 f"{t['false'] / max(t['clean'], 1):.2%} {hit} {field}")
     rec.write(args.output)

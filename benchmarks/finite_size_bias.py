@@ -53,6 +53,10 @@ from lensdual.simulation import PSF_FWHM, lens_to_sky, render_mock_images
 from lensdual.simulation._clusters import image_covariances, source_sigmas
 from lensdual.simulation.mock import _LensAdapter
 
+#: The test these records were made with: the geometric test with the linearised
+#: SNR (the default until the joint test became it).
+GEOMETRIC = {"test": "geometric", "snr_definition": "log"}
+
 RADII_PC = (0.0, 1.0, 5.0, 10.0, 20.0, 40.0, 80.0)
 PIXEL = 0.04  # arcsec, the demo's
 SQRT_8LN2 = 2.0 * math.sqrt(2.0 * math.log(2.0))
@@ -138,7 +142,8 @@ def pipeline_flags(seeds, rows=PIPELINE_ROWS):
             system, truth = simulate_demo(seed=seed)
             demo = render_demo(system, truth, seed=seed, scene=scene)
             analysis = analyse(demo.images, psf=demo.psf, sigma_pos="auto", seed=seed,
-                               null_realisations=0, source_model=source_model)
+                               null_realisations=0, source_model=source_model,
+                               **GEOMETRIC)
             comp = compare_with_truth(analysis.result, truth, demo.centre)
             # the realistic scene's diffuse patch lies under the L1 image of pair 0
             patched = ((np.asarray(comp["source"]) == 0) & ~np.asarray(comp["subhalo"], bool)

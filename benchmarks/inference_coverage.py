@@ -63,7 +63,7 @@ def run_family(family, args, out):
     t0 = time.perf_counter()
     weight = 1.0 if args.no_weight else composite_weight(
         pairs, system, sim, sigma_pos=args.sigma_pos_mas * u.mas, flux_rel_err=args.flux_rel_err,
-        n_mocks=args.n_mocks, seed=args.seed + 7, test=args.test)
+        n_mocks=args.n_mocks, seed=args.seed + 7, test=args.test, snr_definition="log")
     t_weight = time.perf_counter() - t0
     rng = np.random.default_rng(args.seed + 1)
     sigma_pos = args.sigma_pos_mas * u.mas
@@ -75,7 +75,8 @@ def run_family(family, args, out):
         mock = apply_population(pairs, system, pop, truth / u.kpc**2, seed=10_000 + k)
         noisy = noisy_constellation(mock, sigma_pos=sigma_pos, flux_rel_err=args.flux_rel_err,
                                     seed=20_000 + k)
-        result = check_duality(noisy, sigma_pos=sigma_pos, seed=k, test=args.test)
+        result = check_duality(noisy, sigma_pos=sigma_pos, seed=k, test=args.test,
+                               snr_definition="log")
         if args.oracle_noise:
             # the measured anomaly replaced by the truth plus independent noise of the
             # reported error: isolates the error model from the forward model

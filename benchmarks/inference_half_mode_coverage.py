@@ -41,6 +41,10 @@ from lensdual.inference import (
 from lensdual.simulation import noisy_constellation
 from lensdual.simulation.families import calibration_system, clean_constellation
 
+#: The test these records were made with: the geometric test with the linearised
+#: SNR (the default until the joint test became it).
+GEOMETRIC = {"test": "geometric", "snr_definition": "log"}
+
 PRIOR_SIGMA = (1e-3, 0.3)  # kpc^-2
 LOG_MHM = (5.0, 6.0, 7.0, 8.0, 9.0, 10.0)
 SIGMA_POS = 10 * u.mas
@@ -69,7 +73,8 @@ def main():
                                    n_realisations=args.n_real, seed=args.seed, client=pool)
                 for m in LOG_MHM]
     weight = composite_weight(pairs, system, sims[0], sigma_pos=SIGMA_POS,
-                              flux_rel_err=FLUX_ERR, n_mocks=100, seed=args.seed + 7)
+                              flux_rel_err=FLUX_ERR, n_mocks=100, seed=args.seed + 7,
+                              **GEOMETRIC)
     t_sim = time.perf_counter() - t0
     rng = np.random.default_rng(args.seed + 1)
     rows = []
@@ -84,7 +89,7 @@ def main():
                                     seed=10_000 + 100 * k + j)
             noisy = noisy_constellation(mock, sigma_pos=SIGMA_POS, flux_rel_err=FLUX_ERR,
                                         seed=50_000 + 100 * k + j)
-            tables.append(check_duality(noisy, sigma_pos=SIGMA_POS, seed=j))
+            tables.append(check_duality(noisy, sigma_pos=SIGMA_POS, seed=j, **GEOMETRIC))
         post = half_mode_posterior(tables, [[s] * args.n_systems for s in sims],
                                    weights=[weight] * args.n_systems)
         m = post.meta["inference"]

@@ -36,6 +36,10 @@ from lensdual.inference._posterior import _system_log_likelihood
 from lensdual.simulation import noisy_constellation
 from lensdual.simulation.families import calibration_system, clean_constellation
 
+#: The test these records were made with: the geometric test with the linearised
+#: SNR (the default until the joint test became it).
+GEOMETRIC = {"test": "geometric", "snr_definition": "log"}
+
 SIGMA_SUB = 0.025  # kpc^-2, pyHalo's default
 
 
@@ -80,7 +84,7 @@ def main():
         sigma_pos = mas * u.mas
         w = composite_weight(pairs, system, weight_sim, sigma_pos=sigma_pos,
                              flux_rel_err=args.flux_rel_err, n_mocks=50,
-                             seed=int(rng.integers(2**31)))
+                             seed=int(rng.integers(2**31)), **GEOMETRIC)
         stats = {}
         for name, pop in models.items():
             d = []
@@ -91,7 +95,7 @@ def main():
                                             flux_rel_err=args.flux_rel_err,
                                             seed=int(rng.integers(2**31)))
                 result = check_duality(noisy, sigma_pos=sigma_pos,
-                                       seed=int(rng.integers(2**31)))
+                                       seed=int(rng.integers(2**31)), **GEOMETRIC)
                 ll = {k: _system_log_likelihood(result, s)[0][-1] for k, s in sims.items()}
                 d.append(w * (ll["CDM"] - ll["WDM"]))
             stats[name] = (np.mean(d), np.std(d, ddof=1))

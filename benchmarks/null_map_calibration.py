@@ -47,6 +47,10 @@ from lensdual.estimators.core import _poly_terms
 from lensdual.exceptions import LensdualWarning
 from lensdual.simulation import clean_constellation, noisy_constellation
 
+#: The test these records were made with: the geometric test with the linearised
+#: SNR (the default until the joint test became it).
+GEOMETRIC = {"test": "geometric", "snr_definition": "log"}
+
 
 def polynomial_map(t1, t2, sigma, alpha=0.05):
     """The earlier null map: a global polynomial, the lowest degree (1 to 4) whose
@@ -101,7 +105,8 @@ def run_cell(family, n_sources, sigma_mas, n_constellations, n_realisations, see
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             null = duality.null_calibration(noisy, sigma_pos=sigma,
-                                            n_realisations=n_realisations, seed=seed)
+                                            n_realisations=n_realisations, seed=seed,
+                                            **GEOMETRIC)
         n_warned += any(issubclass(w.category, LensdualWarning)
                         and "null map" in str(w.message) for w in caught)
         ok = np.asarray(null["tested"], dtype=bool)
@@ -131,7 +136,8 @@ def run_demo_cell(n_seeds, n_realisations):
         psf = {band: np.asarray(mocks[("L1", band)].psf) for band in DEMO_BANDS}
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            res = analyse(images, psf=psf, seed=seed, null_realisations=n_realisations).result
+            res = analyse(images, psf=psf, seed=seed, null_realisations=n_realisations,
+                          **GEOMETRIC).result
         null = res.meta["duality"]["null_calibration"]
         ok = np.asarray(res["tested"], dtype=bool)
         tested += int(ok.sum())

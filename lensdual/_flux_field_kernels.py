@@ -380,3 +380,39 @@ def max_likelihood_ln_tau2(d2, sens, var_dev, lo, hi, n_grid, xatol):
     if _bias_nll(x, d2, sens, var_dev) <= f_best:
         return x
     return lo + best * step
+
+
+@njit(**JIT_OPTIONS)
+def _median_ratio_excess(r, v, t, target):
+    """``median(r / sqrt(v + t)) - target``."""
+    return np.median(r / np.sqrt(v + t)) - target
+
+
+@njit(**JIT_OPTIONS)
+def common_variance(r, v, target):
+    """The ``t >= 0`` at which ``median(r / sqrt(v + t))`` falls to ``target``
+    (``r >= 0``, ``v > 0``; 0 where it is already at most ``target``).
+
+    Each ratio falls below ``target`` at ``t_i = (r_i / target)^2 - v_i``. With
+    an odd count the median is the middle ratio, which reaches ``target``
+    exactly at the median of the ``t_i``. With an even count it is the mean of
+    the two middle ratios, and the root lies between the two middle ``t_i``
+    (below it more than half the ratios exceed ``target``, above it fewer):
+    bisection there, to float resolution."""
+    n = r.size
+    if _median_ratio_excess(r, v, 0.0, target) <= 0.0:
+        return 0.0
+    ti = np.sort((r / target) ** 2 - v)
+    if n % 2 == 1:
+        return max(ti[n // 2], 0.0)
+    a = max(ti[n // 2 - 1], 0.0)
+    b = max(ti[n // 2], a)
+    for _ in range(200):
+        mid = 0.5 * (a + b)
+        if mid == a or mid == b:
+            break
+        if _median_ratio_excess(r, v, mid, target) > 0.0:
+            a = mid
+        else:
+            b = mid
+    return 0.5 * (a + b)

@@ -147,8 +147,9 @@ def _check_kwargs(tab):
     kwargs = {}
     if isinstance(duality.get("method"), str):
         kwargs["method"] = duality["method"]
-    if isinstance(duality.get("test"), str):
-        kwargs["test"] = duality["test"]
+    for key in ("test", "snr_definition"):
+        if isinstance(duality.get(key), str):
+            kwargs[key] = duality[key]
     if isinstance(duality.get("snr_threshold"), (int, float)):
         kwargs["snr_threshold"] = float(duality["snr_threshold"])
     return kwargs

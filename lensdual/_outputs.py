@@ -394,13 +394,18 @@ def parametric_outputs(analysis, directory, *, lenstool=None, fit=False, model=N
 
 def write_run_inputs(mocks, directory, *, estimator, n_bootstrap, snr_threshold, seed,
                      centre, parametric=False, null_realisations=0, fit_settings=None,
-                     test="geometric", snr_definition="log", source_model="point"):
+                     test="auto", snr_definition="auto", source_model="point"):
     """FITS images, error maps and PSFs of the mocks, and a config that reads them.
+
+    ``snr_definition`` and ``source_model`` are written only where they differ
+    from the config's defaults.
 
     ``fit_settings`` (with ``sigma_pos`` and ``fix_centre``) are the demo's
     parametric-fit settings written to ``[parametric]`` when ``parametric``.
     """
     from astropy.io import fits
+
+    from .config._schema import default
 
     data = directory / "data"
     data.mkdir(parents=True, exist_ok=True)
@@ -409,9 +414,9 @@ def write_run_inputs(mocks, directory, *, estimator, n_bootstrap, snr_threshold,
         "analysis": {"estimator": estimator, "sigma_pos": "auto",
                      "n_bootstrap": int(n_bootstrap), "test": test,
                      **({"snr_definition": snr_definition}
-                        if snr_definition != "log" else {}),
+                        if snr_definition != default("analysis", "snr_definition") else {}),
                      **({"source_model": source_model}
-                        if source_model != "point" else {}),
+                        if source_model != default("analysis", "source_model") else {}),
                      "snr_threshold": float(snr_threshold),
                      "seed": int(seed), "null_realisations": int(null_realisations)},
         "bands": {}, "arcs": {"L1": {}, "L2": {}},

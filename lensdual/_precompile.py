@@ -57,14 +57,15 @@ def wanted():
     return _n_cores() >= 2 and not _cached()
 
 
-def start(test="geometric", null_calibration=True):
-    """Start the second process for the duality test ``test`` (and its null
-    calibration) if :func:`wanted`; a no-op otherwise or when one is running."""
+def start(test="auto", null_calibration=True, snr_definition="auto"):
+    """Start the second process for the duality test ``test`` with the SNR
+    ``snr_definition`` (and its null calibration) if :func:`wanted`; a no-op
+    otherwise or when one is running."""
     global _pending
     if _pending is not None or not wanted():
         return
     code = (f"from lensdual._precompile import compile_kernels; "
-            f"compile_kernels({test!r}, {bool(null_calibration)!r})")
+            f"compile_kernels({test!r}, {bool(null_calibration)!r}, {snr_definition!r})")
     try:
         _pending = subprocess.Popen([sys.executable, "-c", code], stdin=subprocess.DEVNULL,
                                     stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
@@ -95,8 +96,9 @@ def cancel():
         proc.wait()
 
 
-def compile_kernels(test="geometric", null_calibration=True):
-    """Run the adaptive duality test ``test`` (and a 100-realisation null
+def compile_kernels(test="auto", null_calibration=True, snr_definition="auto"):
+    """Run the adaptive duality test ``test`` with the SNR ``snr_definition``
+    (and a 100-realisation null
     calibration) on a small clean two-band constellation, so that every kernel
     they use is compiled and cached, with the argument types a run passes
     (per-source position errors on both arcs)."""
@@ -130,6 +132,8 @@ def compile_kernels(test="geometric", null_calibration=True):
     sigma = np.full((2, n), 0.002) * u.arcsec
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        check_duality(pairs, "adaptive", sigma_pos=sigma, test=test, seed=0)
+        check_duality(pairs, "adaptive", sigma_pos=sigma, test=test, seed=0,
+                      snr_definition=snr_definition)
         if null_calibration:
-            run_null(pairs, sigma_pos=sigma, n_realisations=100, seed=0, test=test)
+            run_null(pairs, sigma_pos=sigma, n_realisations=100, seed=0, test=test,
+                     snr_definition=snr_definition)

@@ -37,6 +37,11 @@ __all__ = []
 _N_BISECT = 100
 _N_GRID = 24
 _N_GOLDEN = 40
+#: Newton's steps on the secular equation stop once a step moves lambda by less than
+#: this fraction of it (the step's quadratic convergence takes it to float resolution).
+_LAM_RTOL = 1e-10
+#: The golden-section search stops at a bracket this many times the rest's noise.
+_U_TOL = 1e-6
 
 
 @njit(**JIT_OPTIONS)
@@ -87,21 +92,24 @@ def _secular_slope(q, yh, lam):
 
 
 @njit(**JIT_OPTIONS)
-def _quadric_d2(q, yh, target):
+def _quadric_d2(q, yh, target, lam0=np.nan):
     """The squared whitened distance from ``yh`` to ``sum q y^2 = target``
-    (``q`` sorted, two negative and two positive: the form of ``det``): the
-    root of the secular equation between 0 and the pole on the side of the
-    target, where it is increasing, by Newton steps kept inside the bracket
-    (a bisection step where Newton would leave it), to the bracket's float
-    resolution or an exact root."""
+    (``q`` sorted, two negative and two positive: the form of ``det``) and
+    the multiplier ``lambda`` of the closest point: the root of the secular
+    equation between 0 and the pole on the side of the target, where it is
+    increasing, by Newton steps kept inside the bracket (a bisection step
+    where Newton would leave it), until a Newton step moves ``lambda`` by less
+    than :data:`_LAM_RTOL` of it (or the bracket reaches float resolution, or
+    an exact root). The steps start at ``lam0`` where it lies inside the
+    bracket (the root of a nearby target), else at the bracket's middle."""
     f0 = _secular(q, yh, 0.0)
     if f0 == target:
-        return 0.0
+        return 0.0, 0.0
     if target > f0:
         a, b = 0.0, 0.5 / q[3]
     else:
         a, b = 0.5 / q[0], 0.0
-    lam = 0.5 * (a + b)
+    lam = lam0 if a < lam0 < b else 0.5 * (a + b)
     for _ in range(_N_BISECT):
         f = _secular(q, yh, lam) - target
         if f == 0.0:
@@ -117,8 +125,8 @@ def _quadric_d2(q, yh, target):
         step = lam - f / slope if slope > 0.0 else mid
         # Newton where it lands well inside the bracket, else bisection
         if a < step < b and abs(step - lam) < 0.5 * (b - a):
-            if abs(step - lam) <= 4e-16 * abs(lam):
-                lam = step  # converged to the float resolution of lam
+            if abs(step - lam) <= _LAM_RTOL * abs(lam):
+                lam = step  # converged: the next step would move lam by less
                 break
             lam = step
         else:
@@ -128,47 +136,103 @@ def _quadric_d2(q, yh, target):
         r = 1.0 - 2.0 * lam * q[i]
         dy = yh[i] / r - yh[i]
         d2 += dy * dy
-    return d2
+    return d2, lam
 
 
 @njit(**JIT_OPTIONS)
-def _objective(q, yh, sign, u, ln_r, v):
-    d2 = _quadric_d2(q, yh, sign * np.exp(u))
+def _objective(q, yh, sign, u, ln_r, v, lam0):
+    """The profile objective at ``u = ln|D|`` and the multiplier of its
+    closest point (``lam0`` a start for it, see :func:`_quadric_d2`)."""
+    d2, lam = _quadric_d2(q, yh, sign * np.exp(u), lam0)
     if v > 0.0:
         d2 += (ln_r - u) ** 2 / v
-    return d2
+    return d2, lam
 
 
 @njit(**JIT_OPTIONS)
 def _min_over_u(q, yh, sign, lo, hi, ln_r, v):
     """The smallest objective over ``u = ln|D|`` in ``[lo, hi]``: a grid, then
-    golden-section steps around its best point."""
+    golden-section steps around its best point; each root starts from the previous evaluation's."""
     best = np.inf
     ib = 0
     us = np.linspace(lo, hi, _N_GRID)
-    vals = np.empty(_N_GRID)
+    lam = np.nan
+    lams = np.empty(_N_GRID)
     for i in range(_N_GRID):
-        vals[i] = _objective(q, yh, sign, us[i], ln_r, v)
-        if vals[i] < best:
-            best = vals[i]
+        val, lam = _objective(q, yh, sign, us[i], ln_r, v, lam)
+        lams[i] = lam
+        if val < best:
+            best = val
             ib = i
     a = us[max(ib - 1, 0)]
     b = us[min(ib + 1, _N_GRID - 1)]
     g = 0.5 * (np.sqrt(5.0) - 1.0)
     x1 = b - g * (b - a)
     x2 = a + g * (b - a)
-    f1 = _objective(q, yh, sign, x1, ln_r, v)
-    f2 = _objective(q, yh, sign, x2, ln_r, v)
+    f1, lam = _objective(q, yh, sign, x1, ln_r, v, lams[ib])
+    f2, lam = _objective(q, yh, sign, x2, ln_r, v, lam)
+    # to a bracket of _U_TOL of the rest's noise: the objective, quadratic about
+    # its minimum with a curvature of order 1 / v, is then within ~1e-12 of it
+    tol = _U_TOL * np.sqrt(v)
     for _ in range(_N_GOLDEN):
+        if b - a <= tol:
+            break
         if f1 < f2:
             b, x2, f2 = x2, x1, f1
             x1 = b - g * (b - a)
-            f1 = _objective(q, yh, sign, x1, ln_r, v)
+            f1, lam = _objective(q, yh, sign, x1, ln_r, v, lam)
         else:
             a, x1, f1 = x1, x2, f2
             x2 = a + g * (b - a)
-            f2 = _objective(q, yh, sign, x2, ln_r, v)
+            f2, lam = _objective(q, yh, sign, x2, ln_r, v, lam)
     return min(best, f1, f2)
+
+
+@njit(**JIT_OPTIONS)
+def whiten_all(jac, cov, q, yh, ok):
+    """:func:`_whiten` of each pair: ``q`` and ``yh`` (N, 4) filled, ``ok`` (N,)
+    False where ``cov`` is not positive definite or the Jacobian's determinant
+    is not finite and non-zero."""
+    for a in range(jac.shape[0]):
+        ok[a] = False
+        if not (np.isfinite(jac[a]).all() and np.isfinite(cov[a]).all()):
+            continue
+        if not _whiten(jac[a], cov[a], q[a], yh[a]):
+            continue
+        det = jac[a, 0] * jac[a, 3] - jac[a, 1] * jac[a, 2]
+        ok[a] = np.isfinite(det) and det != 0.0
+
+
+@njit(**JIT_OPTIONS)
+def profile_snr_whitened(q, yh, ok, det, var_rest, ln_r, out):
+    """:func:`profile_snr` from the pairs' whitened forms (:func:`whiten_all`:
+    ``q``, ``yh``, ``ok``) and determinants ``det`` (N,)."""
+    for a in range(q.shape[0]):
+        out[a] = np.nan
+        v = var_rest[a]
+        lr = ln_r[a]
+        if not (ok[a] and np.isfinite(lr) and v >= 0.0 and np.isfinite(v)):
+            continue
+        qa = q[a]
+        ya = yh[a]
+        best = np.inf
+        for sign in (1.0, -1.0):
+            if v == 0.0:
+                best = min(best, _quadric_d2(qa, ya, sign * np.exp(lr))[0])
+                continue
+            if sign * det[a] > 0.0:
+                # between the estimate and the hypothesis, with a margin of the rest's noise
+                u0 = np.log(abs(det[a]))
+                lo = min(u0, lr) - 2.0 * np.sqrt(v)
+                hi = max(u0, lr) + 2.0 * np.sqrt(v)
+            else:
+                # the other parity: |D| below R (the distance grows with |D|)
+                if _quadric_d2(qa, ya, 0.0)[0] >= best:
+                    continue
+                lo = lr - 8.0 * np.sqrt(v)
+                hi = lr
+            best = min(best, _min_over_u(qa, ya, sign, lo, hi, lr, v))
+        out[a] = np.sqrt(best)
 
 
 @njit(**JIT_OPTIONS)
@@ -179,34 +243,12 @@ def profile_snr(jac, cov, var_rest, ln_r, out):
     of the variance of ``ln|det J|`` and the flux ratio's, ``ln_r`` (N,) the
     log flux ratios. NaN where an input is not finite or ``cov`` is not
     positive definite."""
-    q = np.empty(4)
-    yh = np.empty(4)
-    for a in range(jac.shape[0]):
-        out[a] = np.nan
-        v = var_rest[a]
-        lr = ln_r[a]
-        if not (np.isfinite(lr) and v >= 0.0 and np.isfinite(v)):
-            continue
-        if not _whiten(jac[a], cov[a], q, yh):
-            continue
-        det = jac[a, 0] * jac[a, 3] - jac[a, 1] * jac[a, 2]
-        if not (np.isfinite(det) and det != 0.0):
-            continue
-        best = np.inf
-        for sign in (1.0, -1.0):
-            if v == 0.0:
-                best = min(best, _quadric_d2(q, yh, sign * np.exp(lr)))
-                continue
-            if sign * det > 0.0:
-                # between the estimate and the hypothesis, with a margin of the rest's noise
-                u0 = np.log(abs(det))
-                lo = min(u0, lr) - 2.0 * np.sqrt(v)
-                hi = max(u0, lr) + 2.0 * np.sqrt(v)
-            else:
-                # the other parity: |D| below R (the distance grows with |D|)
-                if _quadric_d2(q, yh, 0.0) >= best:
-                    continue
-                lo = lr - 8.0 * np.sqrt(v)
-                hi = lr
-            best = min(best, _min_over_u(q, yh, sign, lo, hi, lr, v))
-        out[a] = np.sqrt(best)
+    n = jac.shape[0]
+    q = np.empty((n, 4))
+    yh = np.empty((n, 4))
+    ok = np.empty(n, dtype=np.bool_)
+    whiten_all(jac, cov, q, yh, ok)
+    det = np.empty(n)
+    for a in range(n):
+        det[a] = jac[a, 0] * jac[a, 3] - jac[a, 1] * jac[a, 2]
+    profile_snr_whitened(q, yh, ok, det, var_rest, ln_r, out)

@@ -140,7 +140,9 @@ def verdict(result, sigma_pos):
             f"{len(bands)} band{'s' if len(bands) != 1 else ''} ({', '.join(bands)}). "
             f"Size magnifications from the {method} estimator with "
             f"{sig_text} and {errors}; a pair is "
-            f"anomalous when |ln(mu_flux/mu_size)| exceeds {threshold:g} times its error. ")
+            f"anomalous when |ln(mu_flux/mu_size)| exceeds {threshold:g} times its error"
+            + (" and its profile-likelihood SNR does too (the conservative SNR). "
+               if meta.get("snr_definition") == "conservative" else ". "))
     if meta.get("test") == "joint":
         n_field = int(np.count_nonzero(np.asarray(result["field_status"]) == "ok"))
         text += (f"Joint test: the flux ratio is tested against mu_size combined with the "

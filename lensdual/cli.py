@@ -54,7 +54,7 @@ from .demo import (
     simulate_demo,
     truth_paragraph,
 )
-from .duality import DEFAULT_TEST, LOG_SNR_DEFINITIONS, TESTS
+from .duality import DEFAULT_SNR_DEFINITION, DEFAULT_TEST, LOG_SNR_DEFINITIONS, TESTS
 from .exceptions import PipelineError
 from .photometry._psf import SOURCE_MODELS
 from .pipeline import analyse, analyse_knots
@@ -163,7 +163,8 @@ def _cmd_demo(args):
              "write"] + (["parametric"] if args.parametric else [])
     progress = _Progress(steps, args, desc="lensdual demo")
     if args.estimator == "adaptive":
-        precompile.start(args.test, null_calibration=args.null_realisations > 0)
+        precompile.start(args.test, null_calibration=args.null_realisations > 0,
+                         snr_definition=args.snr_definition)
     try:
         with progress.step("simulate the lens"):
             system, truth = simulate_demo(subhalo=args.subhalo, n_sources=args.n_sources,
@@ -241,7 +242,8 @@ def _cmd_run(args):
         steps.append("parametric")
     progress = _Progress(steps, args, desc="lensdual run")
     if config.estimator == "adaptive":
-        precompile.start(config.test, null_calibration=config.null_realisations > 0)
+        precompile.start(config.test, null_calibration=config.null_realisations > 0,
+                         snr_definition=config.snr_definition)
     try:
         with progress.step("read images"), warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
@@ -503,14 +505,17 @@ def build_parser():
                       help="simulated clean constellations for the null calibration of the "
                            "adaptive test (0: off; otherwise >= 100, and >= 370 for its "
                            "empirical p-values to confirm a flag at SNR 3)")
-    demo.add_argument("--test", choices=list(TESTS), default=DEFAULT_TEST,
-                      help="the duality test: geometric (the flux ratio against mu_size) or "
+    demo.add_argument("--test", choices=["auto", *TESTS], default=DEFAULT_TEST,
+                      help="the duality test: geometric (the flux ratio against mu_size), "
                            "joint (against mu_size and the neighbours' flux ratios, needs "
-                           "13 or more sources to use them)")
-    demo.add_argument("--snr-definition", choices=list(LOG_SNR_DEFINITIONS), default="log",
-                      help="the test's SNR: log (linearised in ln mu_size) or conservative "
+                           "13 or more sources to use them) or auto (default: joint with the "
+                           "adaptive estimator, else geometric)")
+    demo.add_argument("--snr-definition", choices=["auto", *LOG_SNR_DEFINITIONS],
+                      default=DEFAULT_SNR_DEFINITION,
+                      help="the test's SNR: log (linearised in ln mu_size), conservative "
                            "(the smaller of that and the profile-likelihood SNR: a flag needs "
-                           "both; for compact galaxy-scale lenses; estimator adaptive)")
+                           "both; estimator adaptive) or auto (default: conservative with the "
+                           "adaptive estimator, else log)")
     demo.add_argument("--source-model", choices=list(SOURCE_MODELS), default="point",
                       help="the photometry's source model: point (the PSF) or resolved "
                            "(the PSF convolved with an elliptical Gaussian of free shape, "

@@ -33,7 +33,8 @@ from .exceptions import LensdualWarning
 __all__ = ["POSITION_COLUMNS", "SNR_DEFINITIONS", "LOG_SNR_DEFINITIONS", "TESTS",
            "check_duality", "pair_bands",
            "flux_ratios", "holm_adjust", "null_calibration", "gaussian_p_value",
-           "duality_significance", "DEFAULT_SNR_THRESHOLD", "DEFAULT_TEST"]
+           "duality_significance", "DEFAULT_SNR_THRESHOLD", "DEFAULT_TEST",
+           "DEFAULT_SNR_DEFINITION", "resolve_test", "resolve_snr_definition"]
 
 #: Position columns every pairs table needs (arcsec or any angle unit).
 POSITION_COLUMNS = _pairs_table.POSITION_COLUMNS
@@ -58,8 +59,90 @@ _PROFILE_DEFINITIONS = ("profile", "conservative")
 #: ratios together, see :mod:`lensdual.flux_field`).
 TESTS = ("geometric", "joint")
 
-#: The default test of :func:`check_duality`.
-DEFAULT_TEST = "geometric"
+#: The default test of :func:`check_duality`, :func:`null_calibration` and
+#: ``lensdual run``: ``"auto"``, see :func:`resolve_test`.
+DEFAULT_TEST = "auto"
+
+#: The default SNR definition of :func:`check_duality`,
+#: :func:`null_calibration` and ``lensdual run``: ``"auto"``, see
+#: :func:`resolve_snr_definition`.
+DEFAULT_SNR_DEFINITION = "auto"
+
+
+def resolve_test(test, method, bands, snr_definition="conservative"):
+    """The test that ``test`` names for ``method``, ``bands`` and ``snr_definition``.
+
+    Parameters
+    ----------
+    test : {"auto", "geometric", "joint"}
+        ``"auto"`` is ``"joint"`` where the joint test applies (method
+        ``"adaptive"``, at least two bands of fluxes and an SNR definition
+        of :data:`LOG_SNR_DEFINITIONS`, see :func:`check_duality`) and
+        ``"geometric"`` elsewhere: a table with one band, an estimator other
+        than the adaptive one, or the paper's or the profile SNR.
+        ``"geometric"`` and ``"joint"`` stand for themselves.
+    method : str
+        The size-magnification estimator.
+    bands : sequence of str
+        The bands with fluxes (:func:`pair_bands`).
+    snr_definition : str
+        The SNR definition, resolved (:func:`resolve_snr_definition`).
+
+    Returns
+    -------
+    test : {"geometric", "joint"}
+
+    Examples
+    --------
+    >>> from lensdual.duality import resolve_test
+    >>> resolve_test("auto", "adaptive", ["F150W", "F200W"])
+    'joint'
+    >>> resolve_test("auto", "adaptive", ["F150W"])
+    'geometric'
+    """
+    if not isinstance(test, str) or test not in ("auto",) + TESTS:
+        raise ValueError(f"test must be one of {['auto', *TESTS]}, got {test!r}")
+    if test != "auto":
+        return test
+    applies = (method == "adaptive" and len(bands) >= 2
+               and snr_definition in LOG_SNR_DEFINITIONS)
+    return "joint" if applies else "geometric"
+
+
+def resolve_snr_definition(snr_definition, method):
+    """The SNR definition that ``snr_definition`` names for ``method``.
+
+    Parameters
+    ----------
+    snr_definition : {"auto", "log", "paper", "profile", "conservative"}
+        ``"auto"`` is ``"conservative"`` for method ``"adaptive"`` (the
+        smaller of the linearised and the profile-likelihood SNR: the one
+        whose false flags hold on compact galaxy-scale folds, at most a point
+        of power elsewhere under the joint test, see the calibration pages)
+        and ``"log"`` for the other estimators, which have no Jacobian
+        covariance. The others stand for themselves.
+    method : str
+        The size-magnification estimator.
+
+    Returns
+    -------
+    snr_definition : str
+        One of :data:`SNR_DEFINITIONS`.
+
+    Examples
+    --------
+    >>> from lensdual.duality import resolve_snr_definition
+    >>> resolve_snr_definition("auto", "adaptive")
+    'conservative'
+    >>> resolve_snr_definition("auto", "quad")
+    'log'
+    """
+    if not isinstance(snr_definition, str) or snr_definition not in ("auto",) + SNR_DEFINITIONS:
+        raise ValueError(f"snr_definition must be one of {['auto', *SNR_DEFINITIONS]}, got "
+                         f"{snr_definition!r}")
+    if snr_definition != "auto":
+        return snr_definition
+    return "conservative" if method == "adaptive" else "log"
 
 #: Most passes of the joint test's exclusion of flagged neighbours.
 _JOINT_MAX_PASSES = 6
@@ -381,7 +464,7 @@ def check_duality(
     n_bootstrap=DEFAULT_N_BOOTSTRAP,
     snr_threshold=DEFAULT_SNR_THRESHOLD,
     seed=None,
-    snr_definition="log",
+    snr_definition=DEFAULT_SNR_DEFINITION,
     weight_power=2,
     min_angle=5 * u.deg,
     chromatic_alpha=CHROMATIC_ALPHA,
@@ -414,8 +497,10 @@ def check_duality(
         for every pair.
     seed : int, `numpy.random.Generator` or None
         Seed of the bootstrap.
-    snr_definition : {"log", "paper", "profile"}
-        Which SNR sets ``anomalous``. ``"log"`` (default):
+    snr_definition : {"auto", "log", "paper", "profile", "conservative"}
+        Which SNR sets ``anomalous``. ``"auto"`` (default):
+        ``"conservative"`` for method ``"adaptive"``, ``"log"`` for the
+        others (:func:`resolve_snr_definition`). ``"log"``:
         :math:`|\ln R| / \sqrt{\sigma_{\ln F}^2 + \sigma_{\ln S}^2}` with
         :math:`R` = ``duality_ratio``, :math:`\sigma_{\ln F}` the error of
         :math:`\ln \mu_{\rm flux}` and :math:`\sigma_{\ln S}` half the 16-84 %
@@ -437,7 +522,8 @@ def check_duality(
         Jacobian covariance gives no profile), so that a pair is flagged only
         where both reject; for lenses whose magnification ratio varies
         several-fold over the constellation (compact galaxy-scale arcs),
-        where the ``"log"`` SNR over-flags (see :ref:`profile-snr`).
+        where the ``"log"`` SNR over-flags (see :ref:`profile-snr`); elsewhere
+        it costs at most a point of power.
     weight_power, min_angle
         Estimator settings, see :func:`~lensdual.estimators.relative_jacobian`.
     chromatic_alpha : float
@@ -447,15 +533,18 @@ def check_duality(
         default 1e-3) is *doubtful*: most likely two different sources, a
         blend, or differential extinction, and never evidence of a sub-halo.
         0 turns the check off.
-    test : {"geometric", "joint"}
-        ``"geometric"`` (default): the flux ratio is tested against
-        ``mu_size``. ``"joint"``: against ``mu_size`` and the flux-field
-        prediction of the other pairs' flux ratios combined (inverse-variance
-        weighted), see :ref:`joint-test`; it needs method "adaptive" (the
-        field is predicted only where the adaptive fits of the pair and its
-        neighbours passed their chi-square tests), at least two bands (the
-        chromatic check keeps mis-pairs out of the field) and snr_definition
-        "log". The columns it adds are listed below.
+    test : {"auto", "geometric", "joint"}
+        ``"geometric"``: the flux ratio is tested against ``mu_size``.
+        ``"joint"``: against ``mu_size`` and the flux-field prediction of the
+        other pairs' flux ratios combined (inverse-variance weighted), see
+        :ref:`joint-test`; it needs method "adaptive" (the field is predicted
+        only where the adaptive fits of the pair and its neighbours passed
+        their chi-square tests), at least two bands (the chromatic check
+        keeps mis-pairs out of the field) and snr_definition "log" or
+        "conservative". The columns it adds are listed below. ``"auto"``
+        (default): ``"joint"`` where it applies, ``"geometric"`` elsewhere
+        (:func:`resolve_test`); ``meta['duality']['test']`` and
+        ``['snr_definition']`` say which ran.
 
     Returns
     -------
@@ -570,15 +659,13 @@ def check_duality(
     """
     tab = _as_qtable(pairs)
     _pairs_table.check_unique_pair_ids(tab)
-    if not isinstance(snr_definition, str) or snr_definition not in SNR_DEFINITIONS:
-        raise ValueError(
-            f"snr_definition must be one of {list(SNR_DEFINITIONS)}, got {snr_definition!r}"
-        )
+    snr_definition = resolve_snr_definition(snr_definition, method)
     snr_threshold = as_real(snr_threshold, "snr_threshold", minimum=0.0)
     chromatic_alpha = as_real(chromatic_alpha, "chromatic_alpha", minimum=0.0, maximum=1.0)
-    if not isinstance(test, str) or test not in TESTS:
-        raise ValueError(f"test must be one of {list(TESTS)}, got {test!r}")
+    if not isinstance(test, str) or test not in ("auto",) + TESTS:
+        raise ValueError(f"test must be one of {['auto', *TESTS]}, got {test!r}")
     bands = pair_bands(tab)
+    test = resolve_test(test, method, bands, snr_definition)
     if test == "joint":
         _check_joint_input(bands, snr_definition, method)
     if snr_definition in _PROFILE_DEFINITIONS and method != "adaptive":
@@ -696,8 +783,10 @@ def _chosen_snr(tab, size, flux, snr_definition, profile=None):
 
 
 def _profile_parts(size):
-    """The flattened Jacobians (N, 4), their covariances and the variance of
-    ``ln mu_size`` the covariance does not carry (the model and centre terms)."""
+    """The determinants of the Jacobians (N,), the variance of ``ln mu_size``
+    their covariances do not carry (the model and centre terms), and the
+    whitened forms of :func:`lensdual._profile_kernels.whiten_all` (``q``,
+    ``yh``, ``ok``), computed once for every target."""
     jac = np.ascontiguousarray(np.asarray(size["jacobian"], dtype=float).reshape(-1, 4))
     cov = np.ascontiguousarray(np.asarray(size["jacobian_cov"], dtype=float))
     ln_sd = np.asarray(size["ln_mu_size_err"], dtype=float)
@@ -706,24 +795,28 @@ def _profile_parts(size):
         grad = np.column_stack([jac[:, 3], -jac[:, 2], -jac[:, 1], jac[:, 0]]) / det[:, None]
         var_jac = np.einsum("ni,nij,nj->n", grad, cov, grad)
         var_rest = np.where(np.isfinite(det), np.maximum(ln_sd * ln_sd - var_jac, 0.0), np.nan)
-    return jac, cov, var_rest
+    n = det.size
+    q, yh, ok = np.empty((n, 4)), np.empty((n, 4)), np.empty(n, dtype=bool)
+    _profile_kernels.whiten_all(jac, cov, q, yh, ok)
+    return det, var_rest, q, yh, ok
 
 
 def _profile_rows(parts, ln_target, extra_sd, rows=None):
     """The profile SNR of the pairs ``rows`` (a boolean mask; all by default)
     for the targets ``ln_target`` with the extra errors ``extra_sd``; NaN
     elsewhere and where a pair has no estimate."""
-    jac, cov, var_rest = parts
+    det, var_rest, q, yh, whitened = parts
     var = var_rest + np.asarray(extra_sd, dtype=float) ** 2
     ln_target = np.broadcast_to(np.asarray(ln_target, dtype=float), var.shape)
-    ok = np.isfinite(var) & np.isfinite(ln_target)
+    ok = np.isfinite(var) & np.isfinite(ln_target) & whitened
     if rows is not None:
         ok &= rows
     out = np.full(var.shape, np.nan)
     res = np.empty(int(ok.sum()))
-    _profile_kernels.profile_snr(np.ascontiguousarray(jac[ok]), np.ascontiguousarray(cov[ok]),
-                                 np.ascontiguousarray(var[ok]),
-                                 np.ascontiguousarray(ln_target[ok]), res)
+    _profile_kernels.profile_snr_whitened(
+        np.ascontiguousarray(q[ok]), np.ascontiguousarray(yh[ok]), np.ones(res.size, dtype=bool),
+        np.ascontiguousarray(det[ok]), np.ascontiguousarray(var[ok]),
+        np.ascontiguousarray(ln_target[ok]), res)
     out[ok] = res
     return out
 
@@ -910,10 +1003,12 @@ def _joint_test(tab, theta2, flux, sigma_pos, keep, snr_threshold, profile=None)
         geo = (np.log(np.asarray(tab["mu_size"], dtype=float)),
                np.asarray(tab["ln_mu_size_err"], dtype=float) ** 2,
                np.asarray(tab["ln_mu_size_err_dof"], dtype=float), geo_tested)
+    # the L2 position errors of the kept pairs (a doubtful pair's may be unknown)
+    sig2 = np.full(n, np.nan)
+    sig2[keep] = as_sigma(_subset_sigma(sigma_pos, keep), int(keep.sum()))[1]
     result, field, flagged = _joint_passes(
         np.asarray(theta2.to_value(u.arcsec), dtype=float), ln_flux, ln_flux_err,
-        as_sigma(sigma_pos, n)[1], geo, keep, np.asarray(tab["mu_size_status"]) == "ok",
-        snr_threshold, profile)
+        sig2, geo, keep, np.asarray(tab["mu_size_status"]) == "ok", snr_threshold, profile)
     snr, dof, signif, tested = result.snr, result.dof, result.significance, result.tested
     tab["significance_geometric"] = tab["significance"]
     tab["anomalous_geometric"] = tab["anomalous"]
@@ -1028,7 +1123,7 @@ def _seed_entropy(seed):
 
 def null_calibration(pairs, *, sigma_pos, n_realisations=1000,
                      snr_threshold=DEFAULT_SNR_THRESHOLD, seed=None, client=None, chunk_size=4,
-                     weight_power=2, test=DEFAULT_TEST, snr_definition="log"):
+                     weight_power=2, test=DEFAULT_TEST, snr_definition=DEFAULT_SNR_DEFINITION):
     """Empirical false-alarm rate and p-values of the duality test on a null like the data.
 
     A smooth, model-independent map from arc L2 to arc L1 is fitted to the
@@ -1070,16 +1165,17 @@ def null_calibration(pairs, *, sigma_pos, n_realisations=1000,
     weight_power : float
         Weight power of the Quad pilot, see
         :func:`~lensdual.estimators.relative_jacobian`.
-    test : {"geometric", "joint"}
-        The test to calibrate, as in :func:`check_duality`. With ``"joint"``
+    test : {"auto", "geometric", "joint"}
+        The test to calibrate, as in :func:`check_duality` (default
+        ``"auto"``: the joint test where the table has two bands). With ``"joint"``
         each realisation also predicts every pair's ``ln mu`` from the other
         pairs' noisy flux ratios, at the noisy L2 positions, with the passes
         of :func:`check_duality`; the pairs that are doubtful in ``pairs``
         inform no prediction. The null's field is the smooth map's
         ``ln |det J|``: as smooth as the map (see Notes).
-    snr_definition : {"log", "conservative"}
+    snr_definition : {"auto", "log", "conservative"}
         The SNR of the observed and the null significances, as in
-        :func:`check_duality`.
+        :func:`check_duality` (default ``"auto"``: ``"conservative"``).
 
     Returns
     -------
@@ -1165,12 +1261,14 @@ def null_calibration(pairs, *, sigma_pos, n_realisations=1000,
     chunk = as_int(chunk_size, "chunk_size", minimum=1)
     entropy = _seed_entropy(seed)
     check_client(client)
-    if snr_definition not in LOG_SNR_DEFINITIONS:
-        raise ValueError(f"null_calibration takes snr_definition 'log' or 'conservative', got "
-                         f"{snr_definition!r}")
+    if snr_definition not in ("auto",) + LOG_SNR_DEFINITIONS:
+        raise ValueError(f"null_calibration takes snr_definition 'auto', 'log' or "
+                         f"'conservative', got {snr_definition!r}")
     observed = check_duality(pairs, "adaptive", sigma_pos=sigma_pos,
                              snr_threshold=snr_threshold, weight_power=weight_power, test=test,
                              snr_definition=snr_definition)
+    test = observed.meta["duality"]["test"]  # "auto" resolved
+    snr_definition = observed.meta["duality"]["snr_definition"]
     theta1, theta2 = _positions(observed)
     t1 = np.ascontiguousarray(theta1.to_value(u.arcsec))
     t2 = np.ascontiguousarray(theta2.to_value(u.arcsec))
@@ -1246,6 +1344,7 @@ def null_calibration(pairs, *, sigma_pos, n_realisations=1000,
         "seed_entropy": entropy,
         "method": "adaptive",
         "test": test,
+        "snr_definition": snr_definition,
     })
     return out
 

@@ -51,7 +51,6 @@ from typing import NamedTuple
 import numpy as np
 from astropy import units as u
 from astropy.table import QTable
-from scipy.optimize import brentq
 from scipy.spatial import cKDTree
 from scipy.stats import binom, norm
 
@@ -127,15 +126,9 @@ def _common_variance(resid, var):
     r, v = np.abs(resid[ok]), var[ok]
     if r.size < _MIN_CALIBRATION:
         return 0.0
-
-    def excess(t):
-        return np.median(r / np.sqrt(v + t)) - _GAUSS_MEDIAN_ABS
-
-    if excess(0.0) <= 0.0:
-        return 0.0
-    # at t = (max r / 0.674)^2 every ratio is at most 0.674 times r / max r
-    upper = 4.0 * (float(np.max(r)) / _GAUSS_MEDIAN_ABS) ** 2
-    return float(brentq(excess, 0.0, upper, xtol=1e-14, rtol=1e-10))
+    return float(_kernels.common_variance(np.ascontiguousarray(r, dtype=float),
+                                          np.ascontiguousarray(v, dtype=float),
+                                          _GAUSS_MEDIAN_ABS))
 
 
 def bias_scale(dev, var_dev, sens):

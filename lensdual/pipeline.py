@@ -42,7 +42,14 @@ from ._pairs_table import (
 from ._report import format_pairs_table, format_report, knot_report, verdict
 from ._report import parametric_paragraph as parametric_paragraph  # re-exported
 from ._validation import as_angle_scalar, as_real
-from .duality import DEFAULT_SNR_THRESHOLD, DEFAULT_TEST, TESTS
+from .duality import (
+    DEFAULT_SNR_DEFINITION,
+    DEFAULT_SNR_THRESHOLD,
+    DEFAULT_TEST,
+    LOG_SNR_DEFINITIONS,
+    resolve_snr_definition,
+    resolve_test,
+)
 from .estimators import DEFAULT_METHOD, DEFAULT_N_BOOTSTRAP, estimate_sigma_pos
 from .exceptions import PipelineError
 
@@ -165,7 +172,7 @@ def analyse(images, *, psf=None, estimator=DEFAULT_METHOD, sigma_pos="auto",
             seed=DEFAULT_SEED,
             catalogs=None, manual_pairs=None, progress=None, null_realisations=0,
             oversampling=None, test=DEFAULT_TEST, max_magnification=None,
-            source_model="point", snr_definition="log"):
+            source_model="point", snr_definition=DEFAULT_SNR_DEFINITION):
     """Run the pipeline from images of two arcs to the duality table.
 
     Parameters
@@ -203,13 +210,15 @@ def analyse(images, *, psf=None, estimator=DEFAULT_METHOD, sigma_pos="auto",
     max_magnification : float, optional
         The automatic pairing's bound on the map, see
         :func:`~lensdual.pairing.pair_constellations` (default its default).
-    test : {"geometric", "joint"}
+    test : {"auto", "geometric", "joint"}
         The duality test of :func:`~lensdual.duality.check_duality` and of
-        the null calibration (default ``"geometric"``); ``"joint"`` needs
-        ``estimator="adaptive"``.
-    snr_definition : {"log", "conservative"}
+        the null calibration (default ``"auto"``: the joint test with the
+        adaptive estimator and two bands or more, else the geometric one);
+        ``"joint"`` needs ``estimator="adaptive"``.
+    snr_definition : {"auto", "log", "conservative"}
         The SNR of :func:`~lensdual.duality.check_duality` and of the null
-        calibration (default ``"log"``); ``"conservative"`` needs
+        calibration (default ``"auto"``: ``"conservative"`` with the adaptive
+        estimator, else ``"log"``); ``"conservative"`` needs
         ``estimator="adaptive"``.
     source_model : {"point", "resolved"}
         The photometry of the pairs (:func:`~lensdual.photometry.measure_pairs`):
@@ -237,10 +246,13 @@ def analyse(images, *, psf=None, estimator=DEFAULT_METHOD, sigma_pos="auto",
     progress = progress or _NoProgress()
     if estimator not in METHODS:
         raise ValueError(f"estimator must be one of {list(METHODS)}, got {estimator!r}")
-    if test not in TESTS:
-        raise ValueError(f"test must be one of {list(TESTS)}, got {test!r}")
+    if snr_definition not in ("auto",) + LOG_SNR_DEFINITIONS:
+        raise ValueError(f"snr_definition must be one of {['auto', *LOG_SNR_DEFINITIONS]}, got "
+                         f"{snr_definition!r}")
     n_min = max(METHODS[estimator], _MIN_AUTO_PAIRS if manual_pairs is None else 3)
     bands = list(images["L1"])
+    snr_definition = resolve_snr_definition(snr_definition, estimator)
+    test = resolve_test(test, estimator, bands, snr_definition)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         cats = {}
@@ -443,7 +455,7 @@ def _doubt_faint(measured, bands, doubt):
 
 
 def _add_null_calibration(result, measured, sigma, n_realisations, snr_threshold, seed,
-                          test=DEFAULT_TEST, snr_definition="log"):
+                          test=DEFAULT_TEST, snr_definition=DEFAULT_SNR_DEFINITION):
     """Run the null calibration and record it in ``result`` (in place)."""
     from .duality import null_calibration
 

@@ -620,7 +620,7 @@ def test_gaussian_p_value():
 
 @pytest.mark.filterwarnings("ignore::lensdual.exceptions.EstimatorWarning")
 def test_check_duality_calibrated_columns_and_meta():
-    res = check_duality(_pairs(anomaly=(3, 1.5)), sigma_pos=3 * u.mas)
+    res = check_duality(_pairs(anomaly=(3, 1.5)), sigma_pos=3 * u.mas, snr_definition="log")
     assert res.meta["duality"]["method"] == "adaptive"
     tested = np.asarray(res["tested"])
     assert tested.all()
@@ -733,8 +733,13 @@ def test_null_calibration_with_the_conservative_snr():
     some where the profile is."""
     pairs = _pairs(n=14, seed=2)
     kw = dict(sigma_pos=20 * u.mas, n_realisations=100, seed=7)
-    log = null_calibration(pairs, **kw)
+    log = null_calibration(pairs, snr_definition="log", **kw)
     cons = null_calibration(pairs, snr_definition="conservative", **kw)
+    # the default is the conservative SNR, and one band the geometric test
+    default = null_calibration(pairs, **kw)
+    np.testing.assert_array_equal(default["null_snr"], cons["null_snr"])
+    assert default.meta["snr_definition"] == "conservative"
+    assert default.meta["test"] == "geometric"
     observed = check_duality(pairs, sigma_pos=20 * u.mas, snr_definition="conservative")
     np.testing.assert_allclose(np.asarray(cons["significance"], float),
                                np.asarray(observed["significance"], float), equal_nan=True)
@@ -744,7 +749,7 @@ def test_null_calibration_with_the_conservative_snr():
     assert np.all(a[both] <= b[both] + 1e-12)
     assert np.any(a[both] < b[both] - 0.01)
     assert cons.meta["false_alarm_rate"] <= log.meta["false_alarm_rate"]
-    with pytest.raises(ValueError, match="snr_definition 'log' or 'conservative'"):
+    with pytest.raises(ValueError, match="snr_definition 'auto', 'log' or 'conservative'"):
         null_calibration(pairs, snr_definition="paper", **kw)
     # the pipeline's null calibration passes the definition on
     from lensdual.pipeline import _add_null_calibration

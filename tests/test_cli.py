@@ -451,11 +451,11 @@ def test_demo_table_matches_the_stored_reference(demo_dir):
 
 
 @pytest.mark.parametrize("option, key, value, default", [
-    ("--snr-definition", "snr_definition", "conservative", "log"),
+    ("--snr-definition", "snr_definition", "log", "auto"),
     ("--source-model", "source_model", "resolved", "point"),
 ])
 def test_demo_passes_analysis_options(tmp_path, monkeypatch, option, key, value, default):
-    """``lensdual demo --snr-definition conservative`` and ``--source-model
+    """``lensdual demo --snr-definition log`` and ``--source-model
     resolved`` reach the analysis, and the run configuration the demo writes
     keeps them (its default is left out; stopped at the analysis; that
     ``lensdual run`` reads the keys is tested above); an unknown value is a

@@ -198,7 +198,8 @@ def test_defaults_and_outdir(data_dir, tmp_path, monkeypatch):
     cfg = load_config(path)
     assert cfg.outdir == data_dir.resolve() / "lensdual-output"
     assert (cfg.estimator, cfg.sigma_pos, cfg.n_bootstrap) == ("adaptive", "auto", 1000)
-    assert (cfg.snr_threshold, cfg.seed, cfg.test) == (3.0, 0, "geometric")
+    assert (cfg.snr_threshold, cfg.seed, cfg.test) == (3.0, 0, "auto")
+    assert cfg.snr_definition == "auto"
     assert cfg.source_model == "point"
     assert load_config(write(data_dir, "resolved", minimal_config() | {
         "analysis": {"source_model": "resolved"}})).source_model == "resolved"
@@ -454,14 +455,14 @@ BAD = [
     ("max-magnification-one", _set("pairing", "max_magnification", 1.0),
      "[pairing] max_magnification: must be > 1, got 1"),
     ("test-unknown", _set("analysis", "test", "bayes"),
-     "[analysis] test: 'bayes' is not one of 'geometric', 'joint'"),
+     "[analysis] test: 'bayes' is not one of 'auto', 'geometric', 'joint'"),
     ("source-model-unknown", _set("analysis", "source_model", "extended"),
      "[analysis] source_model: 'extended' is not one of 'point', 'resolved'"),
     ("joint-needs-adaptive", _both(_set("analysis", "test", "joint"),
                                    _set("analysis", "estimator", "quad")),
      '[analysis] test: "joint" needs estimator = "adaptive", got estimator = "quad"'),
     ("snr-definition-unknown", _set("analysis", "snr_definition", "profile"),
-     "[analysis] snr_definition: 'profile' is not one of 'log', 'conservative'"),
+     "[analysis] snr_definition: 'profile' is not one of 'auto', 'log', 'conservative'"),
     ("conservative-needs-adaptive", _both(_set("analysis", "snr_definition", "conservative"),
                                           _set("analysis", "estimator", "2v")),
      '[analysis] snr_definition: "conservative" needs estimator = "adaptive", got '
@@ -830,7 +831,7 @@ def test_the_joint_test_is_read(data_dir):
     cfg.setdefault("pairing", {})["max_magnification"] = 50.0
     loaded = load_config(write(data_dir, "joint_test", cfg))
     assert (loaded.test, loaded.null_realisations) == ("joint", 200)
-    assert loaded.snr_definition == "log"
+    assert loaded.snr_definition == "auto"
     cfg["analysis"]["snr_definition"] = "conservative"
     assert load_config(write(data_dir, "joint_cons", cfg)).snr_definition == "conservative"
     assert loaded.max_magnification == 50.0

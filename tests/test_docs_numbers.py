@@ -685,7 +685,8 @@ def test_demo_calibration_numbers_are_the_benchmark_s():
     docs/scripts/demo_calibration_numbers.py writes from the stored output of
     benchmarks/demo_calibration.py; the benchmark's summary agrees with its
     per-seed rows, for every scenario (no sub-halo, over-concentrated, on the
-    mass-concentration relation) and method (adaptive, quad2, the joint test)."""
+    mass-concentration relation) and method (adaptive, quad2, the joint test, the
+    defaults)."""
     module = load_script("demo_calibration_numbers")
     folder = STATIC / "tutorial"
     rows, summary = module.read_record(folder / "demo_calibration.txt")
@@ -699,7 +700,7 @@ def test_demo_calibration_numbers_are_the_benchmark_s():
         assert false == sum(r["false"] for r in part)
         assert tested <= sum(r["tested"] for r in part)
         assert hits == (None if scenario == "none" else sum(r["hit"] for r in part))
-        if method == "joint":
+        if method in module.JOINT:
             assert field == (sum(r["field_ok"] for r in part), sum(r["n"] for r in part))
         else:
             assert field is None and all(r["field_ok"] is None for r in part)

@@ -311,6 +311,8 @@ def _raise(t, rows, factor=1.25):
 
 
 def _check(t, sigma, **kw):
+    # the linearised SNR unless told (the conservative one: tests/test_profile_snr.py)
+    kw.setdefault("snr_definition", "log")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         return check_duality(t, sigma_pos=sigma * u.arcsec, **kw)
@@ -355,7 +357,7 @@ def test_joint_test_flags_what_the_geometry_cannot():
         geo += bool(r["anomalous_geometric"][4])
         assert r.meta["duality"]["test"] == "joint"
         assert np.array_equal(r["anomalous_geometric"],
-                              _check(t, 0.02)["anomalous"])
+                              _check(t, 0.02, test="geometric")["anomalous"])
     assert joint >= 8 and geo <= 3
 
 
@@ -392,11 +394,37 @@ def test_geometry_against_the_neighbours_is_no_sub_halo():
     assert not r["anomalous"].any() and not r["tested"].any()
 
 
-def test_the_default_test_is_unchanged():
+def test_the_default_is_the_joint_test_where_it_applies():
+    """test="auto", snr_definition="auto": the joint test with the conservative SNR
+    for the adaptive estimator and two bands; the geometric test with one band; the
+    geometric test with the linearised SNR for the paper's estimators."""
     t = _noisy("cluster_fold", 20, 1, 0.005)
-    r = _check(t, 0.005)
-    assert r.meta["duality"]["test"] == "geometric"
-    assert "ln_mu_field" not in r.colnames and "significance_geometric" not in r.colnames
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        r = check_duality(t, sigma_pos=0.005 * u.arcsec)
+    assert (r.meta["duality"]["test"], r.meta["duality"]["snr_definition"]) == (
+        "joint", "conservative")
+    explicit = _check(t, 0.005, test="joint", snr_definition="conservative")
+    np.testing.assert_array_equal(r["significance"], explicit["significance"])
+    assert not np.array_equal(r["significance"],
+                              _check(t, 0.005, test="joint")["significance"])
+    bands = list(t.meta["bands"])
+    one = t.copy()
+    one.remove_columns([c for c in t.colnames if c.endswith("_" + bands[1])])
+    one.meta["bands"] = bands[:1]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        r1 = check_duality(one, sigma_pos=0.005 * u.arcsec)
+        rq = check_duality(t, "quad", sigma_pos=0.005 * u.arcsec, n_bootstrap=50, seed=0)
+    assert (r1.meta["duality"]["test"], r1.meta["duality"]["snr_definition"]) == (
+        "geometric", "conservative")
+    assert "ln_mu_field" not in r1.colnames and "significance_geometric" not in r1.colnames
+    assert (rq.meta["duality"]["test"], rq.meta["duality"]["snr_definition"]) == (
+        "geometric", "log")
+    with pytest.raises(ValueError, match="test must be one of"):
+        check_duality(t, sigma_pos=0.005 * u.arcsec, test="both")
+    with pytest.raises(ValueError, match="snr_definition must be one of"):
+        check_duality(t, sigma_pos=0.005 * u.arcsec, snr_definition="linear")
 
 
 def test_few_pairs_fall_back_to_the_geometry():
@@ -516,7 +544,7 @@ def test_null_calibration_of_the_joint_test():
 
     t = _raise(_noisy("smacs_analog", 20, 3, 0.01), [7])
     null = null_calibration(t, sigma_pos=0.01 * u.arcsec, n_realisations=100, seed=2,
-                            test="joint")
+                            test="joint", snr_definition="log")
     observed = _check(t, 0.01, test="joint")
     assert null.meta["test"] == "joint"
     assert np.allclose(null["significance"], observed["significance"], equal_nan=True)
@@ -527,9 +555,10 @@ def test_null_calibration_of_the_joint_test():
     assert null.meta["false_alarm_rate"] < 0.01
     # the same seed gives the same null; the geometric null is another
     again = null_calibration(t, sigma_pos=0.01 * u.arcsec, n_realisations=100, seed=2,
-                             test="joint")
+                             test="joint", snr_definition="log")
     assert np.array_equal(again["null_snr"], null["null_snr"], equal_nan=True)
-    geometric = null_calibration(t, sigma_pos=0.01 * u.arcsec, n_realisations=100, seed=2)
+    geometric = null_calibration(t, sigma_pos=0.01 * u.arcsec, n_realisations=100, seed=2,
+                                 test="geometric", snr_definition="log")
     assert geometric.meta["test"] == "geometric"
     assert not np.array_equal(geometric["null_snr"], null["null_snr"], equal_nan=True)
     # with the conservative SNR: the observed significances are check_duality's
@@ -540,6 +569,10 @@ def test_null_calibration_of_the_joint_test():
     assert np.allclose(cons["significance"], observed["significance"], equal_nan=True)
     assert cons["p_value_empirical"][7] == pytest.approx(1 / 101)
     assert cons.meta["false_alarm_rate"] < 0.01
+    # the default: the joint test with the conservative SNR
+    default = null_calibration(t, sigma_pos=0.01 * u.arcsec, n_realisations=100, seed=2)
+    assert (default.meta["test"], default.meta["snr_definition"]) == ("joint", "conservative")
+    assert np.array_equal(default["null_snr"], cons["null_snr"], equal_nan=True)
 
 
 def test_the_report_says_which_test_ran():
@@ -548,7 +581,11 @@ def test_the_report_says_which_test_ran():
     t = _noisy("cluster_fold", 20, 1, 0.005)
     joint = verdict(_check(t, 0.005, test="joint"), 0.005 * u.arcsec)
     assert "Joint test: the flux ratio is tested against mu_size combined" in joint
-    assert "Joint test" not in verdict(_check(t, 0.005), 0.005 * u.arcsec)
+    geometric = verdict(_check(t, 0.005, test="geometric"), 0.005 * u.arcsec)
+    assert "Joint test" not in geometric and "conservative SNR" not in geometric
+    default = verdict(check_duality(t, sigma_pos=0.005 * u.arcsec), 0.005 * u.arcsec)
+    assert "Joint test" in default
+    assert "and its profile-likelihood SNR does too (the conservative SNR)" in default
 
 
 def test_common_variance_of_a_few_equal_residuals():
@@ -583,7 +620,7 @@ def test_plot_flux_field_draws_the_field_and_the_residuals():
     assert len(red) == 1 and np.allclose(red[0].get_xdata(), [4])
     plt.close(fig)
     with pytest.raises(ValueError, match="test='joint'"):
-        plot_flux_field(_check(t, 0.005))
+        plot_flux_field(_check(t, 0.005, test="geometric"))
 
 
 def test_the_squared_bias_is_the_empirical_bayes_posterior_mean():

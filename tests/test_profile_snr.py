@@ -195,7 +195,9 @@ def test_check_duality_profile_definition():
     cluster-scale constellation at 5 mas it is close to the log SNR."""
     t = clean_constellation("cluster_fold", 15, seed=4)
     out = check_duality(t, sigma_pos=0.005 * u.arcsec, snr_definition="profile", seed=0)
-    log = check_duality(t, sigma_pos=0.005 * u.arcsec, seed=0)
+    assert out.meta["duality"]["test"] == "geometric"  # "auto": no joint profile test
+    log = check_duality(t, sigma_pos=0.005 * u.arcsec, seed=0, test="geometric",
+                        snr_definition="log")
     assert "snr_profile" in out.colnames and "snr_profile" not in log.colnames
     tested = np.asarray(out["tested"])
     assert tested.sum() >= 12
@@ -235,12 +237,12 @@ def test_conservative_definition_is_the_smaller_snr():
     for band in ("F150W", "F200W"):
         t[f"flux1_{band}"][:6] *= 4.0
         t[f"flux1_{band}"][6:12] *= 0.25
-    kw = dict(sigma_pos=5 * u.mas, seed=0)
+    kw = dict(sigma_pos=5 * u.mas, seed=0, test="geometric")
     with warnings.catch_warnings():
         # pairs where no local polynomial fits are reported untestable
         warnings.simplefilter("ignore", EstimatorWarning)
         cons = check_duality(t, snr_definition="conservative", **kw)
-        log = check_duality(t, **kw)
+        log = check_duality(t, snr_definition="log", **kw)
         prof = check_duality(t, snr_definition="profile", **kw)
     tested = np.asarray(cons["tested"])
     assert tested.sum() >= 20
@@ -342,7 +344,7 @@ def test_joint_test_with_the_conservative_definition():
     for band in ("F150W", "F200W"):
         t[f"flux1_{band}"][4] *= 1.5
     kw = dict(sigma_pos=5 * u.mas, test="joint")
-    log = check_duality(t, **kw)
+    log = check_duality(t, snr_definition="log", **kw)
     cons = check_duality(t, snr_definition="conservative", **kw)
     assert cons.meta["duality"]["snr_definition"] == "conservative"
     assert "jacobian_cov" in cons.colnames and "jacobian_cov" not in log.colnames

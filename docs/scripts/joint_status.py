@@ -242,6 +242,11 @@ def conservative_numbers(folder=STATIC):
     sub["jt_cons_mask_change"] = _pct(
         max(abs(a["mask25"] - b["mask25"]) for a, b in pairs
             if a["mask25"] == a["mask25"] and b["mask25"] == b["mask25"]), 0)
+    # cells where the default (the joint test with the conservative SNR) is more than
+    # half a point below the geometric test, with either SNR
+    sub["jt_cons_below_geo"] = str(sum(
+        b["pow25"] < min(b["pow25_geo"], a["pow25_geo"]) - 0.005 for a, b in pairs))
+    sub["jt_cons_cells_common"] = str(len(pairs))
     sub["jt_cons_held_fail"] = str(sum(r["ffr_l95"] > TARGET for r in held_c))
     sub["jt_cons_held_ffr_max"] = f"{_pct(max(r['ffr'] for r in held_c), 2)} %"
     compact = [r for r in held_c if r["family"] == "galaxy_sie_compact"]

@@ -38,7 +38,8 @@ def constellation(seed=3):
 def main():
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        result = check_duality(constellation(), sigma_pos=SIGMA * u.arcsec, test="joint")
+        result = check_duality(constellation(), sigma_pos=SIGMA * u.arcsec, test="joint",
+                               snr_definition="log")
     row = result[ANOMALOUS]
     print(f"pair {row['pair_id']}: joint significance {row['significance']:.1f}, "
           f"geometric {row['significance_geometric']:.1f}; flagged: "

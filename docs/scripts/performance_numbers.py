@@ -229,9 +229,11 @@ def joint(path):
     lines = read_lines(path)
     sub = {}
     for n in JOINT_SIZES:
-        m = search(rf"^{n} ([\d.]+) ([\d.]+) ([\d.]+)$", lines, path)
+        m = search(rf"^{n} ([\d.]+) ([\d.]+) ([\d.]+) ([\d.]+) ([\d.]+)$", lines, path)
         sub[f"perf_joint{n}_geo"], sub[f"perf_joint{n}_joint"] = m.group(1), m.group(2)
         sub[f"perf_joint{n}_ratio"] = f"{m.group(3)}x"
+        sub[f"perf_joint{n}_default"] = m.group(4)
+        sub[f"perf_joint{n}_default_ratio"] = f"{m.group(5)}x"
     return sub
 
 

@@ -17,7 +17,13 @@ from dataclasses import dataclass
 
 from astropy import units as u
 
-from ..duality import DEFAULT_SNR_THRESHOLD, DEFAULT_TEST, LOG_SNR_DEFINITIONS, TESTS
+from ..duality import (
+    DEFAULT_SNR_DEFINITION,
+    DEFAULT_SNR_THRESHOLD,
+    DEFAULT_TEST,
+    LOG_SNR_DEFINITIONS,
+    TESTS,
+)
 from ..estimators import DEFAULT_METHOD, DEFAULT_N_BOOTSTRAP, METHODS
 from ..inference import MIN_REALISATIONS, MODELS
 from ..pairing import DEFAULT_MAX_MAGNIFICATION
@@ -212,14 +218,15 @@ FIELDS = (
     _F("analysis", "n_bootstrap", "integer", DEFAULT_N_BOOTSTRAP, "number of bootstrap resamplings",
        minimum=10),
     _F("analysis", "test", "string", DEFAULT_TEST,
-       'the duality test: "geometric" (the flux ratio against mu_size) or "joint" (against '
-       "mu_size and the neighbours' flux ratios; needs estimator \"adaptive\" and two bands)",
-       choices=tuple(TESTS)),
-    _F("analysis", "snr_definition", "string", "log",
-       'the SNR of the test: "log" (linearised in ln mu_size) or "conservative" (the smaller of '
-       "that and the profile-likelihood SNR, a flag needs both; for compact galaxy-scale lenses; "
-       'needs estimator "adaptive")',
-       choices=LOG_SNR_DEFINITIONS),
+       'the duality test: "geometric" (the flux ratio against mu_size), "joint" (against '
+       "mu_size and the neighbours' flux ratios; needs estimator \"adaptive\" and two bands) "
+       'or "auto" (joint where it applies, else geometric)',
+       choices=("auto",) + tuple(TESTS)),
+    _F("analysis", "snr_definition", "string", DEFAULT_SNR_DEFINITION,
+       'the SNR of the test: "log" (linearised in ln mu_size), "conservative" (the smaller of '
+       "that and the profile-likelihood SNR, a flag needs both; needs estimator "
+       '"adaptive") or "auto" (conservative with the adaptive estimator, else log)',
+       choices=("auto",) + LOG_SNR_DEFINITIONS),
     _F("analysis", "source_model", "string", "point",
        'the sources\' model in the PSF photometry: "point" (the PSF) or "resolved" (the PSF '
        "convolved with an elliptical Gaussian of free size, for star clusters the lens "
