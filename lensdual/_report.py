@@ -143,6 +143,8 @@ def verdict(result, sigma_pos):
             f"anomalous when |ln(mu_flux/mu_size)| exceeds {threshold:g} times its error"
             + (" and its profile-likelihood SNR does too (the conservative SNR). "
                if meta.get("snr_definition") == "conservative" else ". "))
+    if meta.get("test_auto"):
+        text += f"Geometric test: {meta['test_auto']}. "
     if meta.get("test") == "joint":
         n_field = int(np.count_nonzero(np.asarray(result["field_status"]) == "ok"))
         text += (f"Joint test: the flux ratio is tested against mu_size combined with the "

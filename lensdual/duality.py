@@ -544,7 +544,8 @@ def check_duality(
         "conservative". The columns it adds are listed below. ``"auto"``
         (default): ``"joint"`` where it applies, ``"geometric"`` elsewhere
         (:func:`resolve_test`); ``meta['duality']['test']`` and
-        ``['snr_definition']`` say which ran.
+        ``['snr_definition']`` say which ran, and ``['test_auto']`` why
+        ``"auto"`` ran the geometric test.
 
     Returns
     -------
@@ -665,6 +666,7 @@ def check_duality(
     if not isinstance(test, str) or test not in ("auto",) + TESTS:
         raise ValueError(f"test must be one of {['auto', *TESTS]}, got {test!r}")
     bands = pair_bands(tab)
+    requested = test
     test = resolve_test(test, method, bands, snr_definition)
     if test == "joint":
         _check_joint_input(bands, snr_definition, method)
@@ -749,6 +751,8 @@ def check_duality(
     tab.meta["bands"] = bands
     meta = {
         "test": test,
+        **({"test_auto": _why_geometric(method, bands, snr_definition)}
+           if requested == "auto" and test == "geometric" else {}),
         "method": method,
         "sigma_pos": size.meta["sigma_pos"],
         "n_bootstrap": size.meta.get("n_bootstrap", 0),
@@ -841,6 +845,16 @@ def profile_snr(size, ln_mu_flux, ln_flux_err):
     ``ln|det J|`` (:mod:`lensdual._profile_kernels`). NaN where the pair has
     no estimate."""
     return _profile_rows(_profile_parts(size), ln_mu_flux, ln_flux_err)
+
+
+def _why_geometric(method, bands, snr_definition):
+    """Why ``test="auto"`` ran the geometric test, in words."""
+    if method != "adaptive":
+        return f"the joint test needs the adaptive estimator, not {method}"
+    if len(bands) < 2:
+        return ("the joint test needs fluxes in two bands (the chromatic check keeps "
+                "mis-paired sources out of the neighbours' field); the table has one")
+    return f"the joint test takes the log or conservative SNR, not {snr_definition}"
 
 
 def _check_joint_input(bands, snr_definition, method):
