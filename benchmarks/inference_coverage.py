@@ -63,7 +63,8 @@ def run_family(family, args, out):
     t0 = time.perf_counter()
     weight = 1.0 if args.no_weight else composite_weight(
         pairs, system, sim, sigma_pos=args.sigma_pos_mas * u.mas, flux_rel_err=args.flux_rel_err,
-        n_mocks=args.n_mocks, seed=args.seed + 7, test=args.test, snr_definition="log")
+        n_mocks=args.n_mocks, seed=args.seed + 7, test=args.test, snr_definition="log",
+        anomaly=args.test)
     t_weight = time.perf_counter() - t0
     rng = np.random.default_rng(args.seed + 1)
     sigma_pos = args.sigma_pos_mas * u.mas
@@ -86,7 +87,7 @@ def run_family(family, args, out):
             result["mu_flux"] = result["mu_size"] * np.exp(delta)
             result["duality_ratio_err"] = np.exp(delta) * err
         for key, w in weights.items():
-            m = abundance_posterior(result, sim, weights=w).meta["inference"]
+            m = abundance_posterior(result, sim, weights=w, anomaly=args.test).meta["inference"]
             lo68, hi68 = m["interval_68"].to_value(u.kpc**-2)
             lo95, hi95 = m["interval_95"].to_value(u.kpc**-2)
             rows[key].append((truth, m["median"].to_value(u.kpc**-2), lo68 <= truth <= hi68,

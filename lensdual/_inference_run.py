@@ -155,6 +155,13 @@ def _check_kwargs(tab):
     return kwargs
 
 
+def _n_flagged(tab, anomaly):
+    """The pairs flagged by the test whose anomalies the posterior reads."""
+    joint_table = (tab.meta.get("duality") or {}).get("test") == "joint"
+    column = "anomalous_geometric" if anomaly == "geometric" and joint_table else "anomalous"
+    return int(np.sum(np.asarray(tab[column], dtype=bool))) if column in tab.colnames else 0
+
+
 def _step(progress, name):
     from contextlib import nullcontext
 
@@ -219,16 +226,18 @@ def run_inference(config, *, client=None, progress=None):
                 clean = clean_pairs(tab, lens, pops[0], flux_rel_err)
                 weight = composite_weight(clean, lens, sim, sigma_pos=sigma_pos,
                                           flux_rel_err=flux_rel_err, n_mocks=config.n_mocks,
-                                          seed=int(seeds[2 * i + 1]), **_check_kwargs(tab))
+                                          seed=int(seeds[2 * i + 1]), anomaly=config.anomaly,
+                                          **_check_kwargs(tab))
         else:
             weight = float(config.weight)
-        n_tested = len(pair_anomalies(tab))
-        n_flagged = int(np.sum(np.asarray(tab["anomalous"], dtype=bool))) \
-            if "anomalous" in tab.colnames else 0
+        n_tested = len(pair_anomalies(tab, config.anomaly))
+        n_flagged = _n_flagged(tab, config.anomaly)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
-            alone = (half_mode_posterior(tab, system_sims, weights=weight) if half_mode
-                     else abundance_posterior(tab, sim, weights=weight)).meta["inference"]
+            alone = (half_mode_posterior(tab, system_sims, weights=weight,
+                                         anomaly=config.anomaly) if half_mode
+                     else abundance_posterior(tab, sim, weights=weight,
+                                              anomaly=config.anomaly)).meta["inference"]
         info = {
             "name": spec.name, "pairs": str(spec.pairs), "lens": lens_text,
             "z_lens": float(z_lens), "z_source": float(z_source), "n_pairs": len(tab),
@@ -249,9 +258,11 @@ def run_inference(config, *, client=None, progress=None):
     with _step(progress, "posterior"):
         if half_mode:
             sims = [list(per_mass) for per_mass in zip(*sims, strict=True)]
-            posterior = half_mode_posterior(tables, sims, weights=weights)
+            posterior = half_mode_posterior(tables, sims, weights=weights,
+                                            anomaly=config.anomaly)
         else:
-            posterior = abundance_posterior(tables, sims, weights=weights)
+            posterior = abundance_posterior(tables, sims, weights=weights,
+                                            anomaly=config.anomaly)
     posterior.meta["systems"] = infos
     posterior.meta["inference"]["seed"] = int(config.seed)
     return InferenceRun(posterior, sims)

@@ -136,6 +136,15 @@ def test_two_systems_are_the_api_s_posterior(mocks, tmp_path):
     np.testing.assert_allclose(run.posterior["log_likelihood"], expected["log_likelihood"])
     assert run.posterior.meta["inference"]["n_systems"] == 2
     assert [s["weight"] for s in run.posterior.meta["systems"]] == [1.0, 1.0]
+    assert run.posterior.meta["inference"]["anomaly"] == "geometric"
+    # [inference] anomaly = "joint": the joint test's anomalies of the same tables
+    cfg = write_config(tmp_path / "joint.toml",
+                       {**SMALL, "weight": 1, "seed": 7, "anomaly": "joint"},
+                       [_system(p) for p in mocks])
+    joint = run_inference(load_inference_config(cfg))
+    expected = abundance_posterior(tables, sims, anomaly="joint")
+    np.testing.assert_allclose(joint.posterior["log_likelihood"], expected["log_likelihood"])
+    assert joint.posterior.meta["inference"]["anomaly"] == "joint"
 
 
 def test_two_systems_on_dask_are_serial(mocks, tmp_path):
@@ -320,6 +329,8 @@ def _bad(mocks, tmp_path):
         ("weight misspelt", {**SMALL, "weight": "compsite"}, [ok],
          "[inference] weight: expected \"composite\" or a number in (0, 1], got 'compsite' "
          "(did you mean 'composite'?)"),
+        ("bad anomaly", {**SMALL, "anomaly": "field"}, [ok],
+         "[inference] anomaly: 'field' is not one of 'geometric', 'joint'"),
         ("bad model", {**SMALL, "model": "SIDM"}, [ok],
          "[inference] model: 'SIDM' is not one of 'CDM', 'WDM'"),
         ("WDM without log_mhm", {**SMALL, "model": "WDM"}, [ok],

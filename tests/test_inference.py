@@ -1,5 +1,6 @@
 """lensdual.inference: pyHalo populations, the multi-halo forward model, the posterior."""
 
+import warnings
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -598,3 +599,33 @@ def test_plot_half_mode_posterior_draws_the_density_and_the_marginal():
         post.meta["inference"]["log10_mhm_upper_95"])
     with pytest.raises(ValueError, match="half_mode_posterior"):
         plot_half_mode_posterior(abundance_posterior(_table(np.zeros(8), 0.02), slices[0]))
+
+
+def test_the_geometric_anomalies_of_a_joint_table():
+    """A joint-test table (the default of check_duality) gives, with the default
+    anomaly="geometric", exactly the anomalies, errors and degrees of freedom of the
+    geometric test on the same table; anomaly="joint" reads the joint prediction
+    and needs a joint table."""
+    clean = clean_constellation("cluster_fold", 20, seed=2)
+    noisy = noisy_constellation(clean, sigma_pos=10 * u.mas, flux_rel_err=0.02, seed=4)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        joint = check_duality(noisy, sigma_pos=10 * u.mas, seed=0)
+        geometric = check_duality(noisy, sigma_pos=10 * u.mas, seed=0, test="geometric")
+    assert joint.meta["duality"]["test"] == "joint"
+    got, want = pair_anomalies(joint), pair_anomalies(geometric)
+    assert list(got["pair_id"]) == list(want["pair_id"]) and len(got) >= 15
+    for name in ("delta", "delta_err", "dof"):
+        np.testing.assert_allclose(got[name], want[name], rtol=1e-12)
+    field = pair_anomalies(joint, "joint")
+    tested = np.asarray(joint["tested"], dtype=bool)
+    ln_flux = np.log(np.asarray(joint["mu_flux"], dtype=float))
+    np.testing.assert_allclose(field["delta"],
+                               (ln_flux - np.asarray(joint["ln_mu_predicted"]))[tested])
+    np.testing.assert_allclose(
+        field["delta_err"], np.hypot(np.asarray(joint["mu_flux_err"]) / np.exp(ln_flux),
+                                     np.asarray(joint["ln_mu_predicted_err"]))[tested])
+    with pytest.raises(ValueError, match="anomaly='joint' reads the joint test"):
+        pair_anomalies(geometric, "joint")
+    with pytest.raises(ValueError, match="anomaly must be one of"):
+        pair_anomalies(joint, "field")

@@ -108,6 +108,9 @@ class InferenceConfig:
         ``"composite"`` or a weight in (0, 1] for every system.
     n_mocks : int
         Mocks of each composite weight.
+    anomaly : str
+        The pairs' anomalies, ``"geometric"`` or ``"joint"``
+        (:func:`~lensdual.inference.pair_anomalies`).
     """
 
     path: Path
@@ -122,6 +125,7 @@ class InferenceConfig:
     seed: int = _d("seed")
     weight: str | float = _d("weight")
     n_mocks: int = _d("n_mocks")
+    anomaly: str = _d("anomaly")
 
     @property
     def half_mode(self):
@@ -207,7 +211,8 @@ class _InferenceValidator(_Validator):
             return None
         self.unknown_keys(table, (*_KEYS[sec], "system"), sec)
         out = {k: self.get(table, k, sec) for k in ("model", "log_m_host", "n_sigma_sub",
-                                                     "n_realisations", "seed", "n_mocks")}
+                                                     "n_realisations", "seed", "n_mocks",
+                                                     "anomaly")}
         out["log_mhm"] = self.log_mhm(table.get("log_mhm", _ABSENT), out["model"])
         if out["model"] == "WDM" and out["log_mhm"] is None:
             self.add('[inference] log_mhm: required with model = "WDM" (log10 of the '

@@ -25,7 +25,7 @@ from ..duality import (
     TESTS,
 )
 from ..estimators import DEFAULT_METHOD, DEFAULT_N_BOOTSTRAP, METHODS
-from ..inference import MIN_REALISATIONS, MODELS
+from ..inference import ANOMALIES, MIN_REALISATIONS, MODELS
 from ..pairing import DEFAULT_MAX_MAGNIFICATION
 from ..parametric.fitting import DEFAULT_MODEL
 from ..pipeline import DEFAULT_SEED
@@ -364,6 +364,11 @@ INFERENCE_FIELDS = (
        note='"composite" (by simulation) or a number in (0, 1]'),
     _F("inference", "n_mocks", "integer", 100,
        'mock universes of each composite weight (weight = "composite")', minimum=20),
+    _F("inference", "anomaly", "string", "geometric",
+       'the pairs\' anomalies: "geometric" (the flux ratio against mu_size, in every duality '
+       'table; the one whose coverage holds) or "joint" (against the joint test\'s '
+       "prediction; a table of the joint test)",
+       choices=ANOMALIES),
 
     _F(INFERENCE_SYSTEM, "name", "string", None,
        "the system's name in the report and the posterior's metadata",

@@ -24,6 +24,7 @@ checks and its injection-recovery coverage.
 from ._forward import MIN_REALISATIONS, AnomalySimulation, apply_population, simulate_anomalies
 from ._population import MODELS, SubhaloPopulation
 from ._posterior import (
+    ANOMALIES,
     INTERVALS,
     abundance_posterior,
     composite_weight,
@@ -43,4 +44,5 @@ __all__ = [
     "half_mode_posterior",
     "composite_weight",
     "INTERVALS",
+    "ANOMALIES",
 ]

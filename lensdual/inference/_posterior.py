@@ -12,41 +12,58 @@ from ..exceptions import EstimatorWarning
 from ._forward import AnomalySimulation
 
 __all__ = ["pair_anomalies", "abundance_posterior", "half_mode_posterior", "composite_weight",
-           "INTERVALS"]
+           "INTERVALS", "ANOMALIES"]
 
 #: The credible intervals reported in ``meta["inference"]`` (equal-tailed).
 INTERVALS = {"68": (0.16, 0.84), "95": (0.025, 0.975)}
 
 
-def pair_anomalies(table):
+#: The anomalies the likelihood reads: against the geometry (``mu_size``) or
+#: against the joint test's prediction (geometry and the neighbours' flux field).
+ANOMALIES = ("geometric", "joint")
+
+
+def pair_anomalies(table, anomaly="geometric"):
     """Each tested pair's measured log flux anomaly and its error.
 
     The anomaly is the log of the flux ratio over the ratio it is tested
-    against: ``ln(mu_flux / mu_size)`` for the geometric test,
-    ``ln mu_flux - ln_mu_predicted`` for the joint test (its error adds the
-    flux ratio's error to the prediction's). Its error follows Student's t
-    with ``snr_dof`` degrees of freedom, as in the test.
+    against: ``ln(mu_flux / mu_size)`` (``anomaly="geometric"``, any duality
+    table: a joint-test table keeps the geometric test's columns) or ``ln
+    mu_flux - ln_mu_predicted`` (``anomaly="joint"``, a joint-test table; its
+    error adds the flux ratio's error to the prediction's). Its error
+    follows Student's t with the test's degrees of freedom.
 
     Parameters
     ----------
     table : `~astropy.table.Table`
         A :func:`~lensdual.check_duality` result (``snr_definition="log"``, or
         ``"conservative"``, whose anomalies and errors are the same).
+    anomaly : {"geometric", "joint"}
+        Which anomaly (default ``"geometric"``: the one whose posterior
+        coverage holds on the inference page; the joint test's prediction
+        uses the neighbours' flux ratios, which the same population
+        perturbs, and its 68 % intervals cover less).
 
     Returns
     -------
     anomalies : `~astropy.table.QTable`
-        ``pair_id``, ``delta``, ``delta_err`` and ``dof`` of the tested pairs.
+        ``pair_id``, ``delta``, ``delta_err`` and ``dof`` of the pairs that
+        test tested.
 
     Raises
     ------
     TypeError
         ``table`` is not a Table.
     ValueError
-        ``table`` is not a duality result with fluxes, or has no tested pair.
+        ``table`` is not a duality result with fluxes, has no tested pair,
+        or is not a joint-test table where ``anomaly="joint"``.
     """
+    from ..duality import _snr_dof
+
     if not isinstance(table, Table):
         raise TypeError(f"table must be an astropy Table, got {type(table).__name__}")
+    if anomaly not in ANOMALIES:
+        raise ValueError(f"anomaly must be one of {list(ANOMALIES)}, got {anomaly!r}")
     meta = table.meta.get("duality")
     if meta is None or "mu_flux" not in table.colnames:
         raise ValueError("the constellation has no flux ratios tested for duality: measure its "
@@ -56,24 +73,40 @@ def pair_anomalies(table):
         # errors are the log ones
         raise ValueError("the anomalies are log ratios: run check_duality with "
                          "snr_definition='log' (or 'conservative')")
-    tested = np.asarray(table["tested"], dtype=bool)
-    if not tested.any():
-        raise ValueError("no pair of the constellation was tested for duality")
+    joint_table = meta.get("test", "geometric") == "joint"
+    if anomaly == "joint" and not joint_table:
+        raise ValueError("anomaly='joint' reads the joint test's prediction: run "
+                         "check_duality with test='joint' (the table's test is "
+                         f"{meta.get('test', 'geometric')!r})")
     ln_flux = np.log(np.asarray(table["mu_flux"], dtype=float))
     ln_flux_err = np.asarray(table["mu_flux_err"], dtype=float) / np.asarray(table["mu_flux"],
                                                                             dtype=float)
-    if meta.get("test", "geometric") == "joint":
+    if anomaly == "joint":
+        tested = np.asarray(table["tested"], dtype=bool)
         pred = np.asarray(table["ln_mu_predicted"], dtype=float)
         err = np.hypot(ln_flux_err, np.asarray(table["ln_mu_predicted_err"], dtype=float))
+        dof = np.asarray(table["snr_dof"], dtype=float)
     else:
         pred = np.log(np.asarray(table["mu_size"], dtype=float))
         ratio = np.asarray(table["duality_ratio"], dtype=float)
         err = np.asarray(table["duality_ratio_err"], dtype=float) / ratio
+        if joint_table:
+            # the geometric test's columns: its significance (NaN where untested)
+            # and its degrees of freedom
+            tested = np.isfinite(np.asarray(table["significance_geometric"], dtype=float))
+            with np.errstate(invalid="ignore", divide="ignore"):
+                dof = _snr_dof(err, np.asarray(table["ln_mu_size_err"], dtype=float),
+                               np.asarray(table["ln_mu_size_err_dof"], dtype=float))
+        else:
+            tested = np.asarray(table["tested"], dtype=bool)
+            dof = np.asarray(table["snr_dof"], dtype=float)
+    if not tested.any():
+        raise ValueError("no pair of the constellation was tested for duality")
     out = QTable()
     out["pair_id"] = np.asarray(table["pair_id"], dtype=int)[tested]
     out["delta"] = (ln_flux - pred)[tested]
     out["delta_err"] = err[tested]
-    out["dof"] = np.asarray(table["snr_dof"], dtype=float)[tested]
+    out["dof"] = dof[tested]
     return out
 
 
@@ -89,8 +122,8 @@ def _pair_log_likelihood(delta, err, dof, sims):
     return special.logsumexp(logpdf, axis=0) - np.log(n) - np.log(err)
 
 
-def _system_log_likelihood(table, sim):
-    data = pair_anomalies(table)
+def _system_log_likelihood(table, sim, anomaly="geometric"):
+    data = pair_anomalies(table, anomaly)
     if not isinstance(sim, AnomalySimulation):
         raise TypeError(f"simulations must be AnomalySimulation objects, got {type(sim).__name__}")
     index = {int(p): i for i, p in enumerate(sim.pair_id)}
@@ -118,7 +151,7 @@ def _quantile(log_grid, cdf, q):
     return float(np.interp(q, cdf, log_grid))
 
 
-def _log_likelihood(tables, simulations, weights):
+def _log_likelihood(tables, simulations, weights, anomaly="geometric"):
     """The weighted log-likelihood of the constellations ``tables`` on the grid of their
     ``simulations`` (lists, one per constellation), checked; returns it, the number
     of tested pairs and the weights as a list."""
@@ -141,7 +174,7 @@ def _log_likelihood(tables, simulations, weights):
     logl = np.zeros(grid.size)
     n_pairs = 0
     for t, s, w in zip(tables, simulations, weights, strict=True):
-        ll, n = _system_log_likelihood(t, s)
+        ll, n = _system_log_likelihood(t, s, anomaly)
         logl += w * ll
         n_pairs += n
     if not np.isfinite(logl).any():
@@ -157,7 +190,7 @@ def _marginal(log_grid, dens):
     return dens, cdf / cdf[-1]
 
 
-def abundance_posterior(tables, simulations, *, weights=None):
+def abundance_posterior(tables, simulations, *, weights=None, anomaly="geometric"):
     r"""Posterior on the sub-halo abundance ``sigma_sub`` from one or many constellations.
 
     Given the population, a sub-halo's effect is local, so the pairs are
@@ -186,6 +219,9 @@ def abundance_posterior(tables, simulations, *, weights=None):
         Each system's composite-likelihood weight in (0, 1]
         (:func:`composite_weight`): its log-likelihood is multiplied by it.
         Default 1 (the pairs' errors independent).
+    anomaly : {"geometric", "joint"}
+        The pairs' anomalies, see :func:`pair_anomalies` (default
+        ``"geometric"``, whatever test the tables ran).
 
     Returns
     -------
@@ -208,7 +244,7 @@ def abundance_posterior(tables, simulations, *, weights=None):
         simulations = [simulations]
     tables = list(tables)
     simulations = list(simulations)
-    logl, n_pairs, weights = _log_likelihood(tables, simulations, weights)
+    logl, n_pairs, weights = _log_likelihood(tables, simulations, weights, anomaly)
     grid = simulations[0].sigma_sub
     log_grid = np.log10(grid.to_value(u.kpc**-2))
     w = np.exp(logl - np.nanmax(logl))
@@ -234,11 +270,12 @@ def abundance_posterior(tables, simulations, *, weights=None):
         "n_realisations": int(simulations[0].delta.shape[1]),
         "weights": [float(w) for w in weights],
         "population": repr(simulations[0].population),
+        "anomaly": anomaly,
     }
     return out
 
 
-def half_mode_posterior(tables, simulations, *, weights=None):
+def half_mode_posterior(tables, simulations, *, weights=None, anomaly="geometric"):
     r"""Joint posterior on the sub-halo abundance and the WDM half-mode mass.
 
     The likelihood of :func:`abundance_posterior`, evaluated for every
@@ -263,6 +300,8 @@ def half_mode_posterior(tables, simulations, *, weights=None):
     weights : float or list of float, optional
         Each constellation's composite-likelihood weight in (0, 1], as for
         :func:`abundance_posterior`.
+    anomaly : {"geometric", "joint"}
+        The pairs' anomalies, as for :func:`abundance_posterior`.
 
     Returns
     -------
@@ -313,7 +352,7 @@ def half_mode_posterior(tables, simulations, *, weights=None):
         other = slices[k][0].sigma_sub
         if other.shape != grid.shape or not np.allclose(other, grid, rtol=1e-12):
             raise ValueError("the simulations must share one sigma_sub grid")
-        ll, n_pairs, used = _log_likelihood(tables, slices[k], weights)
+        ll, n_pairs, used = _log_likelihood(tables, slices[k], weights, anomaly)
         lls.append(ll)
     logl = np.array(lls)  # (M, S)
     log_m = log_mhm[order]
@@ -354,12 +393,13 @@ def half_mode_posterior(tables, simulations, *, weights=None):
         "n_realisations": int(slices[order[0]][0].delta.shape[1]),
         "weights": [float(w) for w in used],
         "populations": [repr(slices[k][0].population) for k in order],
+        "anomaly": anomaly,
     }
     return out
 
 
 def composite_weight(pairs, lens, simulation, *, sigma_pos, flux_rel_err, n_mocks=100, seed=0,
-                     **check_kwargs):
+                     anomaly="geometric", **check_kwargs):
     r"""Composite-likelihood weight of one constellation, by simulation.
 
     The likelihood of :func:`abundance_posterior` multiplies the pairs'
@@ -396,9 +436,14 @@ def composite_weight(pairs, lens, simulation, *, sigma_pos, flux_rel_err, n_mock
     n_mocks : int, optional
         Mock universes, at least 20. Default 100.
     seed : int, optional
+    anomaly : {"geometric", "joint"}
+        The pairs' anomalies, as for :func:`abundance_posterior` (default
+        ``"geometric"``: the mocks then run the geometric test, whose columns
+        every test keeps).
     **check_kwargs
         Passed to :func:`~lensdual.check_duality` (its ``sigma_pos`` is
-        ``sigma_pos``).
+        ``sigma_pos``; its ``test`` is ``"geometric"`` with the geometric
+        anomaly, and defaults to ``"joint"`` with the joint one).
 
     Returns
     -------
@@ -415,6 +460,11 @@ def composite_weight(pairs, lens, simulation, *, sigma_pos, flux_rel_err, n_mock
         raise TypeError(f"simulation must be an AnomalySimulation, got "
                         f"{type(simulation).__name__}")
     n_mocks = as_int(n_mocks, "n_mocks", minimum=20)
+    if anomaly not in ANOMALIES:
+        raise ValueError(f"anomaly must be one of {list(ANOMALIES)}, got {anomaly!r}")
+    check_kwargs = {**check_kwargs,
+                    "test": "geometric" if anomaly == "geometric"
+                    else check_kwargs.get("test", "joint")}
     grid = simulation.sigma_sub.to_value(u.kpc**-2)
     if grid.size < 5:
         raise ValueError(f"the simulation's grid has {grid.size} abundances: the slope and "
@@ -435,7 +485,7 @@ def composite_weight(pairs, lens, simulation, *, sigma_pos, flux_rel_err, n_mock
                                    **check_kwargs)
         if not np.asarray(result["tested"], dtype=bool).any():
             continue  # a mock without a tested pair has a flat likelihood: no slope to measure
-        lls.append(_system_log_likelihood(result, simulation)[0])
+        lls.append(_system_log_likelihood(result, simulation, anomaly)[0])
         truths.append(np.log10(truth))
     return _magnitude_weight(log_grid, np.array(lls), np.array(truths))
 
