@@ -190,7 +190,7 @@ def main(argv=None):
     rec.say("The demo's CDM population, flags against the pairs it perturbs "
             "(benchmarks/cdm_population_flags.py)")
     rec.say(f"simulate_demo(subhalo='cdm', n_sources={args.n_sources}), render_demo (point "
-            f"scene), analyse (defaults: adaptive, geometric test), seeds "
+            f"scene), analyse (adaptive, geometric test, linearised SNR), seeds "
             f"{seeds.start}-{seeds.stop - 1}; perturbed: |ln(mu_true/mu_macro)| > "
             f"{DEMO_CDM_THRESHOLD:.3f}")
     rec.say("")

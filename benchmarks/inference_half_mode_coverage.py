@@ -14,7 +14,7 @@ log-spaced over 1e-3 to 0.3 kpc^-2); the composite weight
 log-uniform priors (the half-mode mass between the grid's ends, not only on
 its nodes), ``--n-systems`` mock constellations each (one WDM realisation at
 the truth and its own noise, seeds the forward model never used, 10 mas and
-2 % flux errors), ``check_duality`` (the default test) and
+2 % flux errors), ``check_duality`` (the geometric test, linearised SNR) and
 :func:`half_mode_posterior`. Reported: how often the marginals' 68 % and 95 %
 equal-tailed intervals hold the truth (targets 68 +- 5 % and 95 +- 3 %), for
 ``sigma_sub`` and for log10 m_hm, the median of log10(posterior median /

@@ -8,7 +8,7 @@ Run on demand (minutes)::
 At pyHalo's default abundance (``sigma_sub`` = 0.025 kpc^-2), the forward
 model of one 20-source constellation is run under CDM and under WDM
 (``log_mhm`` = 8). Mock universes are drawn under each model, analysed by
-``check_duality`` (the default test), and their log-likelihood ratio
+``check_duality`` (the geometric test, linearised SNR), and their log-likelihood ratio
 :math:`\\Delta = w(\\ell_{\\rm CDM} - \\ell_{\\rm WDM})` is recorded, with the
 constellation's composite weight :math:`w`. With means :math:`m_C, m_W` and
 standard deviations :math:`s_C, s_W` of :math:`\\Delta` under each model,
