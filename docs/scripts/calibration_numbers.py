@@ -21,6 +21,8 @@ cannot drift from them:
 - ``joint/calibration_heldout.txt``: ``benchmarks/joint_calibration.py
   --masking`` on the held-out families (the geometric test's false flags,
   ``ffr_geo``, on the compact galaxy-scale fold at 20 mas);
+- ``profile_snr/small_constellations.txt``: ``benchmarks/profile_snr_calibration.py
+  --n-sources 8,12`` (the development families, then the held-out ones);
 - ``profile_snr/calibration.txt``: ``benchmarks/profile_snr_calibration.py``
   (the conservative SNR's false flags on the compact fold and Abell 370).
 
@@ -301,13 +303,21 @@ def read_profile_table(path):
     family, sources, noise and the false-flag rate of each SNR (log, profile,
     cons)."""
     rows = []
+    held_out = False
     for line in path.read_text().splitlines():
         parts = line.replace("[", " ").replace("]", " ").replace(",", " ").split()
+        if parts and parts[0] == "#" and "held out" in line:
+            held_out = True
         if not parts or parts[0].startswith("#") or parts[0] == "family":
             continue
-        rows.append({"family": parts[0], "sources": int(parts[1]), "noise_mas": float(parts[2]),
-                     "log": float(parts[4]), "profile": float(parts[7]),
-                     "cons": float(parts[10])})
+        row = {"family": parts[0], "sources": int(parts[1]), "noise_mas": float(parts[2]),
+               "n": int(parts[3]), "held_out": held_out}
+        if parts[4] == "untested":  # every pair of the cell untestable
+            rows.append(row | {"log": float("nan"), "profile": float("nan"),
+                               "cons": float("nan"), "cons_l95": float("nan")})
+            continue
+        rows.append(row | {"log": float(parts[4]), "profile": float(parts[7]),
+                           "cons": float(parts[10]), "cons_l95": float(parts[11])})
     return rows
 
 
@@ -319,6 +329,41 @@ def profile_numbers(rows):
         cells = [r for r in rows if r["family"] == family]
         sub[f"cal_{key}_cons"] = (f"{_pct(max(r['cons'] for r in cells))} % (the linearised "
                                   f"SNR's: up to {_pct(max(r['log'] for r in cells))} %)")
+    return sub
+
+
+#: The galaxy-scale development families, apart from the cluster-scale ones.
+GALAXY_SCALE = ("galaxy_fold", "galaxy_epl_compact", "galaxy_sie_compact", "group_fold")
+#: The suite's false-flag target.
+FFR_TARGET = 0.005
+
+
+def small_numbers(rows):
+    """The default test with 8 and 12 sources (the geometric test with the
+    conservative SNR: the joint test has no flux field below 13 sources): the
+    cells that fail the suite's rule (95 % lower limit above 0.5 %), the
+    largest false-flag rate of the other cluster-scale cells, the cells where
+    every pair is untestable, and the same on the held-out families."""
+    def cell_text(r):
+        return (f"``{r['family']}`` with {r['sources']} sources at {r['noise_mas']:g} mas "
+                f"({_pct(r['cons'])} %, lower limit {_pct(r['cons_l95'])} %)")
+
+    sub = {}
+    for key, held in (("dev", False), ("held", True)):
+        part = [r for r in rows if r["held_out"] == held]
+        tested = [r for r in part if r["n"] > 0]
+        fails = [r for r in tested if r["cons_l95"] > FFR_TARGET]
+        # the highest rate of the cluster-scale cells that do not fail
+        cluster = [r for r in tested if r["family"] not in GALAXY_SCALE and r not in fails]
+        top = max(cluster, key=lambda r: r["cons"])
+        sub[f"cal_small_{key}_cluster_max"] = cell_text(top)
+        sub[f"cal_small_{key}_fail"] = _and([cell_text(r) for r in fails]) if fails else "none"
+        sub[f"cal_small_{key}_n_fail"] = str(len(fails))
+        sub[f"cal_small_{key}_cells"] = str(len(part))
+        untested = [r for r in part if r["n"] == 0]
+        sub[f"cal_small_{key}_untested"] = (_and([
+            f"``{r['family']}`` with {r['sources']} sources at {r['noise_mas']:g} mas"
+            for r in untested]) if untested else "none")
     return sub
 
 
@@ -425,6 +470,7 @@ def compute(folder=STATIC):
                         [p.read_text().split("\n", 1)[0] for p in paths])
     sub |= joint_numbers(read_joint_table(folder / "joint" / "calibration_heldout.txt"))
     sub |= profile_numbers(read_profile_table(folder / "profile_snr" / "calibration.txt"))
+    sub |= small_numbers(read_profile_table(folder / "profile_snr" / "small_constellations.txt"))
     seed0 = read_cells(folder / "calibration" / "suite_seed0.txt")
     seed100 = read_cells(folder / "calibration" / "suite_seed100.txt")
     sub |= other_seed_numbers(seed100)
