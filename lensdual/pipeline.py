@@ -251,8 +251,9 @@ def analyse(images, *, psf=None, estimator=DEFAULT_METHOD, sigma_pos="auto",
                          f"{snr_definition!r}")
     n_min = max(METHODS[estimator], _MIN_AUTO_PAIRS if manual_pairs is None else 3)
     bands = list(images["L1"])
-    snr_definition = resolve_snr_definition(snr_definition, estimator)
-    test = resolve_test(test, estimator, bands, snr_definition)
+    # checked here, before the images are read; check_duality resolves "auto" again
+    # (and records why it ran the geometric test)
+    resolve_test(test, estimator, bands, resolve_snr_definition(snr_definition, estimator))
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         cats = {}

@@ -116,6 +116,9 @@ def test_quiet_prints_nothing(tmp_path, capsys):
     captured = capsys.readouterr()
     assert captured.out == ""
     assert captured.err == ""
+    # the default test is the geometric one with quad2, and the report says why
+    assert ("Geometric test: the joint test needs the adaptive estimator, not quad2."
+            in (tmp_path / "q" / "report.txt").read_text())
 
 
 @pytest.mark.parametrize("command", ["demo", "run"])

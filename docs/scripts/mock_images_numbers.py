@@ -9,13 +9,16 @@ prose cannot drift from them:
 - ``scenes/acceptance.txt``: ``benchmarks/acceptance_pixels.py --seeds 20``
   (detection, photometry and pairing on mocks of the SMACS0723 analogue);
 - ``performance/demo_time_realistic.txt``: ``benchmarks/bench_demo_time.py
-  --scene realistic`` (the realistic demo's wall time).
+  --scene realistic`` (the realistic demo's wall time);
+- ``scenes/default_test.txt``: ``benchmarks/scene_default_test.py --seeds 30``
+  (the realistic scene under the default test and under the former one).
 
 Run from the repository root after rerunning a benchmark::
 
     python benchmarks/finite_size_bias.py --pipeline-seeds 30 \
         --out docs/_static/scenes/finite_size_bias.txt
     python benchmarks/acceptance_pixels.py --seeds 20 --output docs/_static/scenes/acceptance.txt
+    python benchmarks/scene_default_test.py --seeds 30 --output docs/_static/scenes/default_test.txt
     python docs/scripts/mock_images_numbers.py
 """
 
@@ -185,11 +188,27 @@ def demo_time_numbers(path):
             "mock_demo_cores": cores, "mock_demo_load": load}
 
 
+def default_test_numbers(path):
+    """``scene_default_test.py``: the realistic scene's flags under the default test,
+    and the seeds where the former default differs."""
+    text = path.read_text()
+    m = re.search(r"^default (\d+) (\d+) (\d+) (\d+) (\d+)$", text, re.MULTILINE)
+    if m is None:
+        raise ValueError(f"{path}: no totals row of the default test")
+    tested, false, patch, subhalo, seeds = (int(g) for g in m.groups())
+    n_differ = int(search(r"seeds where the two tests differ: (\d+)",
+                          text.splitlines(), path).group(1))
+    return {"mock_def_clean": str(tested), "mock_def_false": str(false),
+            "mock_def_patch": f"{patch} of {seeds}", "mock_def_subhalo": f"{subhalo} of {seeds}",
+            "mock_def_differ": "no seed" if n_differ == 0 else f"{n_differ} of {seeds} seeds"}
+
+
 def compute(folder=OUT):
     """The substitutions (name -> text) from the stored outputs under ``folder``."""
     return (finite_size_numbers(folder / "finite_size_bias.txt")
             | acceptance_numbers(folder / "acceptance.txt")
-            | demo_time_numbers(folder.parent / "performance" / "demo_time_realistic.txt"))
+            | demo_time_numbers(folder.parent / "performance" / "demo_time_realistic.txt")
+            | default_test_numbers(folder / "default_test.txt"))
 
 
 def main(out=OUT):
