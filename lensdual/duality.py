@@ -593,8 +593,9 @@ def check_duality(
 
         With ``test="joint"``, ``snr``, ``snr_dof``, ``significance``,
         ``tested``, ``p_value``, ``p_value_holm`` and ``anomalous`` are the
-        joint test's, and these columns are added: ``significance_geometric``
-        and ``anomalous_geometric`` (the geometric test's), ``ln_mu_field``,
+        joint test's, and these columns are added: ``significance_geometric``,
+        ``snr_dof_geometric`` and ``anomalous_geometric`` (the geometric
+        test's), ``ln_mu_field``,
         ``ln_mu_field_err``, ``field_status``, ``field_n``, ``field_dropped`` (see
         :func:`~lensdual.flux_field.flux_field_prediction`),
         ``field_consistency`` (the significance of the difference between
@@ -1025,6 +1026,7 @@ def _joint_test(tab, theta2, flux, sigma_pos, keep, snr_threshold, profile=None)
         sig2, geo, keep, np.asarray(tab["mu_size_status"]) == "ok", snr_threshold, profile)
     snr, dof, signif, tested = result.snr, result.dof, result.significance, result.tested
     tab["significance_geometric"] = tab["significance"]
+    tab["snr_dof_geometric"] = tab["snr_dof"]
     tab["anomalous_geometric"] = tab["anomalous"]
     tab["ln_mu_field"] = field.value
     tab["ln_mu_field_err"] = np.sqrt(field.var)

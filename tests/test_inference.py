@@ -629,3 +629,8 @@ def test_the_geometric_anomalies_of_a_joint_table():
         pair_anomalies(geometric, "joint")
     with pytest.raises(ValueError, match="anomaly must be one of"):
         pair_anomalies(joint, "field")
+    old = joint.copy()
+    del old["snr_dof_geometric"]  # a joint table made before the column was kept
+    with pytest.raises(ValueError, match="no column 'snr_dof_geometric'"):
+        pair_anomalies(old)
+    assert len(pair_anomalies(old, "joint")) == len(field)

@@ -58,8 +58,6 @@ def pair_anomalies(table, anomaly="geometric"):
         ``table`` is not a duality result with fluxes, has no tested pair,
         or is not a joint-test table where ``anomaly="joint"``.
     """
-    from ..duality import _snr_dof
-
     if not isinstance(table, Table):
         raise TypeError(f"table must be an astropy Table, got {type(table).__name__}")
     if anomaly not in ANOMALIES:
@@ -93,10 +91,11 @@ def pair_anomalies(table, anomaly="geometric"):
         if joint_table:
             # the geometric test's columns: its significance (NaN where untested)
             # and its degrees of freedom
+            if "snr_dof_geometric" not in table.colnames:
+                raise ValueError("the joint-test table has no column 'snr_dof_geometric' "
+                                 "(made before lensdual kept it): run check_duality again")
             tested = np.isfinite(np.asarray(table["significance_geometric"], dtype=float))
-            with np.errstate(invalid="ignore", divide="ignore"):
-                dof = _snr_dof(err, np.asarray(table["ln_mu_size_err"], dtype=float),
-                               np.asarray(table["ln_mu_size_err_dof"], dtype=float))
+            dof = np.asarray(table["snr_dof_geometric"], dtype=float)
         else:
             tested = np.asarray(table["tested"], dtype=bool)
             dof = np.asarray(table["snr_dof"], dtype=float)
