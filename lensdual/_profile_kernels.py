@@ -216,20 +216,23 @@ def profile_snr_whitened(q, yh, ok, det, var_rest, ln_r, out):
         qa = q[a]
         ya = yh[a]
         best = np.inf
-        for sign in (1.0, -1.0):
+        same = 1.0 if det[a] > 0.0 else -1.0
+        for sign in (same, -same):  # the estimate's parity first
             if v == 0.0:
                 best = min(best, _quadric_d2(qa, ya, sign * np.exp(lr))[0])
                 continue
-            if sign * det[a] > 0.0:
+            if sign == same:
                 # between the estimate and the hypothesis, with a margin of the rest's noise
                 u0 = np.log(abs(det[a]))
                 lo = min(u0, lr) - 2.0 * np.sqrt(v)
                 hi = max(u0, lr) + 2.0 * np.sqrt(v)
             else:
-                # the other parity: |D| below R (the distance grows with |D|)
+                # the other parity: |D| below R (the distance grows with |D|), reached
+                # only through D = 0; a |D| more than sqrt(best) noise below R costs
+                # more than the best already found
                 if _quadric_d2(qa, ya, 0.0)[0] >= best:
                     continue
-                lo = lr - 8.0 * np.sqrt(v)
+                lo = lr - max(8.0, np.sqrt(best)) * np.sqrt(v)
                 hi = lr
             best = min(best, _min_over_u(qa, ya, sign, lo, hi, lr, v))
         out[a] = np.sqrt(best)

@@ -103,6 +103,20 @@ def _untested_reason(row):
     return "no SNR"
 
 
+def _criterion(snr_definition, threshold):
+    """The words of the flag's criterion, after "a pair is"."""
+    if snr_definition == "paper":
+        return (f"anomalous when |mu_flux/mu_size - 1| exceeds {threshold:g} times the "
+                "ratio's relative size error (the paper's SNR). ")
+    if snr_definition == "profile":
+        return (f"anomalous when the profile-likelihood SNR of mu_flux = |det J| exceeds "
+                f"{threshold:g}. ")
+    text = f"anomalous when |ln(mu_flux/mu_size)| exceeds {threshold:g} times its error"
+    if snr_definition == "conservative":
+        return text + " and its profile-likelihood SNR does too (the conservative SNR). "
+    return text + ". "
+
+
 def verdict(result, sigma_pos):
     """One paragraph on which pairs break duality, and how strongly.
 
@@ -140,9 +154,7 @@ def verdict(result, sigma_pos):
             f"{len(bands)} band{'s' if len(bands) != 1 else ''} ({', '.join(bands)}). "
             f"Size magnifications from the {method} estimator with "
             f"{sig_text} and {errors}; a pair is "
-            f"anomalous when |ln(mu_flux/mu_size)| exceeds {threshold:g} times its error"
-            + (" and its profile-likelihood SNR does too (the conservative SNR). "
-               if meta.get("snr_definition") == "conservative" else ". "))
+            + _criterion(meta.get("snr_definition", "log"), threshold))
     if meta.get("test_auto"):
         text += f"Geometric test: {meta['test_auto']}. "
     if meta.get("test") == "joint":

@@ -34,7 +34,8 @@ __all__ = ["POSITION_COLUMNS", "SNR_DEFINITIONS", "LOG_SNR_DEFINITIONS", "TESTS"
            "check_duality", "pair_bands",
            "flux_ratios", "holm_adjust", "null_calibration", "gaussian_p_value",
            "duality_significance", "DEFAULT_SNR_THRESHOLD", "DEFAULT_TEST",
-           "DEFAULT_SNR_DEFINITION", "resolve_test", "resolve_snr_definition"]
+           "DEFAULT_SNR_DEFINITION", "resolve_test", "resolve_snr_definition",
+           "check_test_settings"]
 
 #: Position columns every pairs table needs (arcsec or any angle unit).
 POSITION_COLUMNS = _pairs_table.POSITION_COLUMNS
@@ -661,22 +662,16 @@ def check_duality(
     """
     tab = _as_qtable(pairs)
     _pairs_table.check_unique_pair_ids(tab)
-    snr_definition = resolve_snr_definition(snr_definition, method)
     snr_threshold = as_real(snr_threshold, "snr_threshold", minimum=0.0)
     chromatic_alpha = as_real(chromatic_alpha, "chromatic_alpha", minimum=0.0, maximum=1.0)
-    if not isinstance(test, str) or test not in ("auto",) + TESTS:
-        raise ValueError(f"test must be one of {['auto', *TESTS]}, got {test!r}")
     bands = pair_bands(tab)
-    requested = test
-    test = resolve_test(test, method, bands, snr_definition)
-    if test == "joint":
-        _check_joint_input(bands, snr_definition, method)
-    if snr_definition in _PROFILE_DEFINITIONS and method != "adaptive":
-        raise ValueError(f"snr_definition={snr_definition!r} needs method 'adaptive' (the "
-                         f"covariance of its Jacobian), got method {method!r}")
+    flux = flux_ratios(tab)  # validates the flux columns before the bootstrap runs
+    # the bands with a flux ratio for at least one pair
+    measured = [b for b in bands
+                if np.isfinite(np.asarray(flux[_pairs_table.mu_flux_col(b)], float)).any()]
+    test, snr_definition, why = check_test_settings(test, snr_definition, method, measured)
     theta1, theta2 = _positions(tab)
     _pairs_table.check_distinct_arcs(tab)
-    flux = flux_ratios(tab)  # validates the flux columns before the bootstrap runs
     doubt = _doubts(tab, theta1, theta2, flux, chromatic_alpha)
     keep = doubt == ""
     try:
@@ -752,8 +747,7 @@ def check_duality(
     tab.meta["bands"] = bands
     meta = {
         "test": test,
-        **({"test_auto": _why_geometric(method, bands, snr_definition)}
-           if requested == "auto" and test == "geometric" else {}),
+        **({"test_auto": why} if why else {}),
         "method": method,
         "sigma_pos": size.meta["sigma_pos"],
         "n_bootstrap": size.meta.get("n_bootstrap", 0),
@@ -848,14 +842,59 @@ def profile_snr(size, ln_mu_flux, ln_flux_err):
     return _profile_rows(_profile_parts(size), ln_mu_flux, ln_flux_err)
 
 
-def _why_geometric(method, bands, snr_definition):
-    """Why ``test="auto"`` ran the geometric test, in words."""
-    if method != "adaptive":
-        return f"the joint test needs the adaptive estimator, not {method}"
-    if len(bands) < 2:
-        return ("the joint test needs fluxes in two bands (the chromatic check keeps "
-                "mis-paired sources out of the neighbours' field); the table has one")
-    return f"the joint test takes the log or conservative SNR, not {snr_definition}"
+def check_test_settings(test, snr_definition, method, bands):
+    """The test and SNR definition that ``test`` and ``snr_definition`` name for
+    ``method`` and ``bands``, checked together.
+
+    Parameters
+    ----------
+    test : {"auto", "geometric", "joint"}
+        See :func:`resolve_test`.
+    snr_definition : {"auto", "log", "paper", "profile", "conservative"}
+        See :func:`resolve_snr_definition`.
+    method : str
+        The size-magnification estimator.
+    bands : sequence of str
+        The bands with flux ratios.
+
+    Returns
+    -------
+    test, snr_definition : str
+        Resolved.
+    why : str
+        Why ``"auto"`` ran the geometric test, in words; empty otherwise.
+
+    Raises
+    ------
+    ValueError
+        An unknown name; the joint test without the adaptive estimator, two
+        bands or a log-type SNR; the profile or conservative SNR without the
+        adaptive estimator.
+
+    Examples
+    --------
+    >>> from lensdual.duality import check_test_settings
+    >>> check_test_settings("auto", "auto", "quad2", ["F150W", "F200W"])
+    ('geometric', 'log', 'the joint test needs the adaptive estimator, not quad2')
+    """
+    snr_definition = resolve_snr_definition(snr_definition, method)
+    resolved = resolve_test(test, method, bands, snr_definition)
+    if resolved == "joint":
+        _check_joint_input(bands, snr_definition, method)
+    if snr_definition in _PROFILE_DEFINITIONS and method != "adaptive":
+        raise ValueError(f"snr_definition={snr_definition!r} needs method 'adaptive' (the "
+                         f"covariance of its Jacobian), got method {method!r}")
+    why = ""
+    if test == "auto" and resolved == "geometric":
+        if method != "adaptive":
+            why = f"the joint test needs the adaptive estimator, not {method}"
+        elif len(bands) < 2:
+            why = ("the joint test needs flux ratios in two bands (the chromatic check keeps "
+                   "mis-paired sources out of the neighbours' field); the table has them in "
+                   f"{'one' if len(bands) == 1 else 'none'}")
+        else:
+            why = f"the joint test takes the log or conservative SNR, not {snr_definition}"
+    return resolved, snr_definition, why
 
 
 def _check_joint_input(bands, snr_definition, method):
@@ -1285,13 +1324,17 @@ def null_calibration(pairs, *, sigma_pos, n_realisations=1000,
                              snr_definition=snr_definition)
     test = observed.meta["duality"]["test"]  # "auto" resolved
     snr_definition = observed.meta["duality"]["snr_definition"]
+    # the null is simulated on the pairs check_duality kept (the doubtful ones, whose
+    # positions or errors may be unknown, inform no estimate there either)
+    keep = np.asarray(observed["doubt"]) == ""
+    n_all = keep.size
     theta1, theta2 = _positions(observed)
-    t1 = np.ascontiguousarray(theta1.to_value(u.arcsec))
-    t2 = np.ascontiguousarray(theta2.to_value(u.arcsec))
+    t1 = np.ascontiguousarray(theta1.to_value(u.arcsec)[keep])
+    t2 = np.ascontiguousarray(theta2.to_value(u.arcsec)[keep])
     n = t1.shape[0]
-    sigma = as_sigma(sigma_pos, n, positive=True)
+    sigma = as_sigma(_subset_sigma(sigma_pos, keep), n, positive=True)
     flux = flux_ratios(pairs)
-    ln_flux_err = np.asarray(flux["ln_mu_flux_err"], dtype=float)
+    ln_flux_err = np.asarray(flux["ln_mu_flux_err"], dtype=float)[keep]
     ln_flux_err = np.where(np.isfinite(ln_flux_err), ln_flux_err, np.inf)
 
     null_map = _smooth_map(t1, t2, sigma)
@@ -1310,8 +1353,7 @@ def null_calibration(pairs, *, sigma_pos, n_realisations=1000,
     mapped = np.ascontiguousarray(mapped)
     n_blocks = -(-n_real // _NULL_BLOCK)
     sizes = [min(_NULL_BLOCK, n_real - b * _NULL_BLOCK) for b in range(n_blocks)]
-    joint = ((np.asarray(observed["doubt"]) == "", float(snr_threshold)) if test == "joint"
-             else None)
+    joint = (np.ones(n, dtype=bool), float(snr_threshold)) if test == "joint" else None
     args = [(b, entropy, sizes[b], mapped, t2, sigma, mu_true, ln_flux_err, float(weight_power),
              joint, snr_definition == "conservative") for b in range(n_blocks)]
     if client is None:  # one block per task, in threads over the cores we may use
@@ -1320,7 +1362,8 @@ def null_calibration(pairs, *, sigma_pos, n_realisations=1000,
     else:
         tasks = [args[i:i + chunk] for i in range(0, n_blocks, chunk)]
         parts = run_tasks(_null_tasks, tasks, client)
-    null = np.vstack([blk for part in parts for blk in part])  # (n_real, N)
+    null = np.full((n_real, n_all), np.nan)  # (n_real, N): NaN for the doubtful pairs
+    null[:, keep] = np.vstack([blk for part in parts for blk in part])
 
     snr = np.asarray(observed["significance"], dtype=float)
     tested = np.asarray(observed["tested"], dtype=bool)

@@ -47,8 +47,7 @@ from .duality import (
     DEFAULT_SNR_THRESHOLD,
     DEFAULT_TEST,
     LOG_SNR_DEFINITIONS,
-    resolve_snr_definition,
-    resolve_test,
+    check_test_settings,
 )
 from .estimators import DEFAULT_METHOD, DEFAULT_N_BOOTSTRAP, estimate_sigma_pos
 from .exceptions import PipelineError
@@ -253,7 +252,7 @@ def analyse(images, *, psf=None, estimator=DEFAULT_METHOD, sigma_pos="auto",
     bands = list(images["L1"])
     # checked here, before the images are read; check_duality resolves "auto" again
     # (and records why it ran the geometric test)
-    resolve_test(test, estimator, bands, resolve_snr_definition(snr_definition, estimator))
+    check_test_settings(test, snr_definition, estimator, bands)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         cats = {}

@@ -870,3 +870,28 @@ def test_calibration_pooled_saves_and_ffr_limits(tmp_path):
     main(["--from-saves", str(tmp_path / "a")])
     with pytest.raises(SystemExit):
         main(["--from-saves", str(tmp_path / "nowhere")])
+
+
+def test_null_calibration_leaves_doubtful_pairs_out():
+    """A doubtful pair, whose position errors may be unknown (NaN, as the pipeline
+    gives them), is left out of the null as check_duality leaves it out of the
+    estimate: the null of the other pairs is that of the table without it, and its
+    own empirical p-value is NaN."""
+    pairs = _pairs(n=14, seed=2)
+    pairs["doubt"] = np.array([""] * 14, dtype=object)
+    pairs["doubt"][5] = "no PSF fit: position error unknown"
+    sigma = np.full((2, 14), 0.02)
+    sigma[:, 5] = np.nan
+    kw = dict(n_realisations=100, seed=7)
+    null = null_calibration(pairs, sigma_pos=sigma * u.arcsec, **kw)
+    others = np.arange(14) != 5
+    without = pairs[others]
+    del without["doubt"]
+    ref = null_calibration(without, sigma_pos=sigma[:, others] * u.arcsec, **kw)
+    np.testing.assert_array_equal(np.asarray(null["null_snr"])[others],
+                                  np.asarray(ref["null_snr"]))
+    np.testing.assert_array_equal(np.asarray(null["p_value_empirical"])[others],
+                                  np.asarray(ref["p_value_empirical"]))
+    assert np.isnan(np.asarray(null["null_snr"])[5]).all()
+    assert np.isnan(null["p_value_empirical"][5]) and not null["tested"][5]
+    assert null.meta["false_alarm_rate"] == ref.meta["false_alarm_rate"]

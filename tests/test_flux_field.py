@@ -419,14 +419,26 @@ def test_the_default_is_the_joint_test_where_it_applies():
     assert (r1.meta["duality"]["test"], r1.meta["duality"]["snr_definition"]) == (
         "geometric", "conservative")
     assert "ln_mu_field" not in r1.colnames and "significance_geometric" not in r1.colnames
-    assert "needs fluxes in two bands" in r1.meta["duality"]["test_auto"]
+    assert "needs flux ratios in two bands" in r1.meta["duality"]["test_auto"]
     assert "needs the adaptive estimator, not quad" in rq.meta["duality"]["test_auto"]
     assert "test_auto" not in r.meta["duality"]
     assert "test_auto" not in _check(one, 0.005, test="geometric").meta["duality"]
     from lensdual.pipeline import verdict
 
-    assert "Geometric test: the joint test needs fluxes in two bands" in verdict(
+    assert "Geometric test: the joint test needs flux ratios in two bands" in verdict(
         r1, 0.005 * u.arcsec)
+    # a band listed but without a flux ratio counts as no band
+    blank = t.copy()
+    for c in blank.colnames:
+        if c.endswith("_" + bands[1]):
+            blank[c] = np.nan * blank[c]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        rb = check_duality(blank, sigma_pos=0.005 * u.arcsec)
+    assert rb.meta["duality"]["test"] == "geometric"
+    assert "the table has them in one" in rb.meta["duality"]["test_auto"]
+    with pytest.raises(ValueError, match="at least two bands"):
+        _check(blank, 0.005, test="joint")
     assert (rq.meta["duality"]["test"], rq.meta["duality"]["snr_definition"]) == (
         "geometric", "log")
     with pytest.raises(ValueError, match="test must be one of"):

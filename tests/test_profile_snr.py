@@ -384,3 +384,34 @@ def test_conservative_falls_back_to_the_log_snr_without_a_profile():
     assert got[1] == 4.0
     np.testing.assert_array_equal(got[[0, 2]], np.fmin([4.0, 0.05], prof[[0, 2]]))
     assert got[0] < 4.0  # the profile is the smaller where ln|det J| is far from log-normal
+
+
+def test_the_other_parity_is_searched_as_far_as_it_can_win():
+    """A profile whose minimum lies on the other parity more than 8 noise widths of
+    ``ln R`` below it (a far outlier): the kernel's T is no larger than the objective
+    at an explicit Jacobian of that parity (found by a direct minimisation), so a
+    large SNR is not overstated."""
+    jac = np.array([-0.44561255527906357, 0.09020553428838174, -0.03182167603432528,
+                    -0.3557159415015701])
+    cov = np.array([[7.3845667959597022e-03, 1.2520370360992286e-02,
+                     -4.6015486388528546e-05, 7.0849539617795433e-04],
+                    [1.2520370360992286e-02, 5.5709535967646183e-02,
+                     2.9681842764619083e-02, 1.9260438635374300e-02],
+                    [-4.6015486388528546e-05, 2.9681842764619083e-02,
+                     4.7461328990402042e-02, 2.4973578609249897e-02],
+                    [7.0849539617795433e-04, 1.9260438635374300e-02,
+                     2.4973578609249897e-02, 1.4270210981362700e-02]])
+    v, ln_r = 0.3, 6.176018828332776
+    # a Jacobian of the other parity (det < 0, the estimate's is > 0), ln|det| 10.4
+    # noise widths below ln R
+    other = np.array([-0.3023692675691049, 1.3131532685459248, 1.175337124273538,
+                      0.3299461830282554])
+    det = other[0] * other[3] - other[1] * other[2]
+    assert det < 0 < jac[0] * jac[3] - jac[1] * jac[2]
+    assert (ln_r - np.log(abs(det))) / np.sqrt(v) > 8
+    d = other - jac
+    objective = d @ np.linalg.solve(cov, d) + (ln_r - np.log(abs(det))) ** 2 / v
+    out = np.empty(1)
+    _kernel(jac[None], cov[None], np.array([v]), np.array([ln_r]), out)
+    assert out[0] <= np.sqrt(objective) + 1e-9
+    assert out[0] == pytest.approx(np.sqrt(objective), rel=1e-6)
