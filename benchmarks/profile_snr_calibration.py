@@ -18,7 +18,7 @@ flagged at significance 3 by two SNRs of the same estimate:
   (``snr_definition="profile"``), from the Jacobian and its covariance;
 - ``cons``: the smaller of the two (``snr_definition="conservative"``, the
   default with the adaptive estimator; with fewer than 13 sources, where the
-  joint test has no flux field, the default test's flags are these).
+  flux field predicts no pair, it is the default test).
 
 Both use Student's t with the degrees of freedom of ``check_duality``.
 Reported per cell: the false-flag rate of each with its one-sided 95 %

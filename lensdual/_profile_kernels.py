@@ -35,6 +35,8 @@ from ._numba import JIT_OPTIONS_NUMPY_ERRORS as JIT_OPTIONS
 __all__ = []
 
 _N_BISECT = 100
+#: Most Jacobi sweeps of a 4 x 4 eigenproblem (it converges in 5-10).
+_JACOBI_SWEEPS = 50
 _N_GRID = 24
 _N_GOLDEN = 40
 #: Newton's steps on the secular equation stop once a step moves lambda by less than
@@ -45,31 +47,121 @@ _U_TOL = 1e-6
 
 
 @njit(**JIT_OPTIONS)
-def _whiten(jac, cov, q, yh):
-    """The eigenvalues ``q`` of the whitened determinant form and the data's
-    whitened coordinates ``yh``; False when ``cov`` is not positive definite."""
-    m = np.zeros((4, 4))
-    m[0, 3] = m[3, 0] = 0.5
-    m[1, 2] = m[2, 1] = -0.5
+def _rotate(a, v, p, r):
+    """One Jacobi rotation zeroing ``a[p, r]`` (``a`` symmetric 4 x 4, ``v`` the
+    eigenvectors so far)."""
+    apr = a[p, r]
+    theta = 0.5 * (a[r, r] - a[p, p]) / apr
+    t = (1.0 if theta >= 0.0 else -1.0) / (abs(theta) + np.sqrt(theta * theta + 1.0))
+    c = 1.0 / np.sqrt(t * t + 1.0)
+    sn = t * c
+    for k in range(4):
+        akp = a[k, p]
+        akr = a[k, r]
+        a[k, p] = c * akp - sn * akr
+        a[k, r] = sn * akp + c * akr
+    for k in range(4):
+        apk = a[p, k]
+        ark = a[r, k]
+        a[p, k] = c * apk - sn * ark
+        a[r, k] = sn * apk + c * ark
+    for k in range(4):
+        vkp = v[k, p]
+        vkr = v[k, r]
+        v[k, p] = c * vkp - sn * vkr
+        v[k, r] = sn * vkp + c * vkr
+
+
+@njit(**JIT_OPTIONS)
+def _eigh4(a, w, v):
+    """Eigenvalues ``w`` (ascending) and eigenvectors (columns of ``v``) of the
+    symmetric 4 x 4 ``a`` (overwritten), by cyclic Jacobi rotations to float
+    resolution: written out, so that it compiles in a fraction of LAPACK's
+    bindings' time."""
+    for i in range(4):
+        for j in range(4):
+            v[i, j] = 1.0 if i == j else 0.0
+    for _ in range(_JACOBI_SWEEPS):
+        off = 0.0
+        scale = 0.0
+        for i in range(4):
+            scale += a[i, i] * a[i, i]
+            for j in range(i + 1, 4):
+                off += a[i, j] * a[i, j]
+        if off <= 1e-32 * scale:
+            break
+        for p in range(3):
+            for r in range(p + 1, 4):
+                if a[p, r] != 0.0:
+                    _rotate(a, v, p, r)
+    for i in range(4):
+        w[i] = a[i, i]
+    for i in range(1, 4):  # ascending, eigenvectors along
+        j = i
+        while j > 0 and w[j - 1] > w[j]:
+            w[j - 1], w[j] = w[j], w[j - 1]
+            for k in range(4):
+                v[k, j - 1], v[k, j] = v[k, j], v[k, j - 1]
+            j -= 1
+
+
+@njit(**JIT_OPTIONS)
+def _square_root(cov, jac, lmat, zs):
+    """``L = D S`` (``S`` the symmetric square root of ``cov`` scaled to unit
+    diagonal by ``D``, so that ``cov = L L^T``) into ``lmat`` and ``L^-1 jac``
+    into ``zs``; False when ``cov`` is not positive definite."""
+    d = np.empty(4)
     for i in range(4):
         if not cov[i, i] > 0.0:
             return False
-    # scale to unit diagonal before the factorisation (entries differ by orders)
-    d = np.sqrt(np.diag(cov))
-    cs = cov / np.outer(d, d)
-    w, u = np.linalg.eigh(cs)
+        d[i] = np.sqrt(cov[i, i])
+    # scaled to unit diagonal before the factorisation (entries differ by orders)
+    cs = np.empty((4, 4))
+    for i in range(4):
+        for j in range(4):
+            cs[i, j] = cov[i, j] / (d[i] * d[j])
+    w = np.empty(4)
+    u = np.empty((4, 4))
+    _eigh4(cs, w, u)
     if not w[0] > 1e-12 * w[3]:
         return False
-    # symmetric square root: L = D U W^1/2 U^T, det J = (L z)^T M (L z)
-    lsq = (u * np.sqrt(w)) @ u.T
-    lmat = d[:, None] * lsq
-    qm = lmat.T @ m @ lmat
-    qv, v = np.linalg.eigh(0.5 * (qm + qm.T))  # ascending: two negative, two positive
-    z = np.linalg.solve(lmat, jac)
-    y = v.T @ z
+    for i in range(4):
+        zs[i] = 0.0
+    for i in range(4):
+        for j in range(4):
+            sij = 0.0
+            sinv = 0.0
+            for k in range(4):
+                sij += u[i, k] * np.sqrt(w[k]) * u[j, k]
+                sinv += u[i, k] * u[j, k] / np.sqrt(w[k])
+            lmat[i, j] = d[i] * sij
+            zs[i] += sinv * jac[j] / d[j]
+    return True
+
+
+@njit(**JIT_OPTIONS)
+def _whiten(jac, cov, q, yh):
+    """The eigenvalues ``q`` of the whitened determinant form and the data's
+    whitened coordinates ``yh``; False when ``cov`` is not positive definite."""
+    lmat = np.empty((4, 4))
+    zs = np.empty(4)
+    if not _square_root(cov, jac, lmat, zs):
+        return False
+    # det J = (L z)^T M (L z), M with +-1/2 on its anti-diagonal; the form of z
+    qm = np.empty((4, 4))
+    for i in range(4):
+        for j in range(4):
+            qm[i, j] = 0.5 * (lmat[0, i] * lmat[3, j] + lmat[3, i] * lmat[0, j]
+                              - lmat[1, i] * lmat[2, j] - lmat[2, i] * lmat[1, j])
+    qv = np.empty(4)
+    v = np.empty((4, 4))
+    _eigh4(qm, qv, v)  # ascending: two negative, two positive
     for i in range(4):
         q[i] = qv[i]
-        yh[i] = y[i]
+        y = 0.0
+        for k in range(4):
+            y += v[k, i] * zs[k]
+        yh[i] = y
     return True
 
 

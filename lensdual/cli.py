@@ -47,6 +47,7 @@ from ._outputs import (
 )
 from ._report import format_report, knot_report, parametric_paragraph
 from .demo import (
+    DEMO_BANDS,
     DEMO_SCENES,
     DEMO_SUBHALOES,
     compare_with_truth,
@@ -54,7 +55,14 @@ from .demo import (
     simulate_demo,
     truth_paragraph,
 )
-from .duality import DEFAULT_SNR_DEFINITION, DEFAULT_TEST, LOG_SNR_DEFINITIONS, TESTS
+from .duality import (
+    DEFAULT_SNR_DEFINITION,
+    DEFAULT_TEST,
+    LOG_SNR_DEFINITIONS,
+    TESTS,
+    resolve_snr_definition,
+    resolve_test,
+)
 from .exceptions import PipelineError
 from .photometry._psf import SOURCE_MODELS
 from .pipeline import analyse, analyse_knots
@@ -163,7 +171,11 @@ def _cmd_demo(args):
              "write"] + (["parametric"] if args.parametric else [])
     progress = _Progress(steps, args, desc="lensdual demo")
     if args.estimator == "adaptive":
-        precompile.start(args.test, null_calibration=args.null_realisations > 0,
+        # the test that "auto" gives the demo's sources (no flux field below 13)
+        demo_test = resolve_test(args.test, args.estimator, DEMO_BANDS,
+                                 resolve_snr_definition(args.snr_definition, args.estimator),
+                                 n_pairs=args.n_sources)
+        precompile.start(demo_test, null_calibration=args.null_realisations > 0,
                          snr_definition=args.snr_definition)
     try:
         with progress.step("simulate the lens"):

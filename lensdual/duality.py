@@ -70,24 +70,27 @@ DEFAULT_TEST = "auto"
 DEFAULT_SNR_DEFINITION = "auto"
 
 
-def resolve_test(test, method, bands, snr_definition="conservative"):
-    """The test that ``test`` names for ``method``, ``bands`` and ``snr_definition``.
+def resolve_test(test, method, bands, snr_definition="conservative", n_pairs=None):
+    """The test that ``test`` names for ``method``, ``bands``, ``snr_definition``
+    and ``n_pairs``.
 
     Parameters
     ----------
     test : {"auto", "geometric", "joint"}
         ``"auto"`` is ``"joint"`` where the joint test applies (method
-        ``"adaptive"``, at least two bands of fluxes and an SNR definition
-        of :data:`LOG_SNR_DEFINITIONS`, see :func:`check_duality`) and
-        ``"geometric"`` elsewhere: a table with one band, an estimator other
-        than the adaptive one, or the paper's or the profile SNR.
-        ``"geometric"`` and ``"joint"`` stand for themselves.
+        ``"adaptive"``, at least two bands of fluxes, an SNR definition of
+        :data:`LOG_SNR_DEFINITIONS`, see :func:`check_duality`, and at least
+        :data:`lensdual.flux_field.MIN_PAIRS` pairs with flux ratios, below
+        which the flux field predicts no pair) and ``"geometric"``
+        elsewhere. ``"geometric"`` and ``"joint"`` stand for themselves.
     method : str
         The size-magnification estimator.
     bands : sequence of str
         The bands with fluxes (:func:`pair_bands`).
     snr_definition : str
         The SNR definition, resolved (:func:`resolve_snr_definition`).
+    n_pairs : int, optional
+        The pairs with flux ratios (None: not known yet, enough).
 
     Returns
     -------
@@ -105,8 +108,11 @@ def resolve_test(test, method, bands, snr_definition="conservative"):
         raise ValueError(f"test must be one of {['auto', *TESTS]}, got {test!r}")
     if test != "auto":
         return test
+    from .flux_field import MIN_PAIRS
+
     applies = (method == "adaptive" and len(bands) >= 2
-               and snr_definition in LOG_SNR_DEFINITIONS)
+               and snr_definition in LOG_SNR_DEFINITIONS
+               and (n_pairs is None or n_pairs >= MIN_PAIRS))
     return "joint" if applies else "geometric"
 
 
@@ -669,7 +675,9 @@ def check_duality(
     # the bands with a flux ratio for at least one pair
     measured = [b for b in bands
                 if np.isfinite(np.asarray(flux[_pairs_table.mu_flux_col(b)], float)).any()]
-    test, snr_definition, why = check_test_settings(test, snr_definition, method, measured)
+    n_flux = int(np.isfinite(np.asarray(flux["mu_flux"], dtype=float)).sum())
+    test, snr_definition, why = check_test_settings(test, snr_definition, method, measured,
+                                                    n_flux)
     theta1, theta2 = _positions(tab)
     _pairs_table.check_distinct_arcs(tab)
     doubt = _doubts(tab, theta1, theta2, flux, chromatic_alpha)
@@ -842,7 +850,7 @@ def profile_snr(size, ln_mu_flux, ln_flux_err):
     return _profile_rows(_profile_parts(size), ln_mu_flux, ln_flux_err)
 
 
-def check_test_settings(test, snr_definition, method, bands):
+def check_test_settings(test, snr_definition, method, bands, n_pairs=None):
     """The test and SNR definition that ``test`` and ``snr_definition`` name for
     ``method`` and ``bands``, checked together.
 
@@ -856,6 +864,8 @@ def check_test_settings(test, snr_definition, method, bands):
         The size-magnification estimator.
     bands : sequence of str
         The bands with flux ratios.
+    n_pairs : int, optional
+        The pairs with flux ratios (None: not known yet).
 
     Returns
     -------
@@ -877,8 +887,10 @@ def check_test_settings(test, snr_definition, method, bands):
     >>> check_test_settings("auto", "auto", "quad2", ["F150W", "F200W"])
     ('geometric', 'log', 'the joint test needs the adaptive estimator, not quad2')
     """
+    from .flux_field import MIN_PAIRS
+
     snr_definition = resolve_snr_definition(snr_definition, method)
-    resolved = resolve_test(test, method, bands, snr_definition)
+    resolved = resolve_test(test, method, bands, snr_definition, n_pairs)
     if resolved == "joint":
         _check_joint_input(bands, snr_definition, method)
     if snr_definition in _PROFILE_DEFINITIONS and method != "adaptive":
@@ -892,8 +904,11 @@ def check_test_settings(test, snr_definition, method, bands):
             why = ("the joint test needs flux ratios in two bands (the chromatic check keeps "
                    "mis-paired sources out of the neighbours' field); the table has them in "
                    f"{'one' if len(bands) == 1 else 'none'}")
-        else:
+        elif snr_definition not in LOG_SNR_DEFINITIONS:
             why = f"the joint test takes the log or conservative SNR, not {snr_definition}"
+        else:
+            why = (f"the neighbours' flux field needs flux ratios of at least {MIN_PAIRS} "
+                   f"pairs to predict any; the table has {n_pairs}")
     return resolved, snr_definition, why
 
 

@@ -100,6 +100,9 @@ N_LOCAL_SIZES = tuple(range(N_LOCAL, N_CHECK + 1))
 _SIZE_SETTINGS = tuple((k, float(norm.isf(DROP_LEVEL / (2 * k)))) for k in N_LOCAL_SIZES)
 #: Fewest neighbours of the cubic check: two residual degrees of freedom.
 _MIN_CHECK = 12
+#: Fewest pairs with flux ratios for which the field predicts any pair (a pair and
+#: the cubic check's neighbours).
+MIN_PAIRS = _MIN_CHECK + 1
 #: Median of |Z| for a unit Gaussian Z.
 _GAUSS_MEDIAN_ABS = 0.6744897501960817
 #: Fewest predictions for the bias scale of step 2 and the common model variance of step 4.

@@ -439,6 +439,17 @@ def test_the_default_is_the_joint_test_where_it_applies():
     assert "the table has them in one" in rb.meta["duality"]["test_auto"]
     with pytest.raises(ValueError, match="at least two bands"):
         _check(blank, 0.005, test="joint")
+    # fewer than 13 pairs with flux ratios: the field could predict none
+    few = _noisy("cluster_fold", 12, 1, 0.005)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        r12 = check_duality(few, sigma_pos=0.005 * u.arcsec)
+    assert (r12.meta["duality"]["test"], r12.meta["duality"]["snr_definition"]) == (
+        "geometric", "conservative")
+    assert "at least 13 pairs" in r12.meta["duality"]["test_auto"]
+    forced = _check(few, 0.005, test="joint", snr_definition="conservative")
+    assert set(forced["field_status"]) == {"too few neighbours"}
+    np.testing.assert_allclose(r12["significance"], forced["significance"], rtol=1e-12)
     assert (rq.meta["duality"]["test"], rq.meta["duality"]["snr_definition"]) == (
         "geometric", "log")
     with pytest.raises(ValueError, match="test must be one of"):

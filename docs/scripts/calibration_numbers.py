@@ -340,7 +340,7 @@ FFR_TARGET = 0.005
 
 def small_numbers(rows):
     """The default test with 8 and 12 sources (the geometric test with the
-    conservative SNR, whose flags the joint test's are below 13 sources): the
+    conservative SNR: the flux field predicts no pair below 13 sources): the
     cells that fail the suite's rule (95 % lower limit above 0.5 %), the
     largest false-flag rate of the other cluster-scale cells, the cells where
     every pair is untestable, and the same on the held-out families."""
