@@ -33,14 +33,14 @@ SMALL = {"sigma_sub": [0.002, 0.2], "n_sigma_sub": 6, "n_realisations": 100}
 OUTPUTS = ("posterior.ecsv", "posterior.png", "report.txt")
 
 
-def _mock(path, seed, truth=0.05, n_sources=12):
+def _mock(path, seed, truth=0.05, n_sources=12, test="auto"):
     """A check_duality result of one mock universe of the family, written as ECSV."""
     system, info = calibration_system(FAMILY)
     pairs = clean_constellation(FAMILY, n_sources, seed=seed)
     pop = SubhaloPopulation(info["z_lens"], info["z_source"])
     mock = apply_population(pairs, system, pop, truth / u.kpc**2, seed=seed + 100)
     noisy = noisy_constellation(mock, sigma_pos=5 * u.mas, flux_rel_err=0.02, seed=seed + 200)
-    result = check_duality(noisy, sigma_pos=5 * u.mas, seed=0)
+    result = check_duality(noisy, sigma_pos=5 * u.mas, seed=0, test=test)
     result.write(path, format="ascii.ecsv", overwrite=True)
     return path
 
@@ -137,12 +137,16 @@ def test_two_systems_are_the_api_s_posterior(mocks, tmp_path):
     assert run.posterior.meta["inference"]["n_systems"] == 2
     assert [s["weight"] for s in run.posterior.meta["systems"]] == [1.0, 1.0]
     assert run.posterior.meta["inference"]["anomaly"] == "geometric"
-    # [inference] anomaly = "joint": the joint test's anomalies of the same tables
+    # [inference] anomaly = "joint": the joint test's anomalies of the same mocks
+    # analysed by the joint test (12 sources: "auto" runs the geometric test)
+    joint_paths = [_mock(tmp_path / f"joint_{k}.ecsv", seed, test="joint")
+                   for k, seed in enumerate((3, 4))]
     cfg = write_config(tmp_path / "joint.toml",
                        {**SMALL, "weight": 1, "seed": 7, "anomaly": "joint"},
-                       [_system(p) for p in mocks])
+                       [_system(p) for p in joint_paths])
     joint = run_inference(load_inference_config(cfg))
-    expected = abundance_posterior(tables, sims, anomaly="joint")
+    joint_tables = [QTable.read(p, format="ascii.ecsv") for p in joint_paths]
+    expected = abundance_posterior(joint_tables, sims, anomaly="joint")
     np.testing.assert_allclose(joint.posterior["log_likelihood"], expected["log_likelihood"])
     assert joint.posterior.meta["inference"]["anomaly"] == "joint"
 
