@@ -73,6 +73,27 @@ def start(test="auto", null_calibration=True, snr_definition="auto"):
         _pending = None
 
 
+def running():
+    """Whether a second process was started and not yet waited for."""
+    return _pending is not None
+
+
+def compile_profile_kernels():
+    """Compile the profile-likelihood SNR's kernels here (a one-pair call): what
+    the first process does while it waits for the second, which leaves them out
+    (see :func:`compile_kernels`)."""
+    import numpy as np
+
+    from . import _profile_kernels
+
+    jac = np.array([[1.2, 0.1, 0.05, -0.8]])
+    cov = np.eye(4)[None] * 1e-4
+    q, yh, ok = np.empty((1, 4)), np.empty((1, 4)), np.empty(1, dtype=bool)
+    _profile_kernels.whiten_all(jac, cov, q, yh, ok)
+    _profile_kernels.profile_snr_whitened(q, yh, ok, np.array([-0.965]), np.array([1e-2]),
+                                          np.array([0.1]), np.empty(1))
+
+
 def wait():
     """Wait for the second process, if one was started (stopping it after
     :data:`TIMEOUT_S`); returns its exit status, or None when there was none."""
@@ -132,8 +153,10 @@ def compile_kernels(test="auto", null_calibration=True, snr_definition="auto"):
     sigma = np.full((2, n), 0.002) * u.arcsec
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
+        # the linearised SNR: the profile SNR's kernels are compiled by the first
+        # process while it waits for this one (lensdual.pipeline.analyse)
         check_duality(pairs, "adaptive", sigma_pos=sigma, test=test, seed=0,
-                      snr_definition=snr_definition)
+                      snr_definition="log")
         if null_calibration:
             run_null(pairs, sigma_pos=sigma, n_realisations=100, seed=0, test=test,
-                     snr_definition=snr_definition)
+                     snr_definition="log")

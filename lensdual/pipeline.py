@@ -48,6 +48,7 @@ from .duality import (
     DEFAULT_TEST,
     LOG_SNR_DEFINITIONS,
     check_test_settings,
+    resolve_snr_definition,
 )
 from .estimators import DEFAULT_METHOD, DEFAULT_N_BOOTSTRAP, estimate_sigma_pos
 from .exceptions import PipelineError
@@ -306,6 +307,11 @@ def analyse(images, *, psf=None, estimator=DEFAULT_METHOD, sigma_pos="auto",
         step = (f"mu_size ({estimator})" if estimator == "adaptive"
                 else f"mu_size ({estimator}, {n_bootstrap} bootstraps)")
         with progress.step(step):
+            if precompile.running() and resolve_snr_definition(
+                    snr_definition, estimator) in ("profile", "conservative"):
+                # the profile SNR's kernels, compiled here while the second process
+                # compiles the rest (it leaves them out)
+                precompile.compile_profile_kernels()
             precompile.wait()  # the kernels a second process compiled (see lensdual._precompile)
             if isinstance(sigma_pos, str):
                 sigma = np.vstack([measured[c].to_value(u.arcsec)

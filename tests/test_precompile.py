@@ -72,3 +72,25 @@ def test_a_process_past_its_time_is_stopped(nothing_pending, monkeypatch):
     status = precompile.wait()
     assert status is not None and status != 0
     assert proc.poll() is not None
+
+
+def test_the_profile_kernels_compile_with_the_signatures_the_test_uses():
+    """compile_profile_kernels compiles the two kernels that lensdual.duality's
+    profile SNR calls, with the argument types it passes (one signature each,
+    which a conservative check_duality then reuses rather than adding another)."""
+    import astropy.units as u
+    import numpy as np
+
+    from lensdual import _precompile, _profile_kernels
+    from lensdual.duality import check_duality
+    from lensdual.simulation import clean_constellation, noisy_constellation
+
+    _precompile.compile_profile_kernels()
+    kernels = (_profile_kernels.whiten_all, _profile_kernels.profile_snr_whitened)
+    before = [len(k.signatures) for k in kernels]
+    assert all(n >= 1 for n in before)
+    t = noisy_constellation(clean_constellation("cluster_fold", 12, seed=1),
+                            sigma_pos=5 * u.mas, flux_rel_err=0.02, seed=1)
+    result = check_duality(t, sigma_pos=5 * u.mas, snr_definition="conservative")
+    assert np.isfinite(np.asarray(result["snr_profile"], dtype=float)).any()
+    assert [len(k.signatures) for k in kernels] == before
