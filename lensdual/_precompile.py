@@ -79,19 +79,17 @@ def running():
 
 
 def compile_profile_kernels():
-    """Compile the profile-likelihood SNR's kernels here (a one-pair call): what
-    the first process does while it waits for the second, which leaves them out
+    """Compile the profile-likelihood SNR's kernels here (one pair through
+    :func:`lensdual.duality.profile_snr`, the call the test makes): what the
+    first process does while it waits for the second, which leaves them out
     (see :func:`compile_kernels`)."""
     import numpy as np
 
-    from . import _profile_kernels
+    from .duality import profile_snr
 
-    jac = np.array([[1.2, 0.1, 0.05, -0.8]])
-    cov = np.eye(4)[None] * 1e-4
-    q, yh, ok = np.empty((1, 4)), np.empty((1, 4)), np.empty(1, dtype=bool)
-    _profile_kernels.whiten_all(jac, cov, q, yh, ok)
-    _profile_kernels.profile_snr_whitened(q, yh, ok, np.array([-0.965]), np.array([1e-2]),
-                                          np.array([0.1]), np.empty(1))
+    size = {"jacobian": np.array([[[1.2, 0.1], [0.05, -0.8]]]),
+            "jacobian_cov": np.eye(4)[None] * 1e-4, "ln_mu_size_err": np.array([0.1])}
+    profile_snr(size, np.array([0.0]), np.array([0.02]))
 
 
 def wait():

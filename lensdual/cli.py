@@ -521,7 +521,7 @@ def build_parser():
                       help="the duality test: geometric (the flux ratio against mu_size), "
                            "joint (against mu_size and the neighbours' flux ratios, needs "
                            "13 or more sources to use them) or auto (default: joint with the "
-                           "adaptive estimator, else geometric)")
+                           "adaptive estimator and 13 or more sources, else geometric)")
     demo.add_argument("--snr-definition", choices=["auto", *LOG_SNR_DEFINITIONS],
                       default=DEFAULT_SNR_DEFINITION,
                       help="the test's SNR: log (linearised in ln mu_size), conservative "

@@ -108,12 +108,26 @@ def resolve_test(test, method, bands, snr_definition="conservative", n_pairs=Non
         raise ValueError(f"test must be one of {['auto', *TESTS]}, got {test!r}")
     if test != "auto":
         return test
+    return "geometric" if _why_not_joint(method, bands, snr_definition, n_pairs) else "joint"
+
+
+def _why_not_joint(method, bands, snr_definition, n_pairs):
+    """Why the joint test does not apply, in words ("" where it does): see
+    :func:`resolve_test`."""
     from .flux_field import MIN_PAIRS
 
-    applies = (method == "adaptive" and len(bands) >= 2
-               and snr_definition in LOG_SNR_DEFINITIONS
-               and (n_pairs is None or n_pairs >= MIN_PAIRS))
-    return "joint" if applies else "geometric"
+    if method != "adaptive":
+        return f"the joint test needs the adaptive estimator, not {method}"
+    if len(bands) < 2:
+        return ("the joint test needs flux ratios in two bands (the chromatic check keeps "
+                "mis-paired sources out of the neighbours' field); the table has them in "
+                f"{'one' if len(bands) == 1 else 'none'}")
+    if snr_definition not in LOG_SNR_DEFINITIONS:
+        return f"the joint test takes the log or conservative SNR, not {snr_definition}"
+    if n_pairs is not None and n_pairs < MIN_PAIRS:
+        return (f"the neighbours' flux field needs flux ratios of at least {MIN_PAIRS} "
+                f"pairs to predict any; the table has {n_pairs}")
+    return ""
 
 
 def resolve_snr_definition(snr_definition, method):
@@ -887,8 +901,6 @@ def check_test_settings(test, snr_definition, method, bands, n_pairs=None):
     >>> check_test_settings("auto", "auto", "quad2", ["F150W", "F200W"])
     ('geometric', 'log', 'the joint test needs the adaptive estimator, not quad2')
     """
-    from .flux_field import MIN_PAIRS
-
     snr_definition = resolve_snr_definition(snr_definition, method)
     resolved = resolve_test(test, method, bands, snr_definition, n_pairs)
     if resolved == "joint":
@@ -896,19 +908,8 @@ def check_test_settings(test, snr_definition, method, bands, n_pairs=None):
     if snr_definition in _PROFILE_DEFINITIONS and method != "adaptive":
         raise ValueError(f"snr_definition={snr_definition!r} needs method 'adaptive' (the "
                          f"covariance of its Jacobian), got method {method!r}")
-    why = ""
-    if test == "auto" and resolved == "geometric":
-        if method != "adaptive":
-            why = f"the joint test needs the adaptive estimator, not {method}"
-        elif len(bands) < 2:
-            why = ("the joint test needs flux ratios in two bands (the chromatic check keeps "
-                   "mis-paired sources out of the neighbours' field); the table has them in "
-                   f"{'one' if len(bands) == 1 else 'none'}")
-        elif snr_definition not in LOG_SNR_DEFINITIONS:
-            why = f"the joint test takes the log or conservative SNR, not {snr_definition}"
-        else:
-            why = (f"the neighbours' flux field needs flux ratios of at least {MIN_PAIRS} "
-                   f"pairs to predict any; the table has {n_pairs}")
+    why = (_why_not_joint(method, bands, snr_definition, n_pairs)
+           if test == "auto" and resolved == "geometric" else "")
     return resolved, snr_definition, why
 
 
@@ -1237,7 +1238,7 @@ def null_calibration(pairs, *, sigma_pos, n_realisations=1000,
         :func:`~lensdual.estimators.relative_jacobian`.
     test : {"auto", "geometric", "joint"}
         The test to calibrate, as in :func:`check_duality` (default
-        ``"auto"``: the joint test where the table has two bands). With ``"joint"``
+        ``"auto"``: the joint test where it applies, :func:`resolve_test`). With ``"joint"``
         each realisation also predicts every pair's ``ln mu`` from the other
         pairs' noisy flux ratios, at the noisy L2 positions, with the passes
         of :func:`check_duality`; the pairs that are doubtful in ``pairs``

@@ -48,7 +48,6 @@ from .duality import (
     DEFAULT_TEST,
     LOG_SNR_DEFINITIONS,
     check_test_settings,
-    resolve_snr_definition,
 )
 from .estimators import DEFAULT_METHOD, DEFAULT_N_BOOTSTRAP, estimate_sigma_pos
 from .exceptions import PipelineError
@@ -212,9 +211,9 @@ def analyse(images, *, psf=None, estimator=DEFAULT_METHOD, sigma_pos="auto",
         :func:`~lensdual.pairing.pair_constellations` (default its default).
     test : {"auto", "geometric", "joint"}
         The duality test of :func:`~lensdual.duality.check_duality` and of
-        the null calibration (default ``"auto"``: the joint test with the
-        adaptive estimator and two bands or more, else the geometric one);
-        ``"joint"`` needs ``estimator="adaptive"``.
+        the null calibration (default ``"auto"``: the joint test where it
+        applies, see :func:`~lensdual.duality.resolve_test`, else the
+        geometric one); ``"joint"`` needs ``estimator="adaptive"``.
     snr_definition : {"auto", "log", "conservative"}
         The SNR of :func:`~lensdual.duality.check_duality` and of the null
         calibration (default ``"auto"``: ``"conservative"`` with the adaptive
@@ -253,7 +252,7 @@ def analyse(images, *, psf=None, estimator=DEFAULT_METHOD, sigma_pos="auto",
     bands = list(images["L1"])
     # checked here, before the images are read; check_duality resolves "auto" again
     # (and records why it ran the geometric test)
-    check_test_settings(test, snr_definition, estimator, bands)
+    _, resolved_snr, _ = check_test_settings(test, snr_definition, estimator, bands)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         cats = {}
@@ -307,8 +306,7 @@ def analyse(images, *, psf=None, estimator=DEFAULT_METHOD, sigma_pos="auto",
         step = (f"mu_size ({estimator})" if estimator == "adaptive"
                 else f"mu_size ({estimator}, {n_bootstrap} bootstraps)")
         with progress.step(step):
-            if precompile.running() and resolve_snr_definition(
-                    snr_definition, estimator) in ("profile", "conservative"):
+            if precompile.running() and resolved_snr == "conservative":
                 # the profile SNR's kernels, compiled here while the second process
                 # compiles the rest (it leaves them out)
                 precompile.compile_profile_kernels()

@@ -399,9 +399,7 @@ def test_the_default_is_the_joint_test_where_it_applies():
     for the adaptive estimator and two bands; the geometric test with one band; the
     geometric test with the linearised SNR for the paper's estimators."""
     t = _noisy("cluster_fold", 20, 1, 0.005)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        r = check_duality(t, sigma_pos=0.005 * u.arcsec)
+    r = _check(t, 0.005, snr_definition="auto")  # and test="auto": the defaults
     assert (r.meta["duality"]["test"], r.meta["duality"]["snr_definition"]) == (
         "joint", "conservative")
     explicit = _check(t, 0.005, test="joint", snr_definition="conservative")
@@ -412,10 +410,8 @@ def test_the_default_is_the_joint_test_where_it_applies():
     one = t.copy()
     one.remove_columns([c for c in t.colnames if c.endswith("_" + bands[1])])
     one.meta["bands"] = bands[:1]
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        r1 = check_duality(one, sigma_pos=0.005 * u.arcsec)
-        rq = check_duality(t, "quad", sigma_pos=0.005 * u.arcsec, n_bootstrap=50, seed=0)
+    r1 = _check(one, 0.005, snr_definition="auto")
+    rq = _check(t, 0.005, method="quad", n_bootstrap=50, seed=0, snr_definition="auto")
     assert (r1.meta["duality"]["test"], r1.meta["duality"]["snr_definition"]) == (
         "geometric", "conservative")
     assert "ln_mu_field" not in r1.colnames and "significance_geometric" not in r1.colnames
@@ -432,18 +428,14 @@ def test_the_default_is_the_joint_test_where_it_applies():
     for c in blank.colnames:
         if c.endswith("_" + bands[1]):
             blank[c] = np.nan * blank[c]
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        rb = check_duality(blank, sigma_pos=0.005 * u.arcsec)
+    rb = _check(blank, 0.005, snr_definition="auto")
     assert rb.meta["duality"]["test"] == "geometric"
     assert "the table has them in one" in rb.meta["duality"]["test_auto"]
     with pytest.raises(ValueError, match="at least two bands"):
         _check(blank, 0.005, test="joint")
     # fewer than 13 pairs with flux ratios: the field could predict none
     few = _noisy("cluster_fold", 12, 1, 0.005)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        r12 = check_duality(few, sigma_pos=0.005 * u.arcsec)
+    r12 = _check(few, 0.005, snr_definition="auto")
     assert (r12.meta["duality"]["test"], r12.meta["duality"]["snr_definition"]) == (
         "geometric", "conservative")
     assert "at least 13 pairs" in r12.meta["duality"]["test_auto"]
