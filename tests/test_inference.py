@@ -141,7 +141,8 @@ def _case(kappa, gamma1, halos, strong):
     n = np.empty((1, 1), dtype=np.int64)
     _kernels.excess_grid(a[0, 0], 0.0, 0.0, a[1, 1], 0.0, hx, hy, rs, rho0, rt, np.sqrt(te),
                          hsup, np.zeros(rs.size), np.array([0, rs.size]), np.array([1.0]),
-                         float(np.abs(np.diag(a)).min()), strong, 2.0, 20.0, 32, 32, ex, n)
+                         float(np.abs(np.diag(a)).min()), strong, 2.0, 20.0, 32, 32,
+                         np.empty((0, 17)), np.zeros(2, dtype=np.int64), np.zeros((1, 4)), ex, n)
     return (ref, len(xs)), (ex[0, 0], n[0, 0])
 
 

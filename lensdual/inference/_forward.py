@@ -28,6 +28,8 @@ _BOX_CAP = 20.0  # ... and at most this many Einstein radii
 _N_GRID = 32  # grid cells per side of a halo's box
 _MAX_IMAGES = 32
 _MAX_RATIO_PULL = 3.0  # median |pull| of the lens's magnification ratios that refuses a lens
+_LOS_CHUNK = 100  # realisations of line-of-sight haloes drawn at once
+_LOS_STREAM = 1 << 30  # spawn-key word of the line-of-sight haloes' random stream
 
 
 class AnomalySimulation(NamedTuple):
@@ -157,6 +159,94 @@ def _mean_convergence(population, position, radius, sigma_sub):
     return population._unbroken_density(sigma_sub) * math.pi * float(np.sum(w * within))
 
 
+def _los_maps(population, a):
+    """Per plane, the line-of-sight haloes' ``P``, ``Q`` (2x2), ``|P| |Q|`` and
+    ``1 / s_min(Q)`` in the smooth lens's local Jacobian ``a``.
+
+    With the main lens linear near the image, ``beta = A x - alpha(x)``
+    (plus a constant), a halo of a plane in front of the lens adds
+    ``-M alpha_h(x - h)`` with ``M = (1 - b) I + b A``, and one behind it
+    ``-alpha_h(N x - h')`` with ``N`` of the same form, ``b`` the plane's
+    distance ratio (``los["beta"]``): ``P = M, Q = I`` or ``P = I, Q = N``.
+    """
+    los = population._los
+    b = los["beta"][:, None, None]
+    t = (1 - b) * np.eye(2) + b * a
+    front = los["front"][:, None, None]
+    p = np.where(front, t, np.eye(2))
+    q = np.where(front, np.eye(2), t)
+    sv_p = np.linalg.svd(p, compute_uv=False)
+    sv_q = np.linalg.svd(q, compute_uv=False)
+    return p, q, sv_p[:, 0] * sv_q[:, 0], 1.0 / sv_q[:, 1]
+
+
+def _los_nodes(population):
+    """The population's line-of-sight quadrature nodes (plane, (Rs, rho0, r_trunc)) and
+    weights, computed once per population object."""
+    nodes = population._los.get("nodes")
+    if nodes is None:
+        plane, (rs, alpha_rs, rt), w = population._los_quadrature()
+        nodes = population._los["nodes"] = (plane, (rs, tnfw_rho0(rs, alpha_rs), rt), w)
+    return nodes
+
+
+def _los_sheet(population, p, q, radius):
+    """The line-of-sight planes' mean convergences in a disc of ``radius``, as the
+    matrix ``sum_j kappa_j P_j Q_j`` they add to ``A``."""
+    plane, (rs, rho0, rt), w = _los_nodes(population)
+    within = np.empty(rs.size)
+    _kernels.enclosed(rs, rho0, rt, radius, within)
+    per_plane = np.bincount(plane, weights=w * within, minlength=p.shape[0])
+    kappa = population._los["density"] * math.pi * per_plane
+    return np.einsum("j,jab,jbc->ac", kappa, p, q)
+
+
+def _los_terms(task, a, lam_min):
+    """The line-of-sight haloes of every realisation: the strong ones (rows for
+    :func:`_kernels.excess_grid`), their starts per realisation, and each
+    realisation's matrix of weak Hessians less the sheets."""
+    pop = task.population
+    seed = np.random.SeedSequence(task.seed.entropy,
+                                  spawn_key=(*task.seed.spawn_key, _LOS_STREAM))
+    rng = np.random.default_rng(seed)
+    p, q, norm, inv_smin = _los_maps(pop, a)
+    q_inv = np.linalg.inv(q)
+    sheet = _los_sheet(pop, p, q, task.radius).ravel()
+    s_min = float(np.linalg.svd(a, compute_uv=False)[-1])
+    rows, reals = [], []
+    lin = np.empty((task.n_real, 4))
+    for first in range(0, task.n_real, _LOS_CHUNK):
+        n_chunk = min(_LOS_CHUNK, task.n_real - first)
+        h = pop._los_draw(rng, task.radius, n_chunk)
+        pl = h["plane"]
+        xy = np.einsum("nab,nb->na", q_inv[pl], np.stack([h["x"], h["y"]], axis=1))
+        hx = np.ascontiguousarray(xy[:, 0])
+        hy = np.ascontiguousarray(xy[:, 1])
+        rs = h["rs"]
+        rho0 = tnfw_rho0(rs, h["alpha_rs"])
+        rt = h["r_trunc"]
+        te = np.empty(rs.size)
+        _kernels.enclosed(rs, rho0, rt, 0.0, te)
+        te = np.sqrt(te) * np.sqrt(norm[pl]) * inv_smin[pl]
+        hsup = np.empty(rs.size)
+        _kernels.hessian_sup(rs, rho0, rt, hsup)
+        hsup *= norm[pl]
+        pq = np.ascontiguousarray(np.column_stack([p[pl].reshape(-1, 4), q[pl].reshape(-1, 4),
+                                                   norm[pl], inv_smin[pl]]))
+        keep = np.empty(rs.size, dtype=np.bool_)
+        chunk_lin = np.zeros((n_chunk, 4))
+        _kernels.los_split(hx, hy, rs, rho0, rt, te, hsup, pq, h["real"], n_chunk, s_min,
+                           lam_min, _STRONG, _BOX_FACTOR, _BOX_CAP, keep, chunk_lin)
+        lin[first:first + n_chunk] = chunk_lin - sheet
+        rows.append(np.column_stack([hx, hy, rs, rho0, rt, te, hsup, pq])[keep])
+        reals.append(h["real"][keep] + first)
+    real = np.concatenate(reals)
+    order = np.argsort(real, kind="stable")
+    strong = np.ascontiguousarray(np.concatenate(rows)[order])
+    starts = np.concatenate([[0], np.cumsum(np.bincount(real, minlength=task.n_real))])
+    return strong, starts.astype(np.int64), lin
+
+
 def _image_task(task):
     """Flux excesses of one image: (R, S) excess and image counts."""
     pop = task.population
@@ -187,12 +277,19 @@ def _image_task(task):
     te = np.sqrt(te)
     hsup = np.empty(rs.size)
     _kernels.hessian_sup(rs, rho0, rt, hsup)
+    if pop._los is not None:
+        los, los_starts, los_lin = _los_terms(task, a, lam_min)
+    else:
+        los = np.empty((0, 17))
+        los_starts = np.zeros(task.n_real + 1, dtype=np.int64)
+        los_lin = np.zeros((task.n_real, 4))
     n_s = task.sigma.size
     excess = np.empty((task.n_real, n_s))
     counts = np.empty((task.n_real, n_s), dtype=np.int64)
     _kernels.excess_grid(a[0, 0], a[0, 1], a[1, 0], a[1, 1], kbar_max, hx, hy, rs, rho0, rt,
                          te, hsup, tag, starts, task.sigma / s_max, lam_min, _STRONG, _BOX_FACTOR,
-                         _BOX_CAP, _N_GRID, _MAX_IMAGES, excess, counts)
+                         _BOX_CAP, _N_GRID, _MAX_IMAGES, los, los_starts, los_lin, excess,
+                         counts)
     return excess, counts
 
 

@@ -15,6 +15,12 @@ halo whose Hessian can cancel the macro field; they are found by inverse
 ray shooting on a triangulated grid around such a halo (the other haloes'
 field linearised at the origin), each root polished by damped Newton. The
 flux excess is ``sum_i |mu_i| * |det A|``.
+
+A halo of another redshift plane acts, in the smooth lens's linearisation,
+through ``P alpha(Q (x - h))`` (see :mod:`lensdual.inference._forward`):
+every halo carries the ten numbers ``pq = (P, Q, |P| |Q|, 1 / s_min(Q))``
+(row-major 2x2 blocks; the identity for the main plane), and its Hessian
+``P H Q`` is no longer symmetric.
 """
 
 import math
@@ -32,36 +38,54 @@ _FLOOR = 0.0011  # just outside lenstronomy's R >= 0.001 Rs floor, in Rs
 
 
 @njit(**JIT_OPTIONS)
-def _field(hx, hy, rs, rho0, rt, lo, hi, x, y):
+def _one(hx, hy, rs, rho0, rt, pq, k, x, y):
+    """Deflection and Hessian ``(ax, ay, f00, f01, f10, f11)`` of halo ``k`` at (x, y)."""
+    dx = x - hx[k]
+    dy = y - hy[k]
+    ux = pq[k, 4] * dx + pq[k, 5] * dy
+    uy = pq[k, 6] * dx + pq[k, 7] * dy
+    bx, by, gxx, gxy, gyy = deflection_hessian(PROFILE_TNFW, rs[k], rho0[k], rt[k], ux, uy)
+    h00 = gxx * pq[k, 4] + gxy * pq[k, 6]
+    h01 = gxx * pq[k, 5] + gxy * pq[k, 7]
+    h10 = gxy * pq[k, 4] + gyy * pq[k, 6]
+    h11 = gxy * pq[k, 5] + gyy * pq[k, 7]
+    return (pq[k, 0] * bx + pq[k, 1] * by, pq[k, 2] * bx + pq[k, 3] * by,
+            pq[k, 0] * h00 + pq[k, 1] * h10, pq[k, 0] * h01 + pq[k, 1] * h11,
+            pq[k, 2] * h00 + pq[k, 3] * h10, pq[k, 2] * h01 + pq[k, 3] * h11)
+
+
+@njit(**JIT_OPTIONS)
+def _field(hx, hy, rs, rho0, rt, pq, lo, hi, x, y):
     """Sum of deflections and Hessians of haloes ``lo..hi-1`` at (x, y)."""
     ax = 0.0
     ay = 0.0
-    fxx = 0.0
-    fxy = 0.0
-    fyy = 0.0
+    f00 = 0.0
+    f01 = 0.0
+    f10 = 0.0
+    f11 = 0.0
     for k in range(lo, hi):
-        bx, by, gxx, gxy, gyy = deflection_hessian(PROFILE_TNFW, rs[k], rho0[k], rt[k],
-                                                   x - hx[k], y - hy[k])
+        bx, by, g00, g01, g10, g11 = _one(hx, hy, rs, rho0, rt, pq, k, x, y)
         ax += bx
         ay += by
-        fxx += gxx
-        fxy += gxy
-        fyy += gyy
-    return ax, ay, fxx, fxy, fyy
+        f00 += g00
+        f01 += g01
+        f10 += g10
+        f11 += g11
+    return ax, ay, f00, f01, f10, f11
 
 
 @njit(**JIT_OPTIONS)
-def _residual(b00, b01, b10, b11, tx, ty, hx, hy, rs, rho0, rt, lo, hi, x, y):
-    ax, ay, fxx, fxy, fyy = _field(hx, hy, rs, rho0, rt, lo, hi, x, y)
+def _residual(b00, b01, b10, b11, tx, ty, hx, hy, rs, rho0, rt, pq, lo, hi, x, y):
+    ax, ay, f00, f01, f10, f11 = _field(hx, hy, rs, rho0, rt, pq, lo, hi, x, y)
     return (b00 * x + b01 * y - ax - tx, b10 * x + b11 * y - ay - ty,
-            b00 - fxx, b01 - fxy, b10 - fxy, b11 - fyy)
+            b00 - f00, b01 - f01, b10 - f10, b11 - f11)
 
 
 @njit(**JIT_OPTIONS)
-def _newton(b00, b01, b10, b11, tx, ty, hx, hy, rs, rho0, rt, lo, hi, x, y, scale):
+def _newton(b00, b01, b10, b11, tx, ty, hx, hy, rs, rho0, rt, pq, lo, hi, x, y, scale):
     """Damped Newton on ``G(x) = t``; returns (x, y, |G - t|, det of the Jacobian)."""
     rx, ry, j00, j01, j10, j11 = _residual(b00, b01, b10, b11, tx, ty, hx, hy, rs, rho0, rt,
-                                           lo, hi, x, y)
+                                           pq, lo, hi, x, y)
     res = math.hypot(rx, ry)
     for _ in range(60):
         det = j00 * j11 - j01 * j10
@@ -75,7 +99,7 @@ def _newton(b00, b01, b10, b11, tx, ty, hx, hy, rs, rho0, rt, lo, hi, x, y, scal
             xn = x - lam * dx
             yn = y - lam * dy
             sx, sy, k00, k01, k10, k11 = _residual(b00, b01, b10, b11, tx, ty, hx, hy, rs,
-                                                   rho0, rt, lo, hi, xn, yn)
+                                                   rho0, rt, pq, lo, hi, xn, yn)
             rn = math.hypot(sx, sy)
             if rn < res or rn == 0.0:
                 improved = True
@@ -92,33 +116,32 @@ def _newton(b00, b01, b10, b11, tx, ty, hx, hy, rs, rho0, rt, lo, hi, x, y, scal
 
 
 @njit(**JIT_OPTIONS)
-def _box_grid(b00, b01, b10, b11, tx, ty, hx, hy, rs, rho0, rt, n_h, k, half, n, gx, gy):
+def _box_grid(b00, b01, b10, b11, tx, ty, hx, hy, rs, rho0, rt, pq, n_h, k, half, n, gx, gy):
     """``G - t`` on the (n+1)^2 nodes of the box of half-width ``half`` around halo ``k``."""
     cx = hx[k]
     cy = hy[k]
     # haloes near the box are summed exactly on the grid, the rest linearised at its centre
     near = 2.0 * half
-    lx, ly, lxx, lxy, lyy = 0.0, 0.0, 0.0, 0.0, 0.0
+    lx, ly, l00, l01, l10, l11 = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
     for j in range(n_h):
         if math.hypot(hx[j] - cx, hy[j] - cy) > near:
-            bx, by, gxx, gxy, gyy = deflection_hessian(PROFILE_TNFW, rs[j], rho0[j], rt[j],
-                                                       cx - hx[j], cy - hy[j])
+            bx, by, g00, g01, g10, g11 = _one(hx, hy, rs, rho0, rt, pq, j, cx, cy)
             lx += bx
             ly += by
-            lxx += gxx
-            lxy += gxy
-            lyy += gyy
+            l00 += g00
+            l01 += g01
+            l10 += g10
+            l11 += g11
     step = 2.0 * half / n
     for i in range(n + 1):
         xi = cx - half + i * step
         for jj in range(n + 1):
             yj = cy - half + jj * step
-            ax = lx + lxx * (xi - cx) + lxy * (yj - cy)
-            ay = ly + lxy * (xi - cx) + lyy * (yj - cy)
+            ax = lx + l00 * (xi - cx) + l01 * (yj - cy)
+            ay = ly + l10 * (xi - cx) + l11 * (yj - cy)
             for j in range(n_h):
                 if math.hypot(hx[j] - cx, hy[j] - cy) <= near:
-                    bx, by, _, _, _ = deflection_hessian(PROFILE_TNFW, rs[j], rho0[j], rt[j],
-                                                         xi - hx[j], yj - hy[j])
+                    bx, by, _, _, _, _ = _one(hx, hy, rs, rho0, rt, pq, j, xi, yj)
                     ax += bx
                     ay += by
             gx[i, jj] = b00 * xi + b01 * yj - ax - tx
@@ -126,15 +149,15 @@ def _box_grid(b00, b01, b10, b11, tx, ty, hx, hy, rs, rho0, rt, n_h, k, half, n,
 
 
 @njit(**JIT_OPTIONS)
-def _box_images(b00, b01, b10, b11, tx, ty, hx, hy, rs, rho0, rt, n_h, k, half, n, gx, gy,
+def _box_images(b00, b01, b10, b11, tx, ty, hx, hy, rs, rho0, rt, pq, n_h, k, half, n, gx, gy,
                 pos, mu, n_found, scale, dedup, accept):
     """Roots of ``G = t`` in the box of half-width ``half`` around halo ``k``."""
-    _box_grid(b00, b01, b10, b11, tx, ty, hx, hy, rs, rho0, rt, n_h, k, half, n, gx, gy)
+    _box_grid(b00, b01, b10, b11, tx, ty, hx, hy, rs, rho0, rt, pq, n_h, k, half, n, gx, gy)
     cx = hx[k]
     cy = hy[k]
     step = 2.0 * half / n
     # the central image of the halo, close to its centre
-    xs, ys, res, det = _newton(b00, b01, b10, b11, tx, ty, hx, hy, rs, rho0, rt, 0, n_h,
+    xs, ys, res, det = _newton(b00, b01, b10, b11, tx, ty, hx, hy, rs, rho0, rt, pq, 0, n_h,
                                cx + 0.01 * step, cy + 0.01 * step, scale)
     if res <= accept and det != 0.0:
         n_found = _add(xs, ys, det, pos, mu, n_found, dedup)
@@ -165,8 +188,8 @@ def _box_images(b00, b01, b10, b11, tx, ty, hx, hy, rs, rho0, rt, n_h, k, half, 
                     sy = y0 + w1 * step + w2 * step
                 if w1 < 0.0:
                     continue
-                xs, ys, res, det = _newton(b00, b01, b10, b11, tx, ty, hx, hy, rs, rho0, rt, 0,
-                                           n_h, sx, sy, scale)
+                xs, ys, res, det = _newton(b00, b01, b10, b11, tx, ty, hx, hy, rs, rho0, rt, pq,
+                                           0, n_h, sx, sy, scale)
                 if res <= accept and det != 0.0:
                     n_found = _add(xs, ys, det, pos, mu, n_found, dedup)
     return n_found
@@ -209,7 +232,7 @@ def critical_radius(rs, rho0, rt, level):
 
 
 @njit(**JIT_OPTIONS)
-def image_excess(b00, b01, b10, b11, det0, hx, hy, rs, rho0, rt, te, hsup, n_h, n, gx, gy,
+def image_excess(b00, b01, b10, b11, det0, hx, hy, rs, rho0, rt, pq, te, hsup, n_h, n, gx, gy,
                  pos, mu):
     """Flux excess and image count of the image at the origin.
 
@@ -221,12 +244,14 @@ def image_excess(b00, b01, b10, b11, det0, hx, hy, rs, rho0, rt, te, hsup, n_h, 
     the origin is the only image. Otherwise a halo whose norm reaches half
     that value within ``r_c`` of its centre (:func:`critical_radius`) can
     have images near its critical curve, at about ``r_c``; it gets a grid
-    box of half-width ``3 r_c`` when the origin lies inside it.
+    box of half-width ``3 r_c`` when the origin lies inside it. For a halo
+    of another plane ``hsup`` and ``te`` are its effective values, the
+    level is divided by ``|P| |Q|`` and ``r_c`` stretched by ``1 / s_min(Q)``.
     """
-    ax, ay, fxx, fxy, fyy = _field(hx, hy, rs, rho0, rt, 0, n_h, 0.0, 0.0)
+    ax, ay, f00, f01, f10, f11 = _field(hx, hy, rs, rho0, rt, pq, 0, n_h, 0.0, 0.0)
     tx = -ax
     ty = -ay
-    det = (b00 - fxx) * (b11 - fyy) - (b01 - fxy) * (b10 - fxy)
+    det = (b00 - f00) * (b11 - f11) - (b01 - f01) * (b10 - f10)
     pos[0, 0] = 0.0
     pos[0, 1] = 0.0
     mu[0] = 1.0 / det
@@ -243,11 +268,11 @@ def image_excess(b00, b01, b10, b11, det0, hx, hy, rs, rho0, rt, te, hsup, n_h, 
         for k in range(n_h):
             if te[k] <= 0.0 or hsup[k] < 0.5 * s_min:
                 continue
-            half = 3.0 * critical_radius(rs[k], rho0[k], rt[k], 0.5 * s_min)
+            half = 3.0 * critical_radius(rs[k], rho0[k], rt[k], 0.5 * s_min / pq[k, 8]) * pq[k, 9]
             if half <= 0.0 or abs(hx[k]) > half or abs(hy[k]) > half:
                 continue
-            n_found = _box_images(b00, b01, b10, b11, tx, ty, hx, hy, rs, rho0, rt, n_h, k, half,
-                                  n, gx, gy, pos, mu, n_found, scale, dedup, accept)
+            n_found = _box_images(b00, b01, b10, b11, tx, ty, hx, hy, rs, rho0, rt, pq, n_h, k,
+                                  half, n, gx, gy, pos, mu, n_found, scale, dedup, accept)
     s = 0.0
     for i in range(n_found):
         s += abs(mu[i])
@@ -256,7 +281,8 @@ def image_excess(b00, b01, b10, b11, det0, hx, hy, rs, rho0, rt, te, hsup, n_h, 
 
 @njit(**JIT_OPTIONS)
 def excess_grid(a00, a01, a10, a11, kbar_max, hx, hy, rs, rho0, rt, te, hsup, tag, starts,
-                frac, lam_min, strong, box_factor, box_cap, n, max_images, excess, counts):
+                frac, lam_min, strong, box_factor, box_cap, n, max_images, los, los_starts,
+                los_lin, excess, counts):
     """Flux excesses of one image on an abundance grid, for many realisations.
 
     Realisation ``r`` holds haloes ``starts[r]..starts[r+1]-1``, sorted by
@@ -265,7 +291,12 @@ def excess_grid(a00, a01, a10, a11, kbar_max, hx, hy, rs, rho0, rt, te, hsup, ta
     ``-kbar_max * frac[j]``. A halo whose Hessian norm is below ``strong``
     times the smallest singular value of ``A``, or whose box cannot reach
     the origin, acts through its Hessian at the origin (summed in tag
-    order); the others are solved in full. ``excess`` and ``counts`` are
+    order); the others are solved in full. Line-of-sight haloes do not
+    depend on the abundance: realisation ``r`` adds the strong ones
+    ``los[los_starts[r]:los_starts[r+1]]`` (columns x, y, rs, rho0, rt, te,
+    hsup, then the ten of ``pq``) at every abundance, and the row-major
+    matrix ``los_lin[r]`` (their weak haloes' Hessians at the origin less
+    their sheets) is subtracted from ``A``. ``excess`` and ``counts`` are
     (R, S).
     """
     gx = np.empty((n + 1, n + 1))
@@ -274,7 +305,10 @@ def excess_grid(a00, a01, a10, a11, kbar_max, hx, hy, rs, rho0, rt, te, hsup, ta
     mu = np.empty(max_images)
     det0 = abs(a00 * a11 - a01 * a10)
     s_min = _s_min(a00, a01, a10, a11)
-    n_tot = hx.shape[0]
+    n_los = 0
+    for r in range(los_starts.shape[0] - 1):
+        n_los = max(n_los, los_starts[r + 1] - los_starts[r])
+    n_tot = hx.shape[0] + n_los
     sx = np.empty(n_tot)
     sy = np.empty(n_tot)
     srs = np.empty(n_tot)
@@ -282,13 +316,26 @@ def excess_grid(a00, a01, a10, a11, kbar_max, hx, hy, rs, rho0, rt, te, hsup, ta
     srt = np.empty(n_tot)
     ste = np.empty(n_tot)
     ssup = np.empty(n_tot)
+    spq = np.zeros((n_tot, 10))
     for r in range(starts.shape[0] - 1):
         lo = starts[r]
         hi = starts[r + 1]
         ns = 0
-        cxx = 0.0
-        cxy = 0.0
-        cyy = 0.0
+        for i in range(los_starts[r], los_starts[r + 1]):
+            sx[ns] = los[i, 0]
+            sy[ns] = los[i, 1]
+            srs[ns] = los[i, 2]
+            srho[ns] = los[i, 3]
+            srt[ns] = los[i, 4]
+            ste[ns] = los[i, 5]
+            ssup[ns] = los[i, 6]
+            for c in range(10):
+                spq[ns, c] = los[i, 7 + c]
+            ns += 1
+        c00 = los_lin[r, 0]
+        c01 = los_lin[r, 1]
+        c10 = los_lin[r, 2]
+        c11 = los_lin[r, 3]
         k = lo
         for j in range(frac.shape[0]):
             # haloes enter in tag order: strong ones are compacted, weak ones summed into c
@@ -302,19 +349,52 @@ def excess_grid(a00, a01, a10, a11, kbar_max, hx, hy, rs, rho0, rt, te, hsup, ta
                     srt[ns] = rt[k]
                     ste[ns] = te[k]
                     ssup[ns] = hsup[k]
+                    for c in range(10):
+                        spq[ns, c] = 0.0
+                    spq[ns, 0] = 1.0
+                    spq[ns, 3] = 1.0
+                    spq[ns, 4] = 1.0
+                    spq[ns, 7] = 1.0
+                    spq[ns, 8] = 1.0
+                    spq[ns, 9] = 1.0
                     ns += 1
                 else:
                     _, _, fxx, fxy, fyy = deflection_hessian(PROFILE_TNFW, rs[k], rho0[k],
                                                              rt[k], -hx[k], -hy[k])
-                    cxx += fxx
-                    cxy += fxy
-                    cyy += fyy
+                    c00 += fxx
+                    c01 += fxy
+                    c10 += fxy
+                    c11 += fyy
                 k += 1
             kb = kbar_max * frac[j]
-            e, c = image_excess(a00 + kb - cxx, a01 - cxy, a10 - cxy, a11 + kb - cyy, det0,
-                                sx, sy, srs, srho, srt, ste, ssup, ns, n, gx, gy, pos, mu)
+            e, c = image_excess(a00 + kb - c00, a01 - c01, a10 - c10, a11 + kb - c11, det0,
+                                sx, sy, srs, srho, srt, spq, ste, ssup, ns, n, gx, gy, pos, mu)
             excess[r, j] = e
             counts[r, j] = c
+
+
+@njit(**JIT_OPTIONS)
+def los_split(hx, hy, rs, rho0, rt, te, hsup, pq, real, n_real, s_min, lam_min, strong,
+              box_factor, box_cap, keep, lin):
+    """Sort line-of-sight haloes into strong ones (``keep``) and the weak rest.
+
+    Halo ``i`` belongs to realisation ``real[i]``; ``te`` and ``hsup`` are
+    its effective Einstein radius and Hessian norm. The criterion is
+    :func:`excess_grid`'s. Each weak halo's Hessian ``P H Q`` at the origin
+    is added to ``lin[real[i]]`` (row-major, ``n_real`` rows).
+    """
+    for i in range(hx.shape[0]):
+        reach = min(box_factor * te[i] / math.sqrt(lam_min), box_cap * te[i])
+        if hsup[i] >= strong * s_min and max(abs(hx[i]), abs(hy[i])) <= 3.0 * reach:
+            keep[i] = True
+        else:
+            keep[i] = False
+            _, _, f00, f01, f10, f11 = _one(hx, hy, rs, rho0, rt, pq, i, 0.0, 0.0)
+            r = real[i]
+            lin[r, 0] += f00
+            lin[r, 1] += f01
+            lin[r, 2] += f10
+            lin[r, 3] += f11
 
 
 @njit(**JIT_OPTIONS)

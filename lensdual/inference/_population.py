@@ -33,6 +33,9 @@ _M_PIVOT = 1e8  # pyHalo's pivot mass of sigma_sub [Msun]
 _SCATTER = 0.2  # pyHalo's concentration scatter (the sigma of a natural-log normal)
 _C_MIN = 1.2  # pyHalo's floor on concentrations
 _N_GRID = 61  # masses at which the concentration-mass relation is tabulated
+_LOS_TRUNCATION = 50.0  # pyHalo's TRUNCATION_RN: field haloes end at r_50 (50 rho_crit(z))
+_LOS_TURNOVER = (1.95, 0.8, -1.0)  # pyHalo's LOVELL2020 turnover of field haloes (WDM preset)
+_LOS_FIT_MASSES = 10  # masses of pyHalo's power-law fit to the Sheth-Tormen function
 
 
 def _pyhalo():
@@ -54,6 +57,21 @@ def _pyhalo():
         "mass_function": preset_mass_function_models,
         "turnover": WDMPowerLaw._turnover,
         "host_scaling": host_scaling_function,
+    }
+
+
+def _pyhalo_los():
+    from pyHalo.concentration_models import ConcentrationDiemerJoyce
+    from pyHalo.Halos.lens_cosmo import LensCosmo
+    from pyHalo.Rendering.MassFunctions.density_peaks import evaluate_mass_function
+    from pyHalo.Rendering.two_halo import two_halo_enhancement_factor
+    from pyHalo.utilities import generate_lens_plane_redshifts
+    return {
+        "planes": generate_lens_plane_redshifts,
+        "sheth_tormen": evaluate_mass_function,
+        "two_halo": two_halo_enhancement_factor,
+        "lens_cosmo": LensCosmo,
+        "host_concentration": ConcentrationDiemerJoyce,
     }
 
 
@@ -101,6 +119,28 @@ class SubhaloPopulation:
     host_centre : `~astropy.units.Quantity`, shape (2,)
         The host's centre in the lens frame (for :math:`r_{3D}`); default
         the origin.
+    los_normalization : float
+        pyHalo's ``LOS_normalization``: line-of-sight haloes at this multiple
+        of its field-halo mass function; default 0, none (pyHalo's own
+        default is 1). See the notes.
+    two_halo : bool
+        With line-of-sight haloes, add pyHalo's two-halo term (correlated
+        structure in the lens plane, outside the host); default True, as
+        pyHalo does.
+
+    Notes
+    -----
+    Line-of-sight haloes follow pyHalo's ``LINE_OF_SIGHT`` rendering: planes
+    every 0.02 in redshift from 0.01 to the source (one at ``z_lens``), in
+    each the power law that pyHalo fits to the Sheth-Tormen mass function
+    (colossus) over the mass range, times ``los_normalization`` and the
+    comoving volume; concentrations from the model's relation at the
+    plane's redshift with the same scatter; truncation at
+    :math:`r_{50}` (pyHalo's ``TRUNCATION_RN``); for WDM, pyHalo's
+    ``LOVELL2020`` turnover of field haloes. They are drawn uniformly in a
+    disc of the plane's angles around each image's ray, and do not scale
+    with ``sigma_sub``. Each plane's mean convergence is removed as a sheet,
+    as pyHalo does.
 
     Raises
     ------
@@ -112,7 +152,7 @@ class SubhaloPopulation:
     def __init__(self, z_lens, z_source, *, model="CDM", log_mlow=6.0, log_mhigh=10.0,
                  log_m_host=15.0, shmf_log_slope=-1.9, log_mhm=None, cosmology=None,
                  host_scaling_factor=0.55, redshift_scaling_factor=0.37,
-                 host_centre=(0.0, 0.0) * u.arcsec):
+                 host_centre=(0.0, 0.0) * u.arcsec, los_normalization=0.0, two_halo=True):
         self.z_lens, self.z_source = as_redshifts(z_lens, z_source)
         if not isinstance(model, str) or model.upper() not in MODELS:
             raise ValueError(f"model must be one of {list(MODELS)}, got {model!r}")
@@ -139,10 +179,16 @@ class SubhaloPopulation:
         if np.shape(c) != (2,) or not np.isfinite(c).all():
             raise ValueError(f"host_centre must be a finite (x, y) angle, got {host_centre!r}")
         self.host_centre = np.asarray(c, dtype=float)
+        self.los_normalization = as_real(los_normalization, "los_normalization", minimum=0.0)
+        if not isinstance(two_halo, (bool, np.bool_)):
+            raise TypeError(f"two_halo must be True or False, got {two_halo!r}")
+        self.two_halo = bool(two_halo)
         self._setup()
 
     def __repr__(self):
         extra = f", log_mhm={self.log_mhm}" if self.model == "WDM" else ""
+        if self.los_normalization > 0:
+            extra += f", los_normalization={self.los_normalization}"
         return (f"SubhaloPopulation(model={self.model!r}, z_lens={self.z_lens}, "
                 f"z_source={self.z_source}, log_m=[{self.log_mlow}, {self.log_mhigh}], "
                 f"log_m_host={self.log_m_host}{extra})")
@@ -160,7 +206,7 @@ class SubhaloPopulation:
         with warnings.catch_warnings():
             # pyHalo 1.4.5 calls astropy's deprecated angular_diameter_distance_z1z2
             warnings.simplefilter("ignore", AstropyDeprecationWarning)
-            ph["cosmology"](astropy_instance=cosmo, cosmo_kwargs=kwargs_cosmo)
+            ph_cosmology = ph["cosmology"](astropy_instance=cosmo, cosmo_kwargs=kwargs_cosmo)
         self._kpc_per_arcsec = float(cosmo.kpc_proper_per_arcmin(self.z_lens).to_value(
             u.kpc / u.arcsec))
         self._lens_cosmo = LensCosmo(z_lens=self.z_lens, z_source=self.z_source, cosmo=cosmo)
@@ -185,6 +231,78 @@ class SubhaloPopulation:
         rho_c = cosmo.critical_density(self.z_lens).to_value(u.Msun / u.kpc**3)
         self._r200_host_kpc = float((3 * 10**self.log_m_host / (4 * math.pi * 200 * rho_c))
                                     ** (1 / 3))
+        self._los = None
+        if self.los_normalization > 0:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", AstropyDeprecationWarning)
+                self._los = self._setup_los(ph, ph_cosmology, cls, kw)
+
+    def _setup_los(self, ph, ph_cosmology, conc_cls, conc_kwargs):
+        """Per-plane tables of the line-of-sight haloes (see the class notes)."""
+        from lenstronomy.Cosmo.lens_cosmo import LensCosmo
+
+        los = _pyhalo_los()
+        cosmo = self.cosmology
+        _ = ph_cosmology.colossus  # sets colossus's cosmology for the mass function
+        z, dz = (np.asarray(v, dtype=float) for v in los["planes"](self.z_lens, self.z_source))
+        keep = (z > 0) & (z < self.z_source)
+        z, dz = z[keep], dz[keep]
+        h = float(cosmo.h)
+        m_fit = np.logspace(self.log_mlow, self.log_mhigh, _LOS_FIT_MASSES)
+        lo, hi = 10**self.log_mlow, 10**self.log_mhigh
+        arcsec = math.pi / 180 / 3600
+        x, w = np.polynomial.legendre.leggauss(8)
+        slope = np.empty(z.size)
+        density = np.empty(z.size)
+        for j in range(z.size):
+            dn = np.asarray(los["sheth_tormen"](m_fit, h, z[j], "sheth99"), dtype=float)
+            coef = np.polyfit(np.log10(m_fit / _M_PIVOT), np.log10(dn), 1)
+            a = coef[0]
+            norm = 10 ** coef[1] / _M_PIVOT**a  # dN/dm/dV = norm m^a [Mpc^-3 Msun^-1]
+            per_volume = norm * (hi ** (a + 1) - lo ** (a + 1)) / (a + 1)
+            zz = z[j] + 0.5 * dz[j] * (x + 1)
+            dm = cosmo.comoving_transverse_distance(zz).to_value(u.Mpc)
+            dh = cosmo.hubble_distance.to_value(u.Mpc) / cosmo.efunc(zz)
+            volume = 0.5 * dz[j] * float(np.sum(w * dm**2 * dh)) * arcsec**2  # Mpc^3 / arcsec^2
+            slope[j] = a
+            density[j] = self.los_normalization * per_volume * volume
+        at_lens = int(np.argmin(np.abs(z - self.z_lens)))
+        if self.two_halo:
+            lc = los["lens_cosmo"](self.z_lens, self.z_source, ph_cosmology)
+            c_host = los["host_concentration"](cosmo, scatter=False).nfw_concentration(
+                10**self.log_m_host, self.z_lens)
+            _, _, r200 = lc.NFW_params_physical(10**self.log_m_host, c_host, self.z_lens)
+            boost = los["two_halo"](self.z_lens, dz[at_lens], lc, 10**self.log_m_host,
+                                    r200 * 1e-3, True, 1.0)
+            density[at_lens] *= 1.0 + float(boost)
+        conc = conc_cls(**conc_kwargs)
+        log_c = np.empty((z.size, self._log_m_grid.size))
+        for j in range(z.size):
+            c = np.asarray(conc.nfw_concentration(10**self._log_m_grid, z[j]), dtype=float)
+            log_c[j] = np.log(np.maximum(c, _C_MIN))
+        rho_c = cosmo.critical_density(z).to_value(u.Msun / u.kpc**3)
+        kpc_per_arcsec = cosmo.kpc_proper_per_arcmin(z).to_value(u.kpc / u.arcsec)
+        rt_coef = (3 / (4 * math.pi * _LOS_TRUNCATION * rho_c)) ** (1 / 3) / kpc_per_arcsec
+        d_s = cosmo.angular_diameter_distance(self.z_source).to_value(u.Mpc)
+        d_l = cosmo.angular_diameter_distance(self.z_lens).to_value(u.Mpc)
+        beta = np.zeros(z.size)
+        for j in range(z.size):
+            d_j = cosmo.angular_diameter_distance(z[j]).to_value(u.Mpc)
+            if z[j] < self.z_lens:
+                d_jl = cosmo.angular_diameter_distance(z[j], self.z_lens).to_value(u.Mpc)
+                d_js = cosmo.angular_diameter_distance(z[j], self.z_source).to_value(u.Mpc)
+                beta[j] = d_jl * d_s / (d_l * d_js)
+            elif z[j] > self.z_lens:
+                d_lj = cosmo.angular_diameter_distance(self.z_lens, z[j]).to_value(u.Mpc)
+                d_ls = cosmo.angular_diameter_distance(self.z_lens,
+                                                            self.z_source).to_value(u.Mpc)
+                beta[j] = d_lj * d_s / (d_j * d_ls)
+        return {
+            "z": z, "slope": slope, "density": density, "log_c": log_c, "rt_coef": rt_coef,
+            "beta": beta, "front": z < self.z_lens,
+            "cosmo": [LensCosmo(z_lens=float(zj), z_source=self.z_source, cosmo=cosmo)
+                      for zj in z],
+        }
 
     # ------------------------------------------------------------------ numbers
 
@@ -265,6 +383,72 @@ class SubhaloPopulation:
         mm, zz, ll, ww = (a.ravel() for a in (mm, zz, ll, ww))
         ww = ww * self._turnover_factor(mm)
         return self._parameters_at(mm, np.full(mm.size, r2d_kpc), zz, ll), ww
+
+    def _los_turnover(self, m):
+        if self._turnover_kwargs is None:
+            return np.ones_like(m)
+        return self._turnover(m, self.log_mhm, *_LOS_TURNOVER)
+
+    def _los_parameters(self, plane, m, scatter):
+        """Angular tNFW parameters (Rs, alpha_Rs, r_trunc) [arcsec] of line-of-sight
+        haloes of masses ``m`` in planes ``plane`` (sorted), for normal deviates
+        ``scatter`` of their concentrations."""
+        los = self._los
+        t = (np.log10(m) - self.log_mlow) / (self.log_mhigh - self.log_mlow) * (_N_GRID - 1)
+        i = np.clip(np.floor(t).astype(int), 0, _N_GRID - 2)
+        f = t - i
+        log_c = los["log_c"][plane, i] * (1 - f) + los["log_c"][plane, i + 1] * f
+        c = np.maximum(np.exp(log_c + _SCATTER * scatter), _C_MIN)
+        rt = los["rt_coef"][plane] * m ** (1 / 3)
+        rs = np.empty(m.size)
+        alpha_rs = np.empty(m.size)
+        bounds = np.searchsorted(plane, np.arange(los["z"].size + 1))
+        for j in np.flatnonzero(np.diff(bounds)):
+            sl = slice(bounds[j], bounds[j + 1])
+            rs[sl], alpha_rs[sl] = los["cosmo"][j].nfw_physical2angle(M=m[sl], c=c[sl])
+        return rs, alpha_rs, rt
+
+    def _los_draw(self, rng, radius, n_real):
+        """Line-of-sight haloes of ``n_real`` realisations in discs of radius ``radius``
+        (arcsec) around a ray, every plane: dict of arrays ``x, y`` (the plane's angles
+        from the ray), ``plane``, ``real`` (realisation), ``mass``, ``rs``,
+        ``alpha_rs``, ``r_trunc``."""
+        los = self._los
+        n_planes = los["z"].size
+        counts = rng.poisson(los["density"][:, None] * math.pi * radius**2,
+                             size=(n_planes, n_real))
+        plane = np.repeat(np.arange(n_planes), counts.sum(axis=1))
+        real = np.repeat(np.tile(np.arange(n_real), n_planes), counts.ravel())
+        a1 = los["slope"][plane] + 1
+        lo, hi = 10 ** (a1 * self.log_mlow), 10 ** (a1 * self.log_mhigh)
+        m = (lo + rng.random(plane.size) * (hi - lo)) ** (1 / a1)
+        scatter = rng.standard_normal(plane.size)
+        r = radius * np.sqrt(rng.random(plane.size))
+        phi = 2 * math.pi * rng.random(plane.size)
+        if self._turnover_kwargs is not None:
+            keep = rng.random(plane.size) < self._los_turnover(m)
+            plane, real, m, scatter, r, phi = (v[keep] for v in (plane, real, m, scatter, r,
+                                                                  phi))
+        rs, alpha_rs, rt = self._los_parameters(plane, m, scatter)
+        return {"x": r * np.cos(phi), "y": r * np.sin(phi), "plane": plane, "real": real,
+                "mass": m, "rs": rs, "alpha_rs": alpha_rs, "r_trunc": rt}
+
+    def _los_quadrature(self, n_mass=100, n_scatter=5):
+        """Nodes (plane, (Rs, alpha_Rs, r_trunc)) and weights of the average over each
+        plane's line-of-sight haloes, turnover included (normalised per plane to the
+        unbroken power law)."""
+        los = self._los
+        q = (np.arange(n_mass) + 0.5) / n_mass
+        x, w = np.polynomial.hermite_e.hermegauss(n_scatter)
+        w = w / w.sum()
+        plane = np.repeat(np.arange(los["z"].size), n_mass * n_scatter)
+        a1 = los["slope"][plane] + 1
+        lo, hi = 10 ** (a1 * self.log_mlow), 10 ** (a1 * self.log_mhigh)
+        qq = np.tile(np.repeat(q, n_scatter), los["z"].size)
+        m = (lo + qq * (hi - lo)) ** (1 / a1)
+        scatter = np.tile(x, los["z"].size * n_mass)
+        weight = np.tile(w, los["z"].size * n_mass) / n_mass * self._los_turnover(m)
+        return plane, self._los_parameters(plane, m, scatter), weight
 
     def draw(self, rng, sigma_sub, centre, radius):
         """Sub-haloes in a disc of the lens plane.
