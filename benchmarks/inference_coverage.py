@@ -4,7 +4,7 @@ Run on demand (minutes per family)::
 
     python benchmarks/inference_coverage.py [--families F1,F2] [--n-universes 100]
         [--n-sources 20] [--sigma-pos-mas 10] [--flux-rel-err 0.02]
-        [--test {geometric,joint}] [--out FILE]
+        [--test {geometric,joint}] [--los-normalization 1] [--out FILE]
 
 Per family: one clean constellation (:func:`clean_constellation`) in the
 family's smooth lens, the forward model of its pairs
@@ -53,7 +53,8 @@ PRIOR = (1e-3, 0.3)  # kpc^-2
 def run_family(family, args, out):
     system, info = calibration_system(family)
     pairs = clean_constellation(family, args.n_sources, seed=args.seed)
-    pop = SubhaloPopulation(info["z_lens"], info["z_source"], log_m_host=args.log_m_host)
+    pop = SubhaloPopulation(info["z_lens"], info["z_source"], log_m_host=args.log_m_host,
+                            los_normalization=args.los_normalization)
     grid = np.geomspace(*PRIOR, args.n_grid) / u.kpc**2
     t0 = time.perf_counter()
     with ThreadPoolExecutor(args.threads) as pool:
@@ -100,7 +101,9 @@ def run_family(family, args, out):
                                   z_source=info["z_source"], zeta=3).to_value(u.kpc**-2)
     head = (f"{family}: {args.n_universes} universes, {args.n_sources} sources, "
             f"{args.sigma_pos_mas:g} mas, {100 * args.flux_rel_err:g} % flux, {args.test} test; "
-            f"forward model {args.n_real} x {args.n_grid}; composite weight from {args.n_mocks} "
+            + (f"line-of-sight haloes x {args.los_normalization:g}; "
+               if args.los_normalization else "")
+            + f"forward model {args.n_real} x {args.n_grid}; composite weight from {args.n_mocks} "
             f"mocks; t_sim={t_sim:.0f}s t_weight={t_weight:.0f}s t_universes={t_uni:.0f}s; "
             f"binomial bound of the same sources {paper:.3f} kpc^-2 (n_tested={n_tested})")
     print(head, flush=True)
@@ -138,6 +141,9 @@ def main():
     p.add_argument("--sigma-pos-mas", type=float, default=10.0)
     p.add_argument("--flux-rel-err", type=float, default=0.02)
     p.add_argument("--log-m-host", type=float, default=15.0)
+    p.add_argument("--los-normalization", type=float, default=0.0,
+                   help="line-of-sight haloes (pyHalo's LOS_normalization) in the mocks and "
+                        "the model")
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--out", default=None)
