@@ -209,7 +209,9 @@ def run_inference(config, *, client=None, progress=None):
         tab, lens, z_lens, z_source, cosmology, lens_text = _in_lens_frame(spec)
         pops = [SubhaloPopulation(z_lens, z_source, model=config.model,
                                   log_m_host=config.log_m_host, log_mhm=m,
-                                  cosmology=cosmology) for m in masses]
+                                  cosmology=cosmology,
+                                  los_normalization=config.los_normalization,
+                                  two_halo=config.two_halo) for m in masses]
         with _step(progress, f"forward model {spec.name}"):
             # one seed per system, the same for every half-mode mass: the
             # realisations of the masses share their random numbers

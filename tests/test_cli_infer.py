@@ -151,6 +151,27 @@ def test_two_systems_are_the_api_s_posterior(mocks, tmp_path):
     assert joint.posterior.meta["inference"]["anomaly"] == "joint"
 
 
+def test_line_of_sight_haloes_reach_the_forward_model(mocks, tmp_path):
+    """[inference] los_normalization and two_halo build the population the API builds,
+    and the posterior's metadata names it."""
+    from lensdual._inference_run import run_inference
+
+    cfg = write_config(tmp_path / "los.toml", {**SMALL, "weight": 1, "seed": 7,
+                                               "los_normalization": 0.5, "two_halo": False},
+                       [_system(mocks[0])])
+    config = load_inference_config(cfg)
+    assert config.los_normalization == 0.5 and config.two_halo is False
+    run = run_inference(config)
+    system, info = calibration_system(FAMILY)
+    pop = SubhaloPopulation(info["z_lens"], info["z_source"], los_normalization=0.5,
+                            two_halo=False)
+    seed = int(np.random.SeedSequence(7).generate_state(2)[0])
+    table = QTable.read(mocks[0], format="ascii.ecsv")
+    sim = simulate_anomalies(table, system, pop, config.grid, n_realisations=100, seed=seed)
+    np.testing.assert_array_equal(run.simulations[0].delta, sim.delta)
+    assert "los_normalization=0.5" in run.posterior.meta["inference"]["population"]
+
+
 def test_two_systems_on_dask_are_serial(mocks, tmp_path):
     """The forward models of two systems on a 2-worker LocalCluster: identical to serial."""
     distributed = pytest.importorskip("distributed")
@@ -340,6 +361,11 @@ def _bad(mocks, tmp_path):
         ("WDM without log_mhm", {**SMALL, "model": "WDM"}, [ok],
          '[inference] log_mhm: required with model = "WDM" (log10 of the half-mode mass, '
          "Msun)"),
+        ("negative line of sight", {**SMALL, "los_normalization": -1}, [ok],
+         "[inference] los_normalization: must be >= 0 (0: no line-of-sight haloes, 1: "
+         "pyHalo's default), got -1"),
+        ("two_halo not a boolean", {**SMALL, "two_halo": 1}, [ok],
+         "[inference] two_halo: expected a boolean (true or false), got"),
         ("host too heavy", {**SMALL, "log_m_host": 18.0}, [ok],
          "[inference] log_m_host: log_m_host must be <= 16.5, got 18.0"),
         ("unknown family", SMALL, [{**ok, "family": "smacs_analogue"}],

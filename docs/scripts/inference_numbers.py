@@ -63,7 +63,8 @@ TOP_BIN = "[-1.5, -0.5)"
 SHORT = {"smacs_analog": "smacs", "macs1149_lenstool": "macs1149"}
 
 _FAMILY = re.compile(r"^(\w+): (\d+) universes, (\d+) sources, ([\d.]+) mas, ([\d.]+) % flux"
-                     r"(?:, (\w+) test)?; forward model (\d+) x (\d+); "
+                     r"(?:, (\w+) test)?; (?:line-of-sight haloes x ([\d.]+); )?"
+                     r"forward model (\d+) x (\d+); "
                      r"composite weight from (\d+) mocks; t_sim=(\d+)s t_weight=(\d+)s")
 _ROW = re.compile(r"^  w=([\d.]+)\s+(.*)$")
 _BIN = re.compile(r"^\s+log10 truth in (\[[^)]*\)): n=\s*(\d+) (.*)$")
@@ -96,10 +97,11 @@ def read_coverage(path):
     families, rows = {}, None
     for line in lines[1:]:
         if m := _FAMILY.match(line):
-            names = ("universes", "sources", "mas", "flux", "test", "n_real", "n_grid", "mocks",
-                     "t_sim", "t_weight")
+            names = ("universes", "sources", "mas", "flux", "test", "los", "n_real", "n_grid",
+                     "mocks", "t_sim", "t_weight")
             head = dict(zip(names, m.groups()[1:], strict=True))
             head["test"] = head["test"] or "geometric"
+            head["los"] = head["los"] or "0"
             rows = []
             families[m.group(1)] = {"head": head, "rows": rows}
         elif m := _ROW.match(line):

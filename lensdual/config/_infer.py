@@ -111,6 +111,10 @@ class InferenceConfig:
     anomaly : str
         The pairs' anomalies, ``"geometric"`` or ``"joint"``
         (:func:`~lensdual.inference.pair_anomalies`).
+    los_normalization : float
+        Line-of-sight haloes (pyHalo's ``LOS_normalization``; 0: none).
+    two_halo : bool
+        pyHalo's two-halo term with line-of-sight haloes.
     """
 
     path: Path
@@ -126,6 +130,8 @@ class InferenceConfig:
     weight: str | float = _d("weight")
     n_mocks: int = _d("n_mocks")
     anomaly: str = _d("anomaly")
+    los_normalization: float = _d("los_normalization")
+    two_halo: bool = _d("two_halo")
 
     @property
     def half_mode(self):
@@ -163,6 +169,8 @@ class _InferenceValidator(_Validator):
             return self.get_int(table, key, sec, f.default, minimum=f.minimum)
         if f.type == "real":
             return self.get_real(table, key, sec, f.default, above=f.above)
+        if f.type == "boolean":
+            return self.get_bool(table, key, sec, f.default)
         if f.type == "angle":
             return self.get_angle(table, key, sec, f.default)
         if f.type == "file":
@@ -212,7 +220,12 @@ class _InferenceValidator(_Validator):
         self.unknown_keys(table, (*_KEYS[sec], "system"), sec)
         out = {k: self.get(table, k, sec) for k in ("model", "log_m_host", "n_sigma_sub",
                                                      "n_realisations", "seed", "n_mocks",
-                                                     "anomaly")}
+                                                     "anomaly", "los_normalization",
+                                                     "two_halo")}
+        if out["los_normalization"] is not _BAD and out["los_normalization"] < 0:
+            self.add("[inference] los_normalization: must be >= 0 (0: no line-of-sight "
+                     f"haloes, 1: pyHalo's default), got {out['los_normalization']:g}")
+            out["los_normalization"] = _BAD
         out["log_mhm"] = self.log_mhm(table.get("log_mhm", _ABSENT), out["model"])
         if out["model"] == "WDM" and out["log_mhm"] is None:
             self.add('[inference] log_mhm: required with model = "WDM" (log10 of the '

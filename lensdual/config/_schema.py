@@ -349,6 +349,13 @@ INFERENCE_FIELDS = (
        "sigma_sub and the half-mode mass"),
     _F("inference", "log_m_host", "real", 15.0,
        "log10 of the host halo's mass [Msun] (pyHalo's host scaling of sigma_sub)"),
+    _F("inference", "los_normalization", "real", 0.0,
+       "line-of-sight haloes at this multiple of pyHalo's field-halo mass function "
+       "(pyHalo's LOS_normalization; 0: none, 1: pyHalo's default), in the model's every "
+       "realisation whatever sigma_sub", note=">= 0: 0 (none) or pyHalo's 1"),
+    _F("inference", "two_halo", "boolean", True,
+       "with line-of-sight haloes, pyHalo's two-halo term (correlated structure around the "
+       "host, in the lens plane)"),
     _F("inference", "sigma_sub", "[min, max]", (1e-3, 0.3),
        "the bounds of the abundance grid and of its log-uniform prior, kpc^-2 "
        "(0 < min < max)", shown="[0.001, 0.3]", note="kpc^-2: the prior's bounds"),

@@ -143,7 +143,7 @@ def _model_key(population):
     if population is None:
         return None
     return (population.model, population.log_mlow, population.log_mhigh,
-            population.shmf_log_slope, population.log_mhm)
+            population.shmf_log_slope, population.los_normalization, population.log_mhm)
 
 
 def _quantile(log_grid, cdf, q):
@@ -164,7 +164,8 @@ def _log_likelihood(tables, simulations, weights, anomaly="geometric"):
     models = {_model_key(s.population) for s in simulations}
     if len(models) > 1:
         raise ValueError("the simulations must share one dark-matter model (model, mass range, "
-                         f"slope, half-mode mass); got {sorted(models, key=str)}")
+                         "slope, line-of-sight normalisation, half-mode mass); got "
+                         f"{sorted(models, key=str)}")
     if weights is None:
         weights = [1.0] * len(tables)
     weights = list(np.atleast_1d(np.asarray(weights, dtype=float)))
@@ -340,10 +341,11 @@ def half_mode_posterior(tables, simulations, *, weights=None, anomaly="geometric
     log_mhm = np.array([sims[0].population.log_mhm for sims in slices], dtype=float)
     if len(set(log_mhm.tolist())) != log_mhm.size:
         raise ValueError(f"each half-mode mass once, got log_mhm {log_mhm.tolist()}")
-    keys = {_model_key(s.population)[:4] for sims in slices for s in sims}
+    keys = {_model_key(s.population)[:5] for sims in slices for s in sims}
     if len(keys) > 1:
         raise ValueError("apart from log_mhm the simulations must share one population model "
-                         f"(mass range, slope); got {sorted(keys, key=str)}")
+                         f"(mass range, slope, line-of-sight normalisation); got "
+                         f"{sorted(keys, key=str)}")
     order = np.argsort(log_mhm)
     grid = slices[order[0]][0].sigma_sub
     lls = []
