@@ -4,11 +4,13 @@ The chain, for one or many analysed constellations:
 
 1. :class:`SubhaloPopulation`: pyHalo's sub-halo mass function (its
    ``sigma_sub`` normalisation), concentrations and truncation, CDM or WDM,
-   placed in a disc around each image.
+   placed in a disc around each image; optionally pyHalo's line-of-sight
+   haloes (``los_normalization``), plane by plane.
 2. :func:`simulate_anomalies`: the forward model. Every pair's log flux
    anomaly :math:`\ln(f_1/f_2)` in many realisations of the population on a
    grid of abundances, the micro-images solved in the smooth lens's local
-   Jacobian (Numba). :func:`apply_population` applies one realisation to a
+   Jacobian (Numba); a halo of another plane acts through that Jacobian's
+   two-plane linearisation. :func:`apply_population` applies one realisation to a
    constellation, for mock data.
 3. :func:`pair_anomalies` and :func:`abundance_posterior`: the measured
    anomalies and their errors from :func:`~lensdual.check_duality`, the

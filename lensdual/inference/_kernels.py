@@ -232,6 +232,42 @@ def critical_radius(rs, rho0, rt, level):
 
 
 @njit(**JIT_OPTIONS)
+def _fold_partner(b00, b01, b10, b11, tx, ty, hx, hy, rs, rho0, rt, pq, n_h, j00, j01, j10,
+                  j11, pos, mu, n_found, scale, dedup, accept):
+    """Images near the origin along the Jacobian's nearly singular direction.
+
+    An image next to a critical curve has its fold partner at a distance that
+    can be below a grid cell; Newton is started on both sides of the origin
+    along the right singular vector of the smallest singular value, at
+    distances from ``0.3 scale`` down by factors of 3.
+    """
+    m00 = j00 * j00 + j10 * j10
+    m01 = j00 * j01 + j10 * j11
+    m11 = j01 * j01 + j11 * j11
+    sv = _s_min(j00, j01, j10, j11)
+    lam = sv * sv
+    vx = m01
+    vy = lam - m00
+    if math.hypot(vx, vy) < 1e-300:
+        vx = lam - m11
+        vy = m01
+    norm = math.hypot(vx, vy)
+    if norm < 1e-300:
+        vx, vy, norm = 1.0, 0.0, 1.0
+    vx /= norm
+    vy /= norm
+    d = 0.3 * scale
+    for _ in range(9):
+        for sgn in (1.0, -1.0):
+            xs, ys, res, det = _newton(b00, b01, b10, b11, tx, ty, hx, hy, rs, rho0, rt, pq,
+                                       0, n_h, sgn * d * vx, sgn * d * vy, scale)
+            if res <= accept and det != 0.0:
+                n_found = _add(xs, ys, det, pos, mu, n_found, dedup)
+        d /= 3.0
+    return n_found
+
+
+@njit(**JIT_OPTIONS)
 def image_excess(b00, b01, b10, b11, det0, hx, hy, rs, rho0, rt, pq, te, hsup, n_h, n, gx, gy,
                  pos, mu):
     """Flux excess and image count of the image at the origin.
@@ -273,6 +309,13 @@ def image_excess(b00, b01, b10, b11, det0, hx, hy, rs, rho0, rt, pq, te, hsup, n
                 continue
             n_found = _box_images(b00, b01, b10, b11, tx, ty, hx, hy, rs, rho0, rt, pq, n_h, k,
                                   half, n, gx, gy, pos, mu, n_found, scale, dedup, accept)
+        j00 = b00 - f00
+        j01 = b01 - f01
+        j10 = b10 - f10
+        j11 = b11 - f11
+        if _s_min(j00, j01, j10, j11) < 0.5 * s_min:
+            n_found = _fold_partner(b00, b01, b10, b11, tx, ty, hx, hy, rs, rho0, rt, pq, n_h,
+                                    j00, j01, j10, j11, pos, mu, n_found, scale, dedup, accept)
     s = 0.0
     for i in range(n_found):
         s += abs(mu[i])
