@@ -17,6 +17,13 @@ prose quotes from them, so the prose cannot drift from the listings:
 - ``coverage_joint.txt``: the settings of ``coverage.txt`` with ``--test
   joint`` (``check_duality``'s joint test, in the universes and in the
   composite weight's mocks);
+- ``coverage_los.txt``: the settings of ``coverage.txt`` with
+  ``--los-normalization 1`` (line-of-sight haloes in the universes and the
+  model); ``coverage_los_heldout.txt`` the same with ``--families
+  a2744_s3_lenstool --n-universes 100``, and ``coverage_los_oracle.txt``
+  with ``--families smacs_analog --oracle-noise``;
+- ``los_speed.txt``: ``benchmarks/bench_inference_los.py`` (the SMACS0723
+  analogue, 20 sources, 1000 realisations x 30 abundances);
 - ``wdm.txt``: ``benchmarks/inference_wdm.py --out
   docs/_static/inference/wdm.txt``;
 - ``posterior.txt``: ``docs/scripts/inference_figure.py`` (the figure's
@@ -214,6 +221,64 @@ def joint_numbers(dev, joint):
     return sub
 
 
+def los_numbers(dev, los, heldout, oracle):
+    """The coverage with line-of-sight haloes (``coverage_los*.txt``), per development
+    family, on Abell 2744 (held out) and with oracle noise."""
+    keys = ("universes", "sources", "mas", "flux", "test", "n_real", "n_grid", "mocks")
+    for family in DEVELOPMENT:
+        head = los[1][family]["head"]
+        if head["los"] == "0" or any(head[k] != dev[1][family]["head"][k] for k in keys):
+            raise ValueError(f"the line-of-sight run of {family} has other settings than "
+                             "coverage.txt's, or no line-of-sight haloes")
+    sub = {}
+    for family in DEVELOPMENT:
+        name = SHORT[family]
+        row = weighted(los[1][family])
+        sub[f"inf_los_w_{name}"] = f"{float(row['w']):g}"
+        for key in ("cov68", "cov95"):
+            sub[f"inf_los_{key}_{name}"] = f"{100 * row[key]:.1f}"
+            sub[f"inf_los_{key}_err_{name}"] = _pct(row[f"{key}_err"])
+        sub[f"inf_los_bias_{name}"] = f"{row['bias_median']:+.3f}"
+    a2744 = weighted(heldout[1][HELD_OUT])
+    sub["inf_los_a2744_w"] = f"{float(a2744['w']):g}"
+    sub["inf_los_a2744_cov68"] = _pct(a2744["cov68"])
+    sub["inf_los_a2744_cov95"] = _pct(a2744["cov95"])
+    sub["inf_los_a2744_bias"] = f"{a2744['bias_median']:+.3f}"
+    row = oracle[1]["smacs_analog"]["rows"][0]
+    sub["inf_los_oracle_cov68"] = _pct(row["cov68"])
+    sub["inf_los_oracle_cov95"] = _pct(row["cov95"])
+    return sub
+
+
+def los_speed_numbers(path):
+    """The line-of-sight haloes' planes, counts, cost and anomalies (``los_speed.txt``)."""
+    text = Path(path).read_text()
+    pats = {
+        "head": r"^\w+: (\d+) pairs, (\d+) realisations x (\d+) abundances",
+        "planes": r"\((\d+) planes\)",
+        "per_image": r"realisation: (\d+) \(radius [\d.]+ arcsec\), (\d+) \(radius",
+        "times": r"forward model: ([\d.]+) s without, ([\d.]+) s with: ratio ([\d.]+)",
+        "without": r"sd of ln\(f1/f2\) without: ([\d.]+) at (\S+) kpc\^-2, ([\d.]+) at (\S+)",
+        "with": r"sd of ln\(f1/f2\) with   : ([\d.]+) at \S+ kpc\^-2, ([\d.]+) at",
+    }
+    m = {k: re.search(p, text, re.MULTILINE) for k, p in pats.items()}
+    missing = [k for k, v in m.items() if v is None]
+    if missing:
+        raise ValueError(f"{path}: no {missing}")
+    lo, hi = sorted(int(v) for v in m["per_image"].groups())
+    return {
+        "inf_los_pairs": m["head"].group(1), "inf_los_real": m["head"].group(2),
+        "inf_los_grid": m["head"].group(3), "inf_los_planes": m["planes"].group(1),
+        "inf_los_per_image": f"{lo} to {hi}" if lo != hi else str(lo),
+        "inf_los_t_without": f"{float(m['times'].group(1)):.0f}",
+        "inf_los_t_with": f"{float(m['times'].group(2)):.0f}",
+        "inf_los_sigma_low": m["without"].group(2), "inf_los_sigma_high": m["without"].group(4),
+        "inf_los_sd_low_without": m["without"].group(1),
+        "inf_los_sd_high_without": m["without"].group(3),
+        "inf_los_sd_low_with": m["with"].group(1), "inf_los_sd_high_with": m["with"].group(2),
+    }
+
+
 def oracle_numbers(oracle):
     """The coverage of the run with oracle noise, weight 1 (the SMACS0723 analogue)."""
     row = oracle[1]["smacs_analog"]["rows"][0]
@@ -315,6 +380,11 @@ def compute(folder=OUT):
     sub |= oracle_numbers(read_coverage(folder / "coverage_oracle.txt"))
     sub |= joint_numbers(read_coverage(folder / "coverage.txt"),
                          read_coverage(folder / "coverage_joint.txt"))
+    sub |= los_numbers(read_coverage(folder / "coverage.txt"),
+                       read_coverage(folder / "coverage_los.txt"),
+                       read_coverage(folder / "coverage_los_heldout.txt"),
+                       read_coverage(folder / "coverage_los_oracle.txt"))
+    sub |= los_speed_numbers(folder / "los_speed.txt")
     sub |= wdm_numbers(*read_wdm(folder / "wdm.txt"))
     sub |= posterior_numbers(folder / "posterior.txt")
     sub |= half_mode_numbers(folder / "half_mode.txt", folder / "half_mode_coverage.txt")
