@@ -16,7 +16,6 @@ from lensdual.inference import (  # noqa: E402
     _kernels,
     simulate_anomalies,
 )
-from lensdual.sensitivity._kernels import tnfw_rho0  # noqa: E402
 from lensdual.simulation.families import calibration_system, clean_constellation  # noqa: E402
 
 # pyHalo's geometry and cosmology call astropy's deprecated distance method
@@ -170,21 +169,10 @@ def _multiplane(kappa, gamma1, halos, z_halos, sheets=()):
 def _ours(population, a, halos, planes, strong, extra_hessian=None):
     """Flux excess and image count of the image at the origin through _los_terms'
     steps: the plane maps, los_split and excess_grid."""
-    p, q, norm, inv_smin = _forward._los_maps(population, a)
-    pl = np.asarray(planes)
     h = np.asarray(halos, dtype=float)
-    xy = np.einsum("nab,nb->na", np.linalg.inv(q)[pl], h[:, :2])
-    hx, hy = (np.ascontiguousarray(xy[:, i]) for i in range(2))
-    rs, ars, rt = (np.ascontiguousarray(h[:, i]) for i in (2, 3, 4))
-    rho0 = tnfw_rho0(rs, ars)
-    te = np.empty(rs.size)
-    _kernels.enclosed(rs, rho0, rt, 0.0, te)
-    te = np.sqrt(te) * np.sqrt(norm[pl]) * inv_smin[pl]
-    hsup = np.empty(rs.size)
-    _kernels.hessian_sup(rs, rho0, rt, hsup)
-    hsup *= norm[pl]
-    pq = np.ascontiguousarray(np.column_stack([p[pl].reshape(-1, 4), q[pl].reshape(-1, 4),
-                                               norm[pl], inv_smin[pl]]))
+    hx, hy, rs, rho0, rt, te, hsup, pq = _forward.los_halo_columns(
+        _forward._los_maps(population, a), np.asarray(planes), h[:, 0], h[:, 1], h[:, 2],
+        h[:, 3], h[:, 4])
     keep = np.empty(rs.size, dtype=np.bool_)
     lin = np.zeros((1, 4))
     lam_min = float(np.abs(np.diag(a)).min())

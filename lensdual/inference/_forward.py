@@ -201,6 +201,29 @@ def _los_sheet(population, p, q, radius):
     return np.einsum("j,jab,jbc->ac", kappa, p, q)
 
 
+def los_halo_columns(maps, plane, x, y, rs, alpha_rs, r_trunc):
+    """The kernel's columns of line-of-sight haloes: positions in the image's frame
+    (``Q^-1`` of their own plane's), ``rs, rho0, r_trunc``, effective Einstein
+    radii and Hessian norms, and ``pq`` (N, 10); ``maps`` is :func:`_los_maps`."""
+    p, q, norm, inv_smin = maps
+    xy = np.einsum("nab,nb->na", np.linalg.inv(q)[plane], np.stack([x, y], axis=1))
+    hx = np.ascontiguousarray(xy[:, 0])
+    hy = np.ascontiguousarray(xy[:, 1])
+    rs = np.ascontiguousarray(rs, dtype=float)
+    rt = np.ascontiguousarray(r_trunc, dtype=float)
+    rho0 = tnfw_rho0(rs, np.asarray(alpha_rs, dtype=float))
+    te = np.empty(rs.size)
+    _kernels.enclosed(rs, rho0, rt, 0.0, te)
+    te = np.sqrt(te) * np.sqrt(norm[plane]) * inv_smin[plane]
+    hsup = np.empty(rs.size)
+    _kernels.hessian_sup(rs, rho0, rt, hsup)
+    hsup *= norm[plane]
+    pq = np.ascontiguousarray(np.column_stack([p[plane].reshape(-1, 4),
+                                               q[plane].reshape(-1, 4), norm[plane],
+                                               inv_smin[plane]]))
+    return hx, hy, rs, rho0, rt, te, hsup, pq
+
+
 def _los_terms(task, a, lam_min):
     """The line-of-sight haloes of every realisation: the strong ones (rows for
     :func:`_kernels.excess_grid`), their starts per realisation, and each
@@ -209,30 +232,17 @@ def _los_terms(task, a, lam_min):
     seed = np.random.SeedSequence(task.seed.entropy,
                                   spawn_key=(*task.seed.spawn_key, _LOS_STREAM))
     rng = np.random.default_rng(seed)
-    p, q, norm, inv_smin = _los_maps(pop, a)
-    q_inv = np.linalg.inv(q)
-    sheet = _los_sheet(pop, p, q, task.radius).ravel()
+    maps = _los_maps(pop, a)
+    sheet = _los_sheet(pop, maps[0], maps[1], task.radius).ravel()
     s_min = float(np.linalg.svd(a, compute_uv=False)[-1])
     rows, reals = [], []
     lin = np.empty((task.n_real, 4))
     for first in range(0, task.n_real, _LOS_CHUNK):
         n_chunk = min(_LOS_CHUNK, task.n_real - first)
         h = pop._los_draw(rng, task.radius, n_chunk)
-        pl = h["plane"]
-        xy = np.einsum("nab,nb->na", q_inv[pl], np.stack([h["x"], h["y"]], axis=1))
-        hx = np.ascontiguousarray(xy[:, 0])
-        hy = np.ascontiguousarray(xy[:, 1])
-        rs = h["rs"]
-        rho0 = tnfw_rho0(rs, h["alpha_rs"])
-        rt = h["r_trunc"]
-        te = np.empty(rs.size)
-        _kernels.enclosed(rs, rho0, rt, 0.0, te)
-        te = np.sqrt(te) * np.sqrt(norm[pl]) * inv_smin[pl]
-        hsup = np.empty(rs.size)
-        _kernels.hessian_sup(rs, rho0, rt, hsup)
-        hsup *= norm[pl]
-        pq = np.ascontiguousarray(np.column_stack([p[pl].reshape(-1, 4), q[pl].reshape(-1, 4),
-                                                   norm[pl], inv_smin[pl]]))
+        hx, hy, rs, rho0, rt, te, hsup, pq = los_halo_columns(
+            maps, h["plane"], h["x"], h["y"], h["rs"], h["alpha_rs"],
+            h["r_trunc"])
         keep = np.empty(rs.size, dtype=np.bool_)
         chunk_lin = np.zeros((n_chunk, 4))
         _kernels.los_split(hx, hy, rs, rho0, rt, te, hsup, pq, h["real"], n_chunk, s_min,
