@@ -192,32 +192,36 @@ def _ours(population, a, halos, planes, strong, extra_hessian=None):
     return ex[0, 0], n[0, 0]
 
 
-# (plane redshift, macro kappa, gamma1, halo mass, concentration, distance from the image)
+# (plane redshift, macro kappa, gamma1, halo mass, concentration, the halo's position in its
+# own plane, where the image's ray passes through the origin)
 _CASES = [
-    (0.2, 0.6, 0.3, 3e9, 25.0, 0.01),  # in front of the lens, three images
-    (0.2, 0.45, 0.45, 1e10, 25.0, 0.04),
-    (1.0, 0.6, 0.3, 3e9, 25.0, 0.005),  # behind it, three images
-    (1.0, 0.45, 0.45, 1e10, 25.0, 0.02),
-    (0.2, 0.5, 0.6, 1e9, 12.0, 0.02),  # one image
-    (1.0, 0.3, 0.2, 3e9, 12.0, 0.01),
-    (0.05, 0.6, 0.3, 1e10, 12.0, 0.03),
-    (2.0, 0.45, 0.45, 1e9, 25.0, 0.01),
-    (0.2, 0.6, 0.3, 3e9, 25.0, 0.005),  # the image's fold partner within 0.004 arcsec
+    (0.2, 0.6, 0.3, 3e9, 25.0, 0.01, 0.003),  # in front of the lens, three images
+    (0.2, 0.45, 0.45, 1e10, 25.0, 0.04, 0.012),
+    (1.0, 0.6, 0.3, 3e9, 25.0, 0.005, 0.0015),  # behind it, three images
+    (1.0, 0.45, 0.45, 1e10, 25.0, 0.02, 0.006),
+    (0.2, 0.5, 0.6, 1e9, 12.0, 0.02, 0.006),  # one image
+    (1.0, 0.3, 0.2, 3e9, 12.0, 0.01, 0.003),
+    (0.05, 0.6, 0.3, 1e10, 12.0, 0.03, 0.009),
+    (2.0, 0.45, 0.45, 1e9, 25.0, 0.01, 0.003),
+    (0.2, 0.6, 0.3, 3e9, 25.0, 0.005, 0.0015),  # the image's fold partner within 0.004"
+    # behind the lens at a nearly singular N: the halo's images 0.34 and 0.48 arcsec
+    # from the image, along the direction N stretches
+    (0.99, 0.33, 0.649, 4e9, 22.8, 0.00353, -0.0042),
 ]
 
 
 def _one_halo(population, case):
     """A macro field and one tNFW halo of another plane near the image (its angles in
     its own plane, where the image's ray passes through the origin)."""
-    z_target, kappa, gamma1, m, c, r = _CASES[case]
+    z_target, kappa, gamma1, m, c, x, y = _CASES[case]
     los = population._los
     j = int(np.argmin(np.abs(los["z"] - z_target)))
     rs, ars = los["cosmo"][j].nfw_physical2angle(M=m, c=c)
-    halo = (r, 0.3 * r, float(rs), float(ars), 10 * float(rs))
+    halo = (x, y, float(rs), float(ars), 10 * float(rs))
     return kappa, gamma1, halo, j
 
 
-def _reference(lm, kw, a, half=0.3, n=900):
+def _reference(lm, kw, a, half=0.6, n=1500):
     """Every image of the source of the ray through the origin, by lenstronomy's ray
     shooting: triangles of a fine grid that cover the source, polished by a root
     finder; magnifications from central differences."""

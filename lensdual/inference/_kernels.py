@@ -35,6 +35,8 @@ from ..sensitivity._kernels import add_image as _add
 __all__ = []
 
 _FLOOR = 0.0011  # just outside lenstronomy's R >= 0.001 Rs floor, in Rs
+_REFINE_CELL = 0.25  # a box's cell may be at most this fraction of the halo's Einstein radius
+_MAX_REFINE = 3  # ... else up to this many boxes, each a quarter as wide, follow
 
 
 @njit(**JIT_OPTIONS)
@@ -116,12 +118,26 @@ def _newton(b00, b01, b10, b11, tx, ty, hx, hy, rs, rho0, rt, pq, lo, hi, x, y, 
 
 
 @njit(**JIT_OPTIONS)
+def _is_identity(pq, k):
+    return pq[k, 4] == 1.0 and pq[k, 5] == 0.0 and pq[k, 6] == 0.0 and pq[k, 7] == 1.0
+
+
+@njit(**JIT_OPTIONS)
+def _q_inverse(pq, k):
+    det = pq[k, 4] * pq[k, 7] - pq[k, 5] * pq[k, 6]
+    return pq[k, 7] / det, -pq[k, 5] / det, -pq[k, 6] / det, pq[k, 4] / det
+
+
+@njit(**JIT_OPTIONS)
 def _box_grid(b00, b01, b10, b11, tx, ty, hx, hy, rs, rho0, rt, pq, n_h, k, half, n, gx, gy):
-    """``G - t`` on the (n+1)^2 nodes of the box of half-width ``half`` around halo ``k``."""
+    """``G - t`` on the (n+1)^2 nodes of the box of half-width ``half`` around halo ``k``,
+    in the halo's own coordinates ``u = Q (x - h)`` (the image plane's for ``Q = I``)."""
     cx = hx[k]
     cy = hy[k]
+    ident = _is_identity(pq, k)
+    i00, i01, i10, i11 = _q_inverse(pq, k)
     # haloes near the box are summed exactly on the grid, the rest linearised at its centre
-    near = 2.0 * half
+    near = 2.0 * half * pq[k, 9]
     lx, ly, l00, l01, l10, l11 = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
     for j in range(n_h):
         if math.hypot(hx[j] - cx, hy[j] - cy) > near:
@@ -134,9 +150,15 @@ def _box_grid(b00, b01, b10, b11, tx, ty, hx, hy, rs, rho0, rt, pq, n_h, k, half
             l11 += g11
     step = 2.0 * half / n
     for i in range(n + 1):
-        xi = cx - half + i * step
         for jj in range(n + 1):
-            yj = cy - half + jj * step
+            if ident:
+                xi = cx - half + i * step
+                yj = cy - half + jj * step
+            else:
+                u = -half + i * step
+                v = -half + jj * step
+                xi = cx + i00 * u + i01 * v
+                yj = cy + i10 * u + i11 * v
             ax = lx + l00 * (xi - cx) + l01 * (yj - cy)
             ay = ly + l10 * (xi - cx) + l11 * (yj - cy)
             for j in range(n_h):
@@ -151,14 +173,23 @@ def _box_grid(b00, b01, b10, b11, tx, ty, hx, hy, rs, rho0, rt, pq, n_h, k, half
 @njit(**JIT_OPTIONS)
 def _box_images(b00, b01, b10, b11, tx, ty, hx, hy, rs, rho0, rt, pq, n_h, k, half, n, gx, gy,
                 pos, mu, n_found, scale, dedup, accept):
-    """Roots of ``G = t`` in the box of half-width ``half`` around halo ``k``."""
+    """Roots of ``G = t`` in the box of half-width ``half`` (halo coordinates) around
+    halo ``k``."""
     _box_grid(b00, b01, b10, b11, tx, ty, hx, hy, rs, rho0, rt, pq, n_h, k, half, n, gx, gy)
     cx = hx[k]
     cy = hy[k]
+    ident = _is_identity(pq, k)
+    i00, i01, i10, i11 = _q_inverse(pq, k)
     step = 2.0 * half / n
     # the central image of the halo, close to its centre
+    if ident:
+        x_start = cx + 0.01 * step
+        y_start = cy + 0.01 * step
+    else:
+        x_start = cx + 0.01 * step * (i00 + i01)
+        y_start = cy + 0.01 * step * (i10 + i11)
     xs, ys, res, det = _newton(b00, b01, b10, b11, tx, ty, hx, hy, rs, rho0, rt, pq, 0, n_h,
-                               cx + 0.01 * step, cy + 0.01 * step, scale)
+                               x_start, y_start, scale)
     if res <= accept and det != 0.0:
         n_found = _add(xs, ys, det, pos, mu, n_found, dedup)
     for i in range(n):
@@ -175,8 +206,12 @@ def _box_images(b00, b01, b10, b11, tx, ty, hx, hy, rs, rho0, rt, pq, n_h, k, ha
             c3y = gy[i, jj + 1]
             if min(min(c0y, c1y), min(c2y, c3y)) > 0.0 or max(max(c0y, c1y), max(c2y, c3y)) < 0.0:
                 continue
-            x0 = cx - half + i * step
-            y0 = cy - half + jj * step
+            if ident:
+                x0 = cx - half + i * step
+                y0 = cy - half + jj * step
+            else:
+                x0 = -half + i * step
+                y0 = -half + jj * step
             for tri in range(2):
                 if tri == 0:
                     w1, w2 = in_triangle(c0x, c0y, c1x, c1y, c2x, c2y, 0.0, 0.0)
@@ -188,6 +223,8 @@ def _box_images(b00, b01, b10, b11, tx, ty, hx, hy, rs, rho0, rt, pq, n_h, k, ha
                     sy = y0 + w1 * step + w2 * step
                 if w1 < 0.0:
                     continue
+                if not ident:
+                    sx, sy = cx + i00 * sx + i01 * sy, cy + i10 * sx + i11 * sy
                 xs, ys, res, det = _newton(b00, b01, b10, b11, tx, ty, hx, hy, rs, rho0, rt, pq,
                                            0, n_h, sx, sy, scale)
                 if res <= accept and det != 0.0:
@@ -282,7 +319,8 @@ def image_excess(b00, b01, b10, b11, det0, hx, hy, rs, rho0, rt, pq, te, hsup, n
     have images near its critical curve, at about ``r_c``; it gets a grid
     box of half-width ``3 r_c`` when the origin lies inside it. For a halo
     of another plane ``hsup`` and ``te`` are its effective values, the
-    level is divided by ``|P| |Q|`` and ``r_c`` stretched by ``1 / s_min(Q)``.
+    level is divided by ``|P| |Q|``, and the box is in the halo's own
+    coordinates ``u = Q (x - h)``.
     """
     ax, ay, f00, f01, f10, f11 = _field(hx, hy, rs, rho0, rt, pq, 0, n_h, 0.0, 0.0)
     tx = -ax
@@ -304,11 +342,24 @@ def image_excess(b00, b01, b10, b11, det0, hx, hy, rs, rho0, rt, pq, te, hsup, n
         for k in range(n_h):
             if te[k] <= 0.0 or hsup[k] < 0.5 * s_min:
                 continue
-            half = 3.0 * critical_radius(rs[k], rho0[k], rt[k], 0.5 * s_min / pq[k, 8]) * pq[k, 9]
-            if half <= 0.0 or abs(hx[k]) > half or abs(hy[k]) > half:
+            half = 3.0 * critical_radius(rs[k], rho0[k], rt[k], 0.5 * s_min / pq[k, 8])
+            # the origin in the halo's coordinates, u = Q (0 - h)
+            ux = pq[k, 4] * hx[k] + pq[k, 5] * hy[k]
+            uy = pq[k, 6] * hx[k] + pq[k, 7] * hy[k]
+            if half <= 0.0 or abs(ux) > half or abs(uy) > half:
                 continue
             n_found = _box_images(b00, b01, b10, b11, tx, ty, hx, hy, rs, rho0, rt, pq, n_h, k,
                                   half, n, gx, gy, pos, mu, n_found, scale, dedup, accept)
+            # a box much wider than the halo's Einstein radius (a nearly singular macro
+            # field) has cells that can hold several images: finer boxes, a quarter as wide
+            te_own = te[k] / (math.sqrt(pq[k, 8]) * pq[k, 9])
+            for _ in range(_MAX_REFINE):
+                if 2.0 * half / n <= _REFINE_CELL * te_own:
+                    break
+                half *= 0.25
+                n_found = _box_images(b00, b01, b10, b11, tx, ty, hx, hy, rs, rho0, rt, pq,
+                                      n_h, k, half, n, gx, gy, pos, mu, n_found, scale, dedup,
+                                      accept)
         j00 = b00 - f00
         j01 = b01 - f01
         j10 = b10 - f10
