@@ -137,6 +137,18 @@ def test_wdm_turnover_thins_los_haloes():
     assert h["mass"].size / n_cdm == pytest.approx(frac, rel=0.05)
 
 
+def test_high_source_redshift_builds():
+    """pyHalo's distance tables end at z = 4; the two-halo term does not need the
+    source's distance."""
+    far = SubhaloPopulation(ZL, 6.0, los_normalization=1.0)
+    assert far._los["z"].max() < 6.0 and np.isfinite(far._los["density"]).all()
+    near = SubhaloPopulation(ZL, ZS, los_normalization=1.0)
+    at = np.argmin(np.abs(near._los["z"] - ZL))
+    assert far._los["density"][at] == pytest.approx(near._los["density"][at], rel=1e-12)
+    h = far._los_draw(np.random.default_rng(0), 0.2, 10)
+    assert np.isfinite(h["rs"]).all() and (h["alpha_rs"] > 0).all()
+
+
 def test_los_bad_input():
     with pytest.raises(ValueError, match="los_normalization"):
         SubhaloPopulation(ZL, ZS, los_normalization=-1.0)

@@ -139,8 +139,13 @@ class SubhaloPopulation:
     :math:`r_{50}` (pyHalo's ``TRUNCATION_RN``); for WDM, pyHalo's
     ``LOVELL2020`` turnover of field haloes. They are drawn uniformly in a
     disc of the plane's angles around each image's ray, and do not scale
-    with ``sigma_sub``. Each plane's mean convergence is removed as a sheet,
-    as pyHalo does.
+    with ``sigma_sub``. Each plane's mean convergence is removed as a sheet:
+    lensdual removes the mean of all its haloes (the two-halo ones and every
+    mass included), because the mean is part of the smooth field that the
+    constellation measures; pyHalo removes that of its ``LINE_OF_SIGHT``
+    haloes above 1e7 Msun only. Behind the lens the density is the one per
+    unit angle of the plane, 3-5 % above pyHalo's double cone, whose radius
+    shrinks within a slab.
 
     Raises
     ------
@@ -268,7 +273,9 @@ class SubhaloPopulation:
             density[j] = self.los_normalization * per_volume * volume
         at_lens = int(np.argmin(np.abs(z - self.z_lens)))
         if self.two_halo:
-            lc = los["lens_cosmo"](self.z_lens, self.z_source, ph_cosmology)
+            # the boost does not depend on the source (pyHalo's LensCosmo with a source
+            # beyond its distance tables, z > 4, would fail)
+            lc = los["lens_cosmo"](self.z_lens, None, ph_cosmology)
             c_host = los["host_concentration"](cosmo, scatter=False).nfw_concentration(
                 10**self.log_m_host, self.z_lens)
             _, _, r200 = lc.NFW_params_physical(10**self.log_m_host, c_host, self.z_lens)
