@@ -350,9 +350,10 @@ class SubhaloPopulation:
 
     # ------------------------------------------------------------------ draws
 
-    def _mass_quantiles(self, q):
-        """Masses at quantiles ``q`` of the power law (its inverse CDF)."""
-        a1 = self.shmf_log_slope + 1
+    def _mass_quantiles(self, q, slope=None):
+        """Masses at quantiles ``q`` of the power law (its inverse CDF) over the mass
+        range; ``slope`` (scalar or per quantile) defaults to the sub-haloes'."""
+        a1 = (self.shmf_log_slope if slope is None else slope) + 1
         lo, hi = 10 ** (a1 * self.log_mlow), 10 ** (a1 * self.log_mhigh)
         return (lo + q * (hi - lo)) ** (1 / a1)
 
@@ -426,9 +427,7 @@ class SubhaloPopulation:
                              size=(n_planes, n_real))
         plane = np.repeat(np.arange(n_planes), counts.sum(axis=1))
         real = np.repeat(np.tile(np.arange(n_real), n_planes), counts.ravel())
-        a1 = los["slope"][plane] + 1
-        lo, hi = 10 ** (a1 * self.log_mlow), 10 ** (a1 * self.log_mhigh)
-        m = (lo + rng.random(plane.size) * (hi - lo)) ** (1 / a1)
+        m = self._mass_quantiles(rng.random(plane.size), los["slope"][plane])
         scatter = rng.standard_normal(plane.size)
         r = radius * np.sqrt(rng.random(plane.size))
         phi = 2 * math.pi * rng.random(plane.size)
@@ -449,10 +448,8 @@ class SubhaloPopulation:
         x, w = np.polynomial.hermite_e.hermegauss(n_scatter)
         w = w / w.sum()
         plane = np.repeat(np.arange(los["z"].size), n_mass * n_scatter)
-        a1 = los["slope"][plane] + 1
-        lo, hi = 10 ** (a1 * self.log_mlow), 10 ** (a1 * self.log_mhigh)
-        qq = np.tile(np.repeat(q, n_scatter), los["z"].size)
-        m = (lo + qq * (hi - lo)) ** (1 / a1)
+        m = self._mass_quantiles(np.tile(np.repeat(q, n_scatter), los["z"].size),
+                                 los["slope"][plane])
         scatter = np.tile(x, los["z"].size * n_mass)
         weight = np.tile(w, los["z"].size * n_mass) / n_mass * self._los_turnover(m)
         return plane, self._los_parameters(plane, m, scatter), weight
