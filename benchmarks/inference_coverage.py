@@ -4,7 +4,8 @@ Run on demand (minutes per family)::
 
     python benchmarks/inference_coverage.py [--families F1,F2] [--n-universes 100]
         [--n-sources 20] [--sigma-pos-mas 10] [--flux-rel-err 0.02]
-        [--test {geometric,joint}] [--los-normalization 1] [--out FILE]
+        [--test {geometric,joint}] [--los-normalization 1] [--n-calibration 300]
+        [--out FILE]
 
 Per family: one clean constellation (:func:`clean_constellation`) in the
 family's smooth lens, the forward model of its pairs
@@ -18,7 +19,9 @@ geometric test, or the joint test, whose prediction also uses the
 neighbours' flux ratios) and the posterior, both with weight 1 (the pairs'
 errors taken as independent) and with the constellation's composite weight
 (:func:`composite_weight`, from ``--n-mocks`` other mocks, each tested with
-the same test). Reported per weight: the fraction of universes
+the same test), and, with ``--n-calibration`` above 0, recalibrated on that
+many further mocks (:func:`calibrate_posterior`, weight 1). Reported per
+posterior: the fraction of universes
 whose 68 % and 95 % equal-tailed intervals hold the truth (targets 68 +- 5 %
 and 95 +- 3 %), the fractions of truths below and above the 95 % interval,
 the median and the mean of log10(posterior median / truth) (target: at most
@@ -41,6 +44,7 @@ from lensdual.inference import (
     SubhaloPopulation,
     abundance_posterior,
     apply_population,
+    calibrate_posterior,
     composite_weight,
     simulate_anomalies,
 )
@@ -67,9 +71,17 @@ def run_family(family, args, out):
         n_mocks=args.n_mocks, seed=args.seed + 7, test=args.test, snr_definition="log",
         anomaly=args.test)
     t_weight = time.perf_counter() - t0
-    rng = np.random.default_rng(args.seed + 1)
     sigma_pos = args.sigma_pos_mas * u.mas
-    weights = {"w=1": 1.0, f"w={weight:.3f}": weight}
+    t0 = time.perf_counter()
+    calibration = None if args.n_calibration == 0 else calibrate_posterior(
+        pairs, system, sim, sigma_pos=sigma_pos, flux_rel_err=args.flux_rel_err,
+        n_mocks=args.n_calibration, seed=args.seed + 11, test=args.test, snr_definition="log",
+        anomaly=args.test)
+    t_calib = time.perf_counter() - t0
+    rng = np.random.default_rng(args.seed + 1)
+    weights = {"w=1": (1.0, None), f"w={weight:.3f}": (weight, None)}
+    if calibration is not None:
+        weights["calibrated"] = (1.0, calibration)
     rows = {key: [] for key in weights}
     t0 = time.perf_counter()
     for k in range(args.n_universes):
@@ -87,10 +99,13 @@ def run_family(family, args, out):
             result["duality_ratio"] = np.exp(delta)
             result["mu_flux"] = result["mu_size"] * np.exp(delta)
             result["duality_ratio_err"] = np.exp(delta) * err
-        for key, w in weights.items():
-            m = abundance_posterior(result, sim, weights=w, anomaly=args.test).meta["inference"]
+        for key, (w, calib) in weights.items():
+            m = abundance_posterior(result, sim, weights=w, anomaly=args.test,
+                                    calibrations=calib).meta["inference"]
             lo68, hi68 = m["interval_68"].to_value(u.kpc**-2)
             lo95, hi95 = m["interval_95"].to_value(u.kpc**-2)
+            if calib is not None:
+                calibration_meta = m
             rows[key].append((truth, m["median"].to_value(u.kpc**-2), lo68 <= truth <= hi68,
                               lo95 <= truth <= hi95, np.log10(hi95 / lo95),
                               int(result["anomalous"].sum()), m["n_pairs"], truth < lo95))
@@ -104,7 +119,9 @@ def run_family(family, args, out):
             + (f"line-of-sight haloes x {args.los_normalization:g}; "
                if args.los_normalization else "")
             + f"forward model {args.n_real} x {args.n_grid}; composite weight from {args.n_mocks} "
-            f"mocks; t_sim={t_sim:.0f}s t_weight={t_weight:.0f}s t_universes={t_uni:.0f}s; "
+            f"mocks; " + (f"calibrated on {args.n_calibration} mocks; " if calibration else "")
+            + f"t_sim={t_sim:.0f}s t_weight={t_weight:.0f}s t_calibration={t_calib:.0f}s "
+            f"t_universes={t_uni:.0f}s; "
             f"binomial bound of the same sources {paper:.3f} kpc^-2 (n_tested={n_tested})")
     print(head, flush=True)
     out.append(head)
@@ -120,6 +137,12 @@ def run_family(family, args, out):
                 f"width95={np.median(r[:, 4]):.2f} dex no_flag={(r[:, 5] == 0).mean():.2f}")
         print(line, flush=True)
         out.append(line)
+        if key == "calibrated":
+            mc = calibration_meta["mock_coverage_uncalibrated"]
+            line = (f"      the calibration's mocks: uncalibrated cov68={mc['68']:.3f} "
+                    f"cov95={mc['95']:.3f}")
+            print(line, flush=True)
+            out.append(line)
         # the truth's position in the prior, binned: where coverage is lost
         for lo, hi in ((-3, -2), (-2, -1.5), (-1.5, -0.5)):
             sel = (np.log10(r[:, 0]) >= lo) & (np.log10(r[:, 0]) < hi)
@@ -148,6 +171,8 @@ def main():
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--out", default=None)
     p.add_argument("--n-mocks", type=int, default=100, help="mocks of the composite weight")
+    p.add_argument("--n-calibration", type=int, default=300,
+                   help="mocks of the posterior's calibration (0: none)")
     p.add_argument("--no-weight", action="store_true", help="weight 1 (independent errors)")
     p.add_argument("--oracle-noise", action="store_true",
                    help="replace each measured anomaly by the truth plus independent noise")

@@ -18,11 +18,17 @@ The chain, for one or many analysed constellations:
    multiplied) and the posterior on ``sigma_sub`` under a log-uniform prior;
    :func:`half_mode_posterior` the joint posterior with the WDM half-mode
    mass, from simulations of WDM populations on a grid of half-mode masses.
+4. :func:`calibrate_posterior`: mock universes of a constellation, made as
+   the data, on which :func:`abundance_posterior` recalibrates its intervals
+   (the pairs' errors are correlated through shared baselines);
+   :func:`composite_weight` the older correction, a power of the likelihood,
+   kept for :func:`half_mode_posterior`.
 
 See the docs page "What the flags say about dark matter" for the model, its
 checks and its injection-recovery coverage.
 """
 
+from ._calibration import PosteriorCalibration, calibrate_posterior
 from ._forward import MIN_REALISATIONS, AnomalySimulation, apply_population, simulate_anomalies
 from ._population import MODELS, SubhaloPopulation
 from ._posterior import (
@@ -45,6 +51,8 @@ __all__ = [
     "abundance_posterior",
     "half_mode_posterior",
     "composite_weight",
+    "calibrate_posterior",
+    "PosteriorCalibration",
     "INTERVALS",
     "ANOMALIES",
 ]
