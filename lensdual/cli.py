@@ -328,6 +328,8 @@ def _cmd_infer(args):
         steps.append(f"forward model {spec.name}")
         if config.weight == "composite":
             steps.append(f"composite weight {spec.name}")
+        if config.calibrate and not config.half_mode:
+            steps.append(f"calibration {spec.name}")
     steps += ["posterior", "write"]
     progress = _Progress(steps, args, desc="lensdual infer")
     removed = []

@@ -28,8 +28,9 @@ from lensdual.simulation.families import calibration_system, clean_constellation
 
 DOCS = Path(__file__).resolve().parents[1] / "docs"
 FAMILY = "smacs_analog"
-#: A small forward model: 6 abundances, 100 realisations.
-SMALL = {"sigma_sub": [0.002, 0.2], "n_sigma_sub": 6, "n_realisations": 100}
+#: A small forward model: 6 abundances, 100 realisations; no calibration (its own tests).
+SMALL = {"sigma_sub": [0.002, 0.2], "n_sigma_sub": 6, "n_realisations": 100,
+         "calibrate": False}
 OUTPUTS = ("posterior.ecsv", "posterior.png", "report.txt")
 
 
@@ -200,6 +201,66 @@ def test_threads_give_the_serial_result(mocks, tmp_path):
     a = QTable.read(one / "posterior.ecsv", format="ascii.ecsv")
     b = QTable.read(two / "posterior.ecsv", format="ascii.ecsv")
     np.testing.assert_array_equal(a["log_likelihood"], b["log_likelihood"])
+
+
+# ---------------------------------------------------------------- the calibration
+
+
+def test_calibrated_posterior_is_the_api_s(mocks, tmp_path, capsys):
+    """The default calibration, two systems: the posterior is abundance_posterior
+    recalibrated on calibrate_posterior's mocks of each system's clean constellation
+    (the seeds of lensdual infer), and the report says so."""
+    from lensdual._inference_run import clean_pairs, run_inference
+    from lensdual.inference import calibrate_posterior
+
+    inference = {k: v for k, v in SMALL.items() if k != "calibrate"}
+    cfg = write_config(tmp_path / "cal.toml", {**inference, "n_calibration": 50, "seed": 7},
+                       [_system(p) for p in mocks])
+    config = load_inference_config(cfg)
+    assert config.calibrate and config.weight == 1.0 and config.n_calibration == 50
+    run = run_inference(config)
+    system, info = calibration_system(FAMILY)
+    pop = SubhaloPopulation(info["z_lens"], info["z_source"])
+    seeds = np.random.SeedSequence([7, 1]).generate_state(2)
+    tables = [QTable.read(p, format="ascii.ecsv") for p in mocks]
+    calibrations = []
+    for tab, sim, seed in zip(tables, run.simulations, seeds, strict=True):
+        duality = tab.meta["duality"]
+        calibrations.append(calibrate_posterior(
+            clean_pairs(tab, system, pop, 0.02), system, sim, sigma_pos=5 * u.mas,
+            flux_rel_err=0.02, n_mocks=50, seed=int(seed), method=duality["method"],
+            snr_definition=duality["snr_definition"],
+            snr_threshold=duality["snr_threshold"]))
+    expected = abundance_posterior(tables, run.simulations, calibrations=calibrations)
+    np.testing.assert_allclose(run.posterior["cdf"], expected["cdf"], atol=1e-12)
+    m = run.posterior.meta["inference"]
+    assert m["calibrated"] and m["n_mocks"] == 50
+    assert all(s["calibrated"] for s in run.posterior.meta["systems"])
+    out = tmp_path / "out"
+    text, post = _infer(cfg, out, capsys)
+    np.testing.assert_allclose(post["cdf"], expected["cdf"], atol=1e-12)
+    assert post.meta["inference"]["mock_coverage_uncalibrated"]["68"] == pytest.approx(
+        m["mock_coverage_uncalibrated"]["68"])
+    assert "calibrated on 50 mock universes" in " ".join(text.split())
+
+
+def test_calibration_problems(mocks, tmp_path):
+    ok = [_system(mocks[0])]
+    cases = [
+        ({**SMALL, "model": "WDM", "log_mhm": [6, 8], "calibrate": True},
+         "[inference] calibrate: the calibration applies to the abundance posterior"),
+        ({**SMALL, "calibrate": "yes"},
+         "[inference] calibrate: expected a boolean (true or false)"),
+        ({**SMALL, "n_calibration": 20}, "[inference] n_calibration: must be >= 50, got 20"),
+    ]
+    for inference, expected in cases:
+        problems = _problems(write_config(tmp_path / "bad.toml", inference, ok))
+        assert len(problems) == 1 and problems[0].startswith(expected), problems
+    # a grid of half-mode masses turns the default calibration off
+    grid = {k: v for k, v in SMALL.items() if k != "calibrate"}
+    config = load_inference_config(write_config(
+        tmp_path / "hm.toml", {**grid, "model": "WDM", "log_mhm": [6, 8]}, ok))
+    assert not config.calibrate and config.weight == "composite"
 
 
 # ---------------------------------------------------------------- the half-mode mass
@@ -423,8 +484,10 @@ def test_defaults_are_the_schema_s(mocks, tmp_path):
     config = load_inference_config(cfg)
     assert config.outdir == tmp_path.resolve() / "lensdual-inference"
     for f in INFERENCE_FIELDS:
-        if f.table == "inference":
+        if f.table == "inference" and f.key != "weight":
             assert getattr(config, f.attribute) == f.default, f.name
+    # the weight's default depends on the calibration: 1 with it (the default)
+    assert config.calibrate and config.weight == 1.0
     assert config.grid.unit == u.kpc**-2 and len(config.grid) == 30
 
 

@@ -104,6 +104,12 @@ class InferenceConfig:
         Realisations per abundance.
     seed : int
         Seed of the realisations and the mocks.
+    calibrate : bool
+        Whether the abundance posterior is recalibrated on mock universes
+        (:func:`~lensdual.inference.calibrate_posterior`); False with a grid
+        of half-mode masses.
+    n_calibration : int
+        Mocks of each system's calibration.
     weight : str or float
         ``"composite"`` or a weight in (0, 1] for every system.
     n_mocks : int
@@ -127,7 +133,9 @@ class InferenceConfig:
     n_sigma_sub: int = _d("n_sigma_sub")
     n_realisations: int = _d("n_realisations")
     seed: int = _d("seed")
-    weight: str | float = _d("weight")
+    calibrate: bool = _d("calibrate")
+    n_calibration: int = _d("n_calibration")
+    weight: str | float = 1.0
     n_mocks: int = _d("n_mocks")
     anomaly: str = _d("anomaly")
     los_normalization: float = _d("los_normalization")
@@ -221,7 +229,7 @@ class _InferenceValidator(_Validator):
         out = {k: self.get(table, k, sec) for k in ("model", "log_m_host", "n_sigma_sub",
                                                      "n_realisations", "seed", "n_mocks",
                                                      "anomaly", "los_normalization",
-                                                     "two_halo")}
+                                                     "two_halo", "n_calibration")}
         if out["los_normalization"] is not _BAD and out["los_normalization"] < 0:
             self.add("[inference] los_normalization: must be >= 0 (0: no line-of-sight "
                      f"haloes, 1: pyHalo's default), got {out['los_normalization']:g}")
@@ -234,7 +242,8 @@ class _InferenceValidator(_Validator):
             self.add('[inference] log_mhm: a WDM parameter; give model = "WDM" with it')
         self.population(out)
         out["sigma_sub"] = self.bounds(table.get("sigma_sub", _ABSENT))
-        out["weight"] = self.weight(table.get("weight", _ABSENT))
+        out["calibrate"] = self.calibrate(table, out["log_mhm"])
+        out["weight"] = self.weight(table.get("weight", _ABSENT), out["calibrate"])
         n = out["n_sigma_sub"]
         if out["weight"] == "composite" and n is not _BAD and n < 5:
             self.add('[inference] n_sigma_sub: weight = "composite" needs at least 5 '
@@ -308,9 +317,23 @@ class _InferenceValidator(_Validator):
             return _BAD
         return (lo, hi)
 
-    def weight(self, value):
+    def calibrate(self, table, log_mhm):
+        """The calibration switch: by default on, off for the joint posterior with the
+        half-mode mass (a grid of log_mhm), which it cannot calibrate."""
+        grid = isinstance(log_mhm, tuple)
+        if "calibrate" not in table:
+            return not grid
+        value = self.get(table, "calibrate", "inference")
+        if value is True and grid:
+            self.add("[inference] calibrate: the calibration applies to the abundance "
+                     "posterior; the joint posterior with a list of log_mhm keeps its weight "
+                     "(set calibrate = false)")
+            return _BAD
+        return value
+
+    def weight(self, value, calibrate=False):
         if value is _ABSENT:
-            return _d("weight")
+            return 1.0 if calibrate is True else "composite"
         if isinstance(value, str):
             if value != "composite":
                 self.add(f'[inference] weight: expected "composite" or a number in (0, 1], '
@@ -326,7 +349,7 @@ class _InferenceValidator(_Validator):
             return _BAD
         return float(value)
 
-    def systems(self, weight):
+    def systems(self, mocks):
         value = (self.data.get("inference") or {}).get("system", _ABSENT)
         if not isinstance(self.data.get("inference"), dict):
             return ()
@@ -343,7 +366,7 @@ class _InferenceValidator(_Validator):
         if not value:
             self.add("[[inference.system]]: give at least one system")
             return ()
-        systems = [self.system(i, t, weight) for i, t in enumerate(value)]
+        systems = [self.system(i, t, mocks) for i, t in enumerate(value)]
         names = [s.name for s in systems if s is not None]
         twice = sorted({n for n in names if names.count(n) > 1})
         if twice:
@@ -351,7 +374,7 @@ class _InferenceValidator(_Validator):
                      "every system apart (name = \"...\")")
         return tuple(systems)
 
-    def system(self, index, table, weight):
+    def system(self, index, table, mocks):
         sec = f"inference.system #{index + 1}"
         self.unknown_keys(table, _KEYS[_SYSTEM], sec)
 
@@ -380,8 +403,8 @@ class _InferenceValidator(_Validator):
         tab = self.pairs_table(pairs, sec) if _valid(pairs) and pairs is not None else None
         if tab is not None and model is not None:
             self.lenstool_frame(tab, sec)
-        if tab is not None and weight == "composite":
-            self.weight_noise(tab, sec, sigma_pos, flux_rel_err)
+        if tab is not None and mocks:
+            self.weight_noise(tab, sec, sigma_pos, flux_rel_err, mocks)
         if name is None and _valid(pairs) and pairs is not None:
             name = pairs.stem if pairs.stem != "pairs" else f"{pairs.parent.name}"
         if name is None or not _valid(name, lenstool, family, z_source, sigma_pos,
@@ -455,16 +478,17 @@ class _InferenceValidator(_Validator):
                      "meta['reference'], so its pairs cannot be placed in the Lenstool "
                      "model's frame")
 
-    def weight_noise(self, tab, sec, sigma_pos, flux_rel_err):
-        """The composite weight needs the table's noise, or the keys that give it."""
+    def weight_noise(self, tab, sec, sigma_pos, flux_rel_err, mocks):
+        """The mocks (composite weight, calibration) need the table's noise, or the keys
+        that give it."""
         from .._inference_run import table_flux_rel_err, table_sigma_pos
 
         if sigma_pos is None and table_sigma_pos(tab) is None:
-            self.add(f'[{sec}] sigma_pos: required with weight = "composite": the table has '
+            self.add(f"[{sec}] sigma_pos: required with {mocks}: the table has "
                      "no scalar sigma_pos of its duality test and no pos_err1, pos_err2 "
                      "columns")
         if flux_rel_err is None and table_flux_rel_err(tab) is None:
-            self.add(f'[{sec}] flux_rel_err: required with weight = "composite": the table '
+            self.add(f"[{sec}] flux_rel_err: required with {mocks}: the table "
                      "has no flux and flux_err columns to measure it")
 
     def inputs_outside(self, config):
@@ -484,7 +508,7 @@ class _InferenceValidator(_Validator):
         self.check_root()
         outdir = self.output()
         settings = self.inference()
-        systems = self.systems(settings["weight"] if settings else None)
+        systems = self.systems(_mocks(settings))
         if self.problems or settings is None:
             raise ConfigError(self.problems, self.path)
         config = InferenceConfig(path=self.path, outdir=outdir, systems=systems, **settings)
@@ -492,6 +516,17 @@ class _InferenceValidator(_Validator):
         if self.problems:
             raise ConfigError(self.problems, self.path)
         return config
+
+
+def _mocks(settings):
+    """What of the settings makes mocks of each system (None: nothing)."""
+    if not settings:
+        return None
+    if settings["weight"] == "composite":
+        return 'weight = "composite"'
+    if settings["calibrate"] is True:
+        return "calibrate = true"
+    return None
 
 
 def load_inference_config(path, *, outdir=None):

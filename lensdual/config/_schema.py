@@ -364,10 +364,20 @@ INFERENCE_FIELDS = (
     _F("inference", "n_realisations", "integer", 1000,
        "realisations of the population per abundance and image", minimum=MIN_REALISATIONS),
     _F("inference", "seed", "integer", 0, "seed of the realisations and the mocks", minimum=0),
-    _F("inference", "weight", '"composite" or real', "composite",
+    _F("inference", "calibrate", "boolean", True,
+       "recalibrate the abundance posterior on n_calibration mock universes of each system, "
+       "made as the data (lensdual.inference.calibrate_posterior), so that its intervals hold "
+       "the truth as often as they say; not with a list of log_mhm, whose joint posterior "
+       "keeps the composite weight"),
+    _F("inference", "n_calibration", "integer", 300,
+       "mock universes of each system's calibration (calibrate = true); combined systems "
+       "share their truths", minimum=50),
+    _F("inference", "weight", '"composite" or real', None,
        'each system\'s composite-likelihood weight: "composite" (measured on mocks of the '
        "constellation, lensdual.inference.composite_weight) or a number in (0, 1] "
-       "(1: the pairs' errors independent)",
+       "(1: the pairs' errors independent); a calibrated posterior's mocks take the same "
+       "weight",
+       shown='1 with calibrate, else "composite"',
        note='"composite" (by simulation) or a number in (0, 1]'),
     _F("inference", "n_mocks", "integer", 100,
        'mock universes of each composite weight (weight = "composite")', minimum=20),
@@ -394,10 +404,10 @@ INFERENCE_FIELDS = (
        "the source redshift, > the model's z_lens; required with lenstool (a family has "
        "its own)", above=0),
     _F(INFERENCE_SYSTEM, "sigma_pos", "angle", None,
-       "the position error of the composite weight's mocks",
+       "the position error of the mocks (calibration, composite weight)",
        shown="the table's (its duality test's, else the median pos_err)"),
     _F(INFERENCE_SYSTEM, "flux_rel_err", "real", None,
-       "the relative flux error of the composite weight's mocks", above=0,
+       "the relative flux error of the mocks (calibration, composite weight)", above=0,
        shown="the table's median flux_err / flux"),
     _F(INFERENCE_SYSTEM, "radius", "angle", None,
        "the radius of the disc of sub-haloes around every image",
