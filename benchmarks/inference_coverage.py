@@ -139,8 +139,8 @@ def run_family(family, args, out):
         out.append(line)
         if key == "calibrated":
             mc = calibration_meta["mock_coverage_uncalibrated"]
-            line = (f"      the calibration's mocks: uncalibrated cov68={mc['68']:.3f} "
-                    f"cov95={mc['95']:.3f}")
+            line = (f"      the calibration's mocks ({calibration_meta['n_mocks']} used): "
+                    f"uncalibrated cov68={mc['68']:.3f} cov95={mc['95']:.3f}")
             print(line, flush=True)
             out.append(line)
         # the truth's position in the prior, binned: where coverage is lost

@@ -228,7 +228,7 @@ def run_inference(config, *, client=None, progress=None):
         sigma_pos = spec.sigma_pos if spec.sigma_pos is not None else table_sigma_pos(tab)
         flux_rel_err = (spec.flux_rel_err if spec.flux_rel_err is not None
                         else table_flux_rel_err(tab))
-        if config.weight == "composite":
+        if config.effective_weight == "composite":
             with _step(progress, f"composite weight {spec.name}"):
                 clean = clean_pairs(tab, lens, pops[0], flux_rel_err)
                 weight = composite_weight(clean, lens, sim, sigma_pos=sigma_pos,
@@ -236,7 +236,7 @@ def run_inference(config, *, client=None, progress=None):
                                           seed=int(seeds[2 * i + 1]), anomaly=config.anomaly,
                                           **_check_kwargs(tab))
         else:
-            weight = float(config.weight)
+            weight = float(config.effective_weight)
         calibration = None
         if calibrate:
             with _step(progress, f"calibration {spec.name}"):
@@ -258,7 +258,8 @@ def run_inference(config, *, client=None, progress=None):
             "name": spec.name, "pairs": str(spec.pairs), "lens": lens_text,
             "z_lens": float(z_lens), "z_source": float(z_source), "n_pairs": len(tab),
             "n_tested": n_tested, "n_flagged": n_flagged, "weight": float(weight),
-            "weight_source": "composite" if config.weight == "composite" else "configured",
+            "weight_source": ("composite" if config.effective_weight == "composite"
+                              else "configured" if config.weight is not None else "default"),
             "calibrated": calibrate,
             "sigma_pos": sigma_pos, "flux_rel_err": flux_rel_err,
             "radius": u.Quantity(sim.radius, u.arcsec),

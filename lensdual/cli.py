@@ -326,7 +326,7 @@ def _cmd_infer(args):
     steps = []
     for spec in config.systems:
         steps.append(f"forward model {spec.name}")
-        if config.weight == "composite":
+        if config.effective_weight == "composite":
             steps.append(f"composite weight {spec.name}")
         if config.calibrate and not config.half_mode:
             steps.append(f"calibration {spec.name}")

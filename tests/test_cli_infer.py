@@ -214,10 +214,10 @@ def test_calibrated_posterior_is_the_api_s(mocks, tmp_path, capsys):
     from lensdual.inference import calibrate_posterior
 
     inference = {k: v for k, v in SMALL.items() if k != "calibrate"}
-    cfg = write_config(tmp_path / "cal.toml", {**inference, "n_calibration": 50, "seed": 7},
+    cfg = write_config(tmp_path / "cal.toml", {**inference, "n_calibration": 80, "seed": 7},
                        [_system(p) for p in mocks])
     config = load_inference_config(cfg)
-    assert config.calibrate and config.weight == 1.0 and config.n_calibration == 50
+    assert config.calibrate and config.effective_weight == 1.0 and config.n_calibration == 80
     run = run_inference(config)
     system, info = calibration_system(FAMILY)
     pop = SubhaloPopulation(info["z_lens"], info["z_source"])
@@ -228,20 +228,21 @@ def test_calibrated_posterior_is_the_api_s(mocks, tmp_path, capsys):
         duality = tab.meta["duality"]
         calibrations.append(calibrate_posterior(
             clean_pairs(tab, system, pop, 0.02), system, sim, sigma_pos=5 * u.mas,
-            flux_rel_err=0.02, n_mocks=50, seed=int(seed), method=duality["method"],
+            flux_rel_err=0.02, n_mocks=80, seed=int(seed), method=duality["method"],
             snr_definition=duality["snr_definition"],
             snr_threshold=duality["snr_threshold"]))
     expected = abundance_posterior(tables, run.simulations, calibrations=calibrations)
     np.testing.assert_allclose(run.posterior["cdf"], expected["cdf"], atol=1e-12)
     m = run.posterior.meta["inference"]
-    assert m["calibrated"] and m["n_mocks"] == 50
-    assert all(s["calibrated"] for s in run.posterior.meta["systems"])
+    assert m["calibrated"] and m["n_mocks"] + m["n_mocks_left_out"] == 80
+    assert all(s["calibrated"] and s["weight_source"] == "default"
+               for s in run.posterior.meta["systems"])
     out = tmp_path / "out"
     text, post = _infer(cfg, out, capsys)
     np.testing.assert_allclose(post["cdf"], expected["cdf"], atol=1e-12)
     assert post.meta["inference"]["mock_coverage_uncalibrated"]["68"] == pytest.approx(
         m["mock_coverage_uncalibrated"]["68"])
-    assert "calibrated on 50 mock universes" in " ".join(text.split())
+    assert f"calibrated on {m['n_mocks']} mock universes" in " ".join(text.split())
 
 
 def test_calibration_problems(mocks, tmp_path):
@@ -260,7 +261,7 @@ def test_calibration_problems(mocks, tmp_path):
     grid = {k: v for k, v in SMALL.items() if k != "calibrate"}
     config = load_inference_config(write_config(
         tmp_path / "hm.toml", {**grid, "model": "WDM", "log_mhm": [6, 8]}, ok))
-    assert not config.calibrate and config.weight == "composite"
+    assert not config.calibrate and config.effective_weight == "composite"
 
 
 # ---------------------------------------------------------------- the half-mode mass
@@ -484,10 +485,10 @@ def test_defaults_are_the_schema_s(mocks, tmp_path):
     config = load_inference_config(cfg)
     assert config.outdir == tmp_path.resolve() / "lensdual-inference"
     for f in INFERENCE_FIELDS:
-        if f.table == "inference" and f.key != "weight":
+        if f.table == "inference":
             assert getattr(config, f.attribute) == f.default, f.name
     # the weight's default depends on the calibration: 1 with it (the default)
-    assert config.calibrate and config.weight == 1.0
+    assert config.calibrate and config.weight is None and config.effective_weight == 1.0
     assert config.grid.unit == u.kpc**-2 and len(config.grid) == 30
 
 

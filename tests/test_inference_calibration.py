@@ -1,6 +1,7 @@
 """lensdual.inference: the abundance posterior recalibrated on mock universes."""
 
 import warnings
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -20,7 +21,12 @@ from lensdual.inference import (  # noqa: E402
     calibrate_posterior,
     simulate_anomalies,
 )
-from lensdual.inference._calibration import mock_pit, recalibrate, stratified_truths  # noqa: E402
+from lensdual.inference._calibration import (  # noqa: E402
+    Recalibration,
+    mock_pit,
+    recalibrate,
+    stratified_truths,
+)
 from lensdual.simulation import noisy_constellation  # noqa: E402
 from lensdual.simulation.families import calibration_system, clean_constellation  # noqa: E402
 
@@ -28,20 +34,35 @@ KPC2 = u.kpc**-2
 SIGMA_POS = 5 * u.mas
 
 
-def _reference_cdf(log_grid, cdf, truths, mock_lls):
-    """The recalibrated CDF in plain numpy: each mock's posterior CDF on the grid
-    (trapezoids), its truth's PIT, and the empirical CDF of the PITs linearly
-    interpolated between mid-ranks (distinct PITs)."""
-    pits = []
+def _reference(log_grid, cdf, truths, mock_lls, level=0.5):
+    """The recalibrated CDF and the quantile ``level`` in plain numpy: each mock's
+    posterior CDF on the grid (trapezoids; its upper tail summed from the top), its
+    truth's PIT, and their empirical CDF with atoms at 0 and 1, linear between the
+    mid-ranks of the distinct PITs (no ties between them here); the quantile
+    through the uncalibrated CDF."""
+    u = []
     for ll, t in zip(mock_lls, truths, strict=True):
         p = np.exp(ll - ll.max())
-        c = np.concatenate([[0.0], np.cumsum((p[1:] + p[:-1]) / 2 * np.diff(log_grid))])
-        pits.append(np.interp(t, log_grid, c / c[-1]))
-    pits = np.sort(pits)
-    levels = (np.arange(pits.size) + 0.5) / pits.size
-    x = np.concatenate([[0.0], pits, [1.0]])
-    y = np.concatenate([[0.0], levels, [1.0]])
-    return np.interp(cdf, x, y)
+        cells = (p[1:] + p[:-1]) / 2 * np.diff(log_grid)
+        up = np.concatenate([[0.0], np.cumsum(cells)]) / cells.sum()
+        down = np.concatenate([np.cumsum(cells[::-1])[::-1], [0.0]]) / cells.sum()
+        lower = np.interp(t, log_grid, up)
+        u.append(lower if lower <= 0.5 else 1 - np.interp(t, log_grid, down))
+    u = np.sort(u)
+    m = u.size
+    n0, n1 = int(np.sum(u <= 0)), int(np.sum(u >= 1))
+    inner = u[(u > 0) & (u < 1)]
+    x = np.concatenate([[0.0], inner, [1.0]])
+    y = np.concatenate([[n0 / m], (n0 + np.arange(inner.size) + 0.5) / m, [1 - n1 / m]])
+    g = np.where(cdf >= 1, 1.0, np.interp(cdf, x, y))
+    quantile = np.interp(np.interp(level, y, x), cdf, log_grid)
+    return g, quantile
+
+
+def _calibration(truths, lls, log_grid, n_tested=None, seed=0):
+    n = truths.size
+    return PosteriorCalibration(truths, lls, 10**log_grid * KPC2, "geometric",
+                                np.ones(n, int) if n_tested is None else n_tested, (), seed)
 
 
 def _gaussian_calibration(log_grid, n, k, s, rng):
@@ -49,8 +70,8 @@ def _gaussian_calibration(log_grid, n, k, s, rng):
     their truth: the uncalibrated posterior is k times too narrow."""
     truths = stratified_truths(log_grid, n)
     centres = truths + k * s * rng.standard_normal(n)
-    lls = -0.5 * ((log_grid[None, :] - centres[:, None]) / s) ** 2
-    return PosteriorCalibration(truths, lls, 10**log_grid * KPC2, "geometric", np.ones(n, int))
+    return _calibration(truths, -0.5 * ((log_grid[None, :] - centres[:, None]) / s) ** 2,
+                        log_grid)
 
 
 # ------------------------------------------------------------------ closed forms
@@ -67,12 +88,43 @@ def test_recalibration_of_gaussian_pit_is_the_closed_form(k):
 
 
 def test_recalibration_handles_ties_and_ends():
-    pit = np.array([0.0, 0.0, 0.3, 0.3, 0.3, 1.0])
-    g = recalibrate(np.array([0.0, 0.15, 0.3, 0.65, 1.0]), pit)
-    # PIT 0 at mid-ranks 1/12 and 3/12 (mean 1/6), 0.3 at 5/12..9/12 (mean 7/12);
-    # a PIT of 1 gives way to the end point (1, 1)
-    np.testing.assert_allclose(g, [1 / 6, (1 / 6 + 7 / 12) / 2, 7 / 12, (7 / 12 + 1) / 2, 1.0])
-    assert np.all(np.diff(recalibrate(np.linspace(0, 1, 101), pit)) >= 0)
+    """PITs of exactly 0 and 1 are atoms at the ends: G(0) is the fraction at 0, G
+    reaches 1 - (the fraction at 1) just below 1; ties inside share their mid-rank."""
+    g = Recalibration(np.array([0.0, 0.0, 0.3, 0.3, 0.3, 1.0]))
+    assert (g.low, g.high) == (pytest.approx(1 / 3), pytest.approx(1 / 6))
+    # 0.3 at mid-ranks 2.5/6, 3.5/6, 4.5/6: mean 7/12
+    np.testing.assert_allclose(g(np.array([0.0, 0.15, 0.3, 0.65, 0.999999, 1.0])),
+                               [1 / 3, 11 / 24, 7 / 12, 17 / 24, 5 / 6, 1.0], atol=1e-6)
+    assert g.inverse(0.2) == 0.0 and g.inverse(0.9) == 1.0
+    assert g.inverse(7 / 12) == pytest.approx(0.3)
+    assert np.all(np.diff(g(np.linspace(0, 1, 101))) >= 0)
+
+
+def test_pit_tails_are_symmetric():
+    """Two mocks mirrored about a narrow posterior's centre: PITs u and 1 - u, the
+    upper one not rounded to 1 (summed from the top)."""
+    log_grid = np.linspace(-3, -0.5, 301)
+    ll = -0.5 * ((log_grid - (-1.75)) / 0.03) ** 2
+    cal = _calibration(np.array([-1.75 - 0.2, -1.75 + 0.2]), np.vstack([ll, ll]), log_grid)
+    pit, left_out = mock_pit(log_grid, [cal], [1.0])
+    assert left_out == 0
+    assert 0 < pit[0] < 1e-10 and 0 < 1 - pit[1] < 1e-10
+    assert pit[0] == pytest.approx(1 - pit[1], rel=1e-6)
+
+
+def test_mocks_without_a_test_or_a_likelihood_are_left_out():
+    log_grid = np.linspace(-3, -0.5, 31)
+    truths = stratified_truths(log_grid, 6)
+    lls = -0.5 * ((log_grid[None, :] - truths[:, None]) / 0.3) ** 2
+    lls[1] = -np.inf
+    lls[2, ::2] = np.nan
+    one = _calibration(truths, lls, log_grid, np.array([3, 3, 3, 0, 3, 3]), seed=1)
+    other = _calibration(truths, np.zeros_like(lls), log_grid, np.array([3, 3, 3, 3, 3, 0]),
+                         seed=2)
+    pit, left_out = mock_pit(log_grid, [one], [1.0])
+    assert left_out == 2 and pit.size == 4 and np.isfinite(pit).all()
+    pit, left_out = mock_pit(log_grid, [one, other], [1.0, 1.0])
+    assert left_out == 3 and pit.size == 3
 
 
 def test_widened_gaussian_posterior_holds_on_fresh_universes():
@@ -83,7 +135,7 @@ def test_widened_gaussian_posterior_holds_on_fresh_universes():
     log_grid = np.linspace(-3, -0.5, 401)
     s, k = 0.08, 1.8
     cal = _gaussian_calibration(log_grid, 2000, k, s, rng)
-    pit = mock_pit(log_grid, [cal], [1.0])
+    pit, _ = mock_pit(log_grid, [cal], [1.0])
     covered = {"raw": [], "calibrated": []}
     for t in rng.uniform(-2.6, -0.9, 1500):
         ll = -0.5 * ((log_grid - (t + k * s * rng.standard_normal())) / s) ** 2
@@ -164,15 +216,20 @@ def test_calibrated_posterior_matches_the_plain_reference(setup):
     log_grid = np.asarray(post["log10_sigma_sub"])
     np.testing.assert_allclose(post["cdf_uncalibrated"], raw["cdf"])
     np.testing.assert_allclose(post["log_likelihood"], raw["log_likelihood"])
-    ref = _reference_cdf(log_grid, np.asarray(raw["cdf"]), cal.log10_truth, cal.log_likelihood)
+    used = cal.n_tested > 0
+    ref, median = _reference(log_grid, np.asarray(raw["cdf"]), cal.log10_truth[used],
+                             cal.log_likelihood[used])
     np.testing.assert_allclose(post["cdf"], ref, atol=1e-12)
     np.testing.assert_allclose(post["posterior"], np.gradient(ref, log_grid), atol=1e-12)
     m = post.meta["inference"]
     assert m["calibrated"] and not raw.meta["inference"]["calibrated"]
-    assert m["n_mocks"] == 50
+    assert m["n_mocks"] == used.sum() and m["n_mocks_left_out"] == (~used).sum()
     assert 0 <= m["mock_coverage_uncalibrated"]["68"] <= m["mock_coverage_uncalibrated"]["95"]
-    med = 10 ** np.interp(0.5, ref, log_grid)
-    assert m["median"].to_value(KPC2) == pytest.approx(med)
+    assert np.log10(m["median"].to_value(KPC2)) == pytest.approx(median)
+    for key, (lo, hi) in (("interval_68", (0.16, 0.84)), ("interval_95", (0.025, 0.975))):
+        expected = [_reference(log_grid, np.asarray(raw["cdf"]), cal.log10_truth[used],
+                               cal.log_likelihood[used], level)[1] for level in (lo, hi)]
+        np.testing.assert_allclose(np.log10(m[key].to_value(KPC2)), expected)
 
 
 def test_systems_combine_mock_by_mock(setup):
@@ -186,8 +243,9 @@ def test_systems_combine_mock_by_mock(setup):
                                weights=[1.0, 0.5])
     raw = abundance_posterior([d1, d2], [sim, sim], weights=[1.0, 0.5])
     log_grid = np.asarray(post["log10_sigma_sub"])
-    ref = _reference_cdf(log_grid, np.asarray(raw["cdf"]), cal.log10_truth,
-                         cal.log_likelihood + 0.5 * other.log_likelihood)
+    used = (cal.n_tested > 0) & (other.n_tested > 0)
+    ref, _ = _reference(log_grid, np.asarray(raw["cdf"]), cal.log10_truth[used],
+                        (cal.log_likelihood + 0.5 * other.log_likelihood)[used])
     np.testing.assert_allclose(post["cdf"], ref, atol=1e-12)
 
 
@@ -205,15 +263,35 @@ def test_calibration_bad_input(setup):
         abundance_posterior(data, sim, calibrations=["x"])
     with pytest.raises(ValueError, match="one per constellation"):
         abundance_posterior(data, sim, calibrations=[cal, cal])
-    coarse = PosteriorCalibration(cal.log10_truth, cal.log_likelihood[:, :5],
-                                  cal.sigma_sub[:5], "geometric", cal.n_tested)
+    coarse = replace(cal, log_likelihood=cal.log_likelihood[:, :5], sigma_sub=cal.sigma_sub[:5])
     with pytest.raises(ValueError, match="another sigma_sub grid"):
         abundance_posterior(data, sim, calibrations=coarse)
-    joint = PosteriorCalibration(cal.log10_truth, cal.log_likelihood, cal.sigma_sub, "joint",
-                                 cal.n_tested)
     with pytest.raises(ValueError, match="read the 'joint' anomalies"):
-        abundance_posterior(data, sim, calibrations=joint)
-    fewer = PosteriorCalibration(cal.log10_truth[:40], cal.log_likelihood[:40], cal.sigma_sub,
-                                 "geometric", cal.n_tested[:40])
+        abundance_posterior(data, sim, calibrations=replace(cal, anomaly="joint"))
+    fewer = replace(cal, log10_truth=cal.log10_truth[:40], log_likelihood=cal.log_likelihood[:40],
+                    n_tested=cal.n_tested[:40], seed=99)
     with pytest.raises(ValueError, match="same n_mocks"):
         abundance_posterior([data, data], [sim, sim], calibrations=[cal, fewer])
+    with pytest.raises(ValueError, match="share a seed"):
+        abundance_posterior([data, data], [sim, sim], calibrations=[cal, cal])
+    # a calibration of another simulation: another population
+    wdm = SubhaloPopulation(pop.z_lens, pop.z_source, model="WDM", log_mhm=8)
+    sim_wdm = simulate_anomalies(pairs, system, wdm, sim.sigma_sub,
+                                 n_realisations=MIN_REALISATIONS, seed=2)
+    with pytest.raises(ValueError, match="was not made on simulation 1"):
+        abundance_posterior(data, sim_wdm, calibrations=cal)
+    # too few mocks with a tested pair
+    with pytest.raises(ValueError, match="mocks have a tested pair"):
+        abundance_posterior(data, sim, calibrations=replace(
+            cal, n_tested=np.where(np.arange(cal.n_tested.size) < 10, 0, cal.n_tested)))
+
+
+def test_default_seed_is_fresh_entropy(setup):
+    system, pairs, pop, sim, cal = setup
+    kw = {"sigma_pos": SIGMA_POS, "flux_rel_err": 0.02, "n_mocks": 50}
+    a = calibrate_posterior(pairs, system, sim, **kw)
+    b = calibrate_posterior(pairs, system, sim, **kw)
+    assert a.seed != b.seed
+    assert not np.array_equal(a.log_likelihood, b.log_likelihood)
+    again = calibrate_posterior(pairs, system, sim, seed=a.seed, **kw)
+    np.testing.assert_array_equal(again.log_likelihood, a.log_likelihood)

@@ -72,8 +72,10 @@ SHORT = {"smacs_analog": "smacs", "macs1149_lenstool": "macs1149"}
 _FAMILY = re.compile(r"^(\w+): (\d+) universes, (\d+) sources, ([\d.]+) mas, ([\d.]+) % flux"
                      r"(?:, (\w+) test)?; (?:line-of-sight haloes x ([\d.]+); )?"
                      r"forward model (\d+) x (\d+); "
-                     r"composite weight from (\d+) mocks; t_sim=(\d+)s t_weight=(\d+)s")
-_ROW = re.compile(r"^  w=([\d.]+)\s+(.*)$")
+                     r"composite weight from (\d+) mocks; (?:calibrated on (\d+) mocks; )?"
+                     r"t_sim=(\d+)s t_weight=(\d+)s(?: t_calibration=(\d+)s)?")
+_ROW = re.compile(r"^  (?:w=)?([\d.]+|calibrated)\s+(.*)$")
+_MOCKS = re.compile(r"^\s+the calibration's mocks \((\d+) used\): uncalibrated (.*)$")
 _BIN = re.compile(r"^\s+log10 truth in (\[[^)]*\)): n=\s*(\d+) (.*)$")
 _WDM = re.compile(r"^sigma_pos\s+([\d.]+) mas: weight ([\d.]+); .*N_95 = (\S+) constellations$")
 
@@ -96,8 +98,9 @@ def read_coverage(path):
     families : dict
         Per family: ``head`` (the settings and times of its line, and ``test``:
         ``"geometric"`` where the line names none, as before ``--test``) and
-        ``rows``, one per weight (``w`` and the line's statistics, ``bins`` by
-        the truth's position in the prior).
+        ``rows``, one per posterior (``w``: the weight, or ``"calibrated"``;
+        the line's statistics, ``bins`` by the truth's position in the prior,
+        and for the calibrated one ``mocks``, its mocks' uncalibrated coverage).
     """
     lines = Path(path).read_text().splitlines()
     settings = ast.literal_eval(lines[0].lstrip("# "))
@@ -105,7 +108,7 @@ def read_coverage(path):
     for line in lines[1:]:
         if m := _FAMILY.match(line):
             names = ("universes", "sources", "mas", "flux", "test", "los", "n_real", "n_grid",
-                     "mocks", "t_sim", "t_weight")
+                     "mocks", "calibration_mocks", "t_sim", "t_weight", "t_calibration")
             head = dict(zip(names, m.groups()[1:], strict=True))
             head["test"] = head["test"] or "geometric"
             head["los"] = head["los"] or "0"
@@ -113,6 +116,8 @@ def read_coverage(path):
             families[m.group(1)] = {"head": head, "rows": rows}
         elif m := _ROW.match(line):
             rows.append({"w": m.group(1), **_values(m.group(2)), "bins": {}})
+        elif m := _MOCKS.match(line):
+            rows[-1]["mocks"] = {"used": int(m.group(1)), **_values(m.group(2))}
         elif m := _BIN.match(line):
             rows[-1]["bins"][m.group(1)] = {"n": int(m.group(2)), **_values(m.group(3))}
         elif line.strip():
@@ -125,9 +130,17 @@ def read_coverage(path):
 def weighted(family):
     """The row of a family's run with its composite weight (the second row)."""
     rows = family["rows"]
-    if len(rows) != 2 or rows[0]["w"] != "1":
+    if len(rows) not in (2, 3) or rows[0]["w"] != "1":
         raise ValueError("a coverage run has a row with weight 1, then the weighted one")
     return rows[1]
+
+
+def calibrated(family):
+    """The row of a family's run with the calibrated posterior (the third row)."""
+    rows = family["rows"]
+    if len(rows) != 3 or rows[2]["w"] != "calibrated":
+        raise ValueError("the coverage run has no calibrated posterior (--n-calibration)")
+    return rows[2]
 
 
 def read_wdm(path):

@@ -110,8 +110,9 @@ class InferenceConfig:
         of half-mode masses.
     n_calibration : int
         Mocks of each system's calibration.
-    weight : str or float
-        ``"composite"`` or a weight in (0, 1] for every system.
+    weight : str, float or None
+        ``"composite"`` or a weight in (0, 1] for every system; None (not
+        given): :attr:`effective_weight` decides.
     n_mocks : int
         Mocks of each composite weight.
     anomaly : str
@@ -135,7 +136,7 @@ class InferenceConfig:
     seed: int = _d("seed")
     calibrate: bool = _d("calibrate")
     n_calibration: int = _d("n_calibration")
-    weight: str | float = 1.0
+    weight: str | float | None = _d("weight")
     n_mocks: int = _d("n_mocks")
     anomaly: str = _d("anomaly")
     los_normalization: float = _d("los_normalization")
@@ -146,6 +147,12 @@ class InferenceConfig:
         """Whether the run is the joint posterior on ``sigma_sub`` and the half-mode mass
         (``log_mhm`` is a grid)."""
         return isinstance(self.log_mhm, tuple)
+
+    @property
+    def effective_weight(self):
+        """The weight every system gets: ``weight``, else 1 with the calibration and
+        ``"composite"`` without it."""
+        return _effective_weight({"weight": self.weight, "calibrate": self.calibrate})
 
     @property
     def grid(self):
@@ -243,9 +250,9 @@ class _InferenceValidator(_Validator):
         self.population(out)
         out["sigma_sub"] = self.bounds(table.get("sigma_sub", _ABSENT))
         out["calibrate"] = self.calibrate(table, out["log_mhm"])
-        out["weight"] = self.weight(table.get("weight", _ABSENT), out["calibrate"])
+        out["weight"] = self.weight(table.get("weight", _ABSENT))
         n = out["n_sigma_sub"]
-        if out["weight"] == "composite" and n is not _BAD and n < 5:
+        if _effective_weight(out) == "composite" and n is not _BAD and n < 5:
             self.add('[inference] n_sigma_sub: weight = "composite" needs at least 5 '
                      f"abundances (the slope and curvature of the log-likelihood), got {n}")
         return out
@@ -331,9 +338,9 @@ class _InferenceValidator(_Validator):
             return _BAD
         return value
 
-    def weight(self, value, calibrate=False):
+    def weight(self, value):
         if value is _ABSENT:
-            return 1.0 if calibrate is True else "composite"
+            return None
         if isinstance(value, str):
             if value != "composite":
                 self.add(f'[inference] weight: expected "composite" or a number in (0, 1], '
@@ -518,11 +525,19 @@ class _InferenceValidator(_Validator):
         return config
 
 
+def _effective_weight(settings):
+    """The weight of the settings: the configured one, else 1 with the calibration and
+    "composite" without it."""
+    if settings["weight"] is not None:
+        return settings["weight"]
+    return 1.0 if settings["calibrate"] is True else "composite"
+
+
 def _mocks(settings):
     """What of the settings makes mocks of each system (None: nothing)."""
     if not settings:
         return None
-    if settings["weight"] == "composite":
+    if _effective_weight(settings) == "composite":
         return 'weight = "composite"'
     if settings["calibrate"] is True:
         return "calibrate = true"

@@ -9,7 +9,11 @@ from astropy import units as u
 from ..exceptions import EstimatorWarning
 from ._forward import AnomalySimulation
 
-__all__ = ["PosteriorCalibration", "calibrate_posterior"]
+__all__ = ["PosteriorCalibration", "calibrate_posterior", "MIN_CALIBRATION_MOCKS"]
+
+#: The fewest mocks a calibration is made of, and used with: the binomial error
+#: of a 68 % interval's coverage is then 6.6 points.
+MIN_CALIBRATION_MOCKS = 50
 
 
 @dataclass(frozen=True, eq=False)
@@ -17,9 +21,10 @@ class PosteriorCalibration:
     """The mock universes that calibrate one constellation's abundance posterior.
 
     Made by :func:`calibrate_posterior`; passed to
-    :func:`abundance_posterior` (``calibrations=``).
+    :func:`abundance_posterior` (``calibrations=``). Every parameter is also
+    an attribute.
 
-    Attributes
+    Parameters
     ----------
     log10_truth : ndarray (M,)
         Each mock's true ``log10 sigma_sub`` (kpc^-2): the midpoints of ``M``
@@ -29,13 +34,19 @@ class PosteriorCalibration:
         together.
     log_likelihood : ndarray (M, S)
         Each mock's log-likelihood on the simulation's grid (zero where the
-        mock has no tested pair: its posterior is the prior).
+        mock has no tested pair).
     sigma_sub : `~astropy.units.Quantity`
         The grid (kpc^-2).
     anomaly : str
         The anomalies the mocks' likelihoods read.
     n_tested : ndarray (M,)
-        Each mock's number of tested pairs.
+        Each mock's number of tested pairs; a mock without one is left out of
+        the calibration (the data always have one).
+    simulation_key : tuple
+        What identifies the simulation the mocks were scored on: its
+        population, pair ids and disc radii.
+    seed : int
+        The entropy of the mocks' random numbers.
     """
 
     log10_truth: np.ndarray
@@ -43,10 +54,18 @@ class PosteriorCalibration:
     sigma_sub: u.Quantity
     anomaly: str
     n_tested: np.ndarray
+    simulation_key: tuple
+    seed: int
 
     def __repr__(self):
         return (f"<PosteriorCalibration: {self.log10_truth.size} mocks on "
                 f"{self.sigma_sub.size} abundances, anomaly={self.anomaly!r}>")
+
+
+def simulation_key(simulation):
+    """The population, pair ids and disc radii of an `AnomalySimulation`."""
+    return (repr(simulation.population), tuple(int(p) for p in simulation.pair_id),
+            tuple(float(r) for r in np.ravel(simulation.radius)))
 
 
 def stratified_truths(log_grid, n):
@@ -89,8 +108,8 @@ def mock_check_kwargs(anomaly, check_kwargs):
             "test": "geometric" if anomaly == "geometric" else check_kwargs.get("test", "joint")}
 
 
-def calibrate_posterior(pairs, lens, simulation, *, sigma_pos, flux_rel_err, n_mocks=300, seed=0,
-                        anomaly="geometric", **check_kwargs):
+def calibrate_posterior(pairs, lens, simulation, *, sigma_pos, flux_rel_err, n_mocks=300,
+                        seed=None, anomaly="geometric", **check_kwargs):
     r"""Mock universes that calibrate a constellation's abundance posterior.
 
     The likelihood of :func:`abundance_posterior` multiplies the pairs'
@@ -109,7 +128,8 @@ def calibrate_posterior(pairs, lens, simulation, *, sigma_pos, flux_rel_err, n_m
     :math:`G` the distribution of the mocks' :math:`u` (a quantile
     recalibration): every quantile of the result then holds the truth as
     often as it says, averaged over the prior, to within the binomial
-    error of ``n_mocks`` (2.7 points at 68 % with 300 mocks).
+    error of ``n_mocks`` (2.7 points at 68 % with 300 mocks). Mocks without
+    a tested pair are left out (the data always have one).
 
     Parameters
     ----------
@@ -130,7 +150,10 @@ def calibrate_posterior(pairs, lens, simulation, *, sigma_pos, flux_rel_err, n_m
         Mock universes, at least 50. Default 300. Systems combined into one
         posterior need the same number (and grid): their mocks share truths.
     seed : int, optional
-        Seed of the realisations and the noise.
+        Seed of the realisations and the noise. Systems combined into one
+        posterior need different seeds, or their mocks would share random
+        numbers; the default, None, draws fresh entropy (kept in the
+        result's ``seed``).
     anomaly : {"geometric", "joint"}
         The anomalies the posterior will read, as for
         :func:`abundance_posterior` (default ``"geometric"``).
@@ -155,14 +178,15 @@ def calibrate_posterior(pairs, lens, simulation, *, sigma_pos, flux_rel_err, n_m
     if not isinstance(simulation, AnomalySimulation):
         raise TypeError(f"simulation must be an AnomalySimulation, got "
                         f"{type(simulation).__name__}")
-    n_mocks = as_int(n_mocks, "n_mocks", minimum=50)
+    n_mocks = as_int(n_mocks, "n_mocks", minimum=MIN_CALIBRATION_MOCKS)
     check_kwargs = mock_check_kwargs(anomaly, check_kwargs)
     grid = simulation.sigma_sub.to_value(u.kpc**-2)
     if grid.size < 2:
         raise ValueError("the simulation's grid has one abundance: there is no posterior to "
                          "calibrate")
     truths = stratified_truths(np.log10(grid), n_mocks)
-    rng = np.random.default_rng(seed)
+    entropy = int(np.random.SeedSequence(seed).entropy)
+    rng = np.random.default_rng(entropy)
     lls = np.zeros((n_mocks, grid.size))
     n_tested = np.zeros(n_mocks, dtype=int)
     for j, t in enumerate(truths):
@@ -173,59 +197,112 @@ def calibrate_posterior(pairs, lens, simulation, *, sigma_pos, flux_rel_err, n_m
             lls[j] = ll
             n_tested[j] = int(np.asarray(result["tested"], dtype=bool).sum())
     return PosteriorCalibration(truths, lls, simulation.sigma_sub.to(u.kpc**-2), anomaly,
-                                n_tested)
+                                n_tested, simulation_key(simulation), entropy)
 
 
-def check_calibrations(calibrations, n_tables, grid, anomaly):
-    """The calibrations as a list, one per table, on the grid and anomaly of the
-    posterior, with one set of truths."""
+def check_calibrations(calibrations, simulations, anomaly):
+    """The calibrations as a list, one per simulation, made on that simulation (its
+    grid, population, pairs and radii) for ``anomaly``, with one set of truths and
+    distinct seeds."""
     if isinstance(calibrations, PosteriorCalibration):
         calibrations = [calibrations]
     calibrations = list(calibrations)
     if not all(isinstance(c, PosteriorCalibration) for c in calibrations):
         raise TypeError("calibrations must be PosteriorCalibration objects "
                         "(calibrate_posterior)")
-    if len(calibrations) != n_tables:
+    if len(calibrations) != len(simulations):
         raise ValueError(f"calibrations must be one per constellation: {len(calibrations)} for "
-                         f"{n_tables}")
-    for c in calibrations:
+                         f"{len(simulations)}")
+    grid = simulations[0].sigma_sub.to_value(u.kpc**-2)
+    for k, (c, sim) in enumerate(zip(calibrations, simulations, strict=True)):
         if (c.sigma_sub.size != grid.size
                 or not np.allclose(c.sigma_sub.to_value(u.kpc**-2), grid, rtol=1e-12)):
             raise ValueError("a calibration was made on another sigma_sub grid than the "
                              "simulations'")
+        if c.simulation_key != simulation_key(sim):
+            raise ValueError(f"calibration {k + 1} was not made on simulation {k + 1} (another "
+                             "population, pairs or radius): give each constellation the "
+                             "calibration of its own simulation")
         if c.anomaly != anomaly:
             raise ValueError(f"a calibration's mocks read the {c.anomaly!r} anomalies, the "
                              f"posterior the {anomaly!r} ones")
         if c.log10_truth.size != calibrations[0].log10_truth.size:
             raise ValueError("the calibrations of combined systems need the same n_mocks: "
                              "their mocks share truths")
+    seeds = [c.seed for c in calibrations]
+    if len(set(seeds)) != len(seeds):
+        raise ValueError("calibrations of combined systems share a seed, so their mocks share "
+                         "random numbers: calibrate each system with its own seed")
     return calibrations
 
 
-def mock_pit(log_grid, calibrations, weights):
-    """Each joint mock's probability integral transform: its truth's place in the
-    posterior of the systems' weighted, summed log-likelihoods."""
-    from ._posterior import _marginal
+def _cdf_and_survival(log_grid, ll):
+    """A posterior's CDF and survival function on the grid (trapezoids), each summed
+    from its own end so that neither tail rounds to 0 or 1 before it must."""
+    p = np.exp(ll - np.nanmax(ll))
+    p = np.where(np.isfinite(p), p, 0.0)
+    cells = 0.5 * (p[1:] + p[:-1]) * np.diff(log_grid)
+    total = cells.sum()
+    cdf = np.concatenate([[0.0], np.cumsum(cells)]) / total
+    sf = np.concatenate([np.cumsum(cells[::-1])[::-1], [0.0]]) / total
+    return cdf, sf
 
+
+def mock_pit(log_grid, calibrations, weights):
+    """Each joint mock's probability integral transform (its truth's place in the
+    posterior of the systems' weighted, summed log-likelihoods) over the mocks with a
+    tested pair in every system and a likelihood somewhere on the grid, and the number
+    of mocks left out."""
     ll = sum(w * c.log_likelihood for w, c in zip(weights, calibrations, strict=True))
+    tested = np.all([c.n_tested > 0 for c in calibrations], axis=0)
+    usable = tested & np.isfinite(ll).any(axis=1)
     truths = calibrations[0].log10_truth
-    pit = np.empty(truths.size)
-    for j in range(truths.size):
-        p = np.exp(ll[j] - np.max(ll[j]))
-        _, cdf = _marginal(log_grid, np.where(np.isfinite(p), p, 0.0))
-        pit[j] = np.interp(truths[j], log_grid, cdf)
-    return pit
+    pit = []
+    for j in np.flatnonzero(usable):
+        cdf, sf = _cdf_and_survival(log_grid, ll[j])
+        lower = np.interp(truths[j], log_grid, cdf)
+        # the upper half from the survival function: 1 - tiny does not round to 1
+        pit.append(lower if lower <= 0.5 else 1.0 - np.interp(truths[j], log_grid, sf))
+    return np.array(pit), int((~usable).sum())
+
+
+class Recalibration:
+    """The distribution ``G`` of the mocks' PIT values and its inverse.
+
+    A PIT of exactly 0 or 1 (the truth beyond all of a mock's posterior mass)
+    is an atom at that end: ``G(0)`` is the fraction of PITs at 0, and ``G``
+    reaches ``1 - b`` just below 1 with ``b`` the fraction at 1. Between the
+    ends ``G`` is linear through each distinct PIT at the mean of its
+    mid-ranks ``(i + 1/2) / M``.
+    """
+
+    def __init__(self, pit):
+        pit = np.sort(np.asarray(pit, dtype=float))
+        m = pit.size
+        self.low = float(np.mean(pit <= 0.0))
+        self.high = float(np.mean(pit >= 1.0))
+        inner = (pit > 0.0) & (pit < 1.0)
+        values, inverse = np.unique(pit[inner], return_inverse=True)
+        ranks = (np.flatnonzero(inner) + 0.5) / m
+        levels = np.bincount(inverse, weights=ranks) / np.maximum(np.bincount(inverse), 1)
+        self.x = np.concatenate([[0.0], values, [1.0]])
+        self.y = np.concatenate([[self.low], levels, [1.0 - self.high]])
+
+    def __call__(self, cdf):
+        """``G(cdf)``; 1 where ``cdf`` is 1."""
+        cdf = np.asarray(cdf, dtype=float)
+        return np.where(cdf >= 1.0, 1.0, np.interp(cdf, self.x, self.y))
+
+    def inverse(self, q):
+        """The uncalibrated level whose ``G`` is ``q``: 0 below the lower atom, 1 above
+        the upper one."""
+        if q <= self.low:
+            return 0.0
+        if q >= 1.0 - self.high:
+            return 1.0
+        return float(np.interp(q, self.y, self.x))
 
 
 def recalibrate(cdf, pit):
-    """``G(cdf)``, with ``G`` the distribution of the mocks' PIT values: the
-    piecewise-linear interpolation through ``(0, 0)``, each distinct sorted
-    value at its mean mid-rank ``(i + 1/2) / M``, and ``(1, 1)``."""
-    values, inverse = np.unique(pit, return_inverse=True)
-    ranks = (np.argsort(np.argsort(pit, kind="stable"), kind="stable") + 0.5) / pit.size
-    level = np.bincount(inverse, weights=ranks) / np.bincount(inverse)
-    x = np.concatenate([[0.0], values, [1.0]])
-    y = np.concatenate([[0.0], level, [1.0]])
-    # a PIT of exactly 0 or 1 repeats an end point: keep the last level of a repeat
-    keep = np.concatenate([x[1:] > x[:-1], [True]])
-    return np.interp(cdf, x[keep], y[keep])
+    """``G(cdf)`` for the mocks' PIT values ``pit`` (:class:`Recalibration`)."""
+    return Recalibration(pit)(cdf)

@@ -6,7 +6,7 @@ from astropy.table import QTable, Table
 from scipy import special, stats
 
 from ..duality import LOG_SNR_DEFINITIONS
-from ._calibration import check_calibrations, mock_pit, recalibrate
+from ._calibration import MIN_CALIBRATION_MOCKS, Recalibration, check_calibrations, mock_pit
 from ._forward import AnomalySimulation
 
 __all__ = ["pair_anomalies", "abundance_posterior", "half_mode_posterior", "composite_weight",
@@ -242,9 +242,14 @@ def abundance_posterior(tables, simulations, *, weights=None, anomaly="geometric
         ``cdf_uncalibrated``. ``meta["inference"]`` holds ``median``,
         ``interval_68``, ``interval_95`` and ``upper_95`` (kpc^-2),
         ``n_pairs``, ``n_systems``, ``prior``, the population and
-        ``calibrated``; with calibrations ``n_mocks`` and
-        ``mock_coverage_uncalibrated``, the fractions of the mocks whose
-        uncalibrated 68 % and 95 % intervals held their truths.
+        ``calibrated``; with calibrations ``n_mocks`` (those used: with a
+        tested pair in every system), ``n_mocks_left_out``,
+        ``mass_at_grid_ends`` (the fractions of the mocks whose truth lay
+        beyond all their posterior's mass, below and above: the calibrated
+        posterior's atoms at the grid's ends, in ``cdf`` but not in
+        ``posterior``) and ``mock_coverage_uncalibrated``, the fractions of
+        the mocks whose uncalibrated 68 % and 95 % intervals held their
+        truths.
 
     Raises
     ------
@@ -268,23 +273,39 @@ def abundance_posterior(tables, simulations, *, weights=None, anomaly="geometric
     out["log10_sigma_sub"] = log_grid
     out["log_likelihood"] = logl
     calibration = {"calibrated": calibrations is not None}
+    level = float  # the uncalibrated CDF level of a quantile
     if calibrations is not None:
-        calibrations = check_calibrations(calibrations, len(tables), grid.to_value(u.kpc**-2),
-                                          anomaly)
-        pit = mock_pit(log_grid, calibrations, weights)
+        calibrations = check_calibrations(calibrations, simulations, anomaly)
+        pit, n_left = mock_pit(log_grid, calibrations, weights)
+        if pit.size < MIN_CALIBRATION_MOCKS:
+            raise ValueError(f"only {pit.size} of the calibration's "
+                             f"{calibrations[0].log10_truth.size} mocks have a tested pair in "
+                             "every system and a likelihood on the grid; at least "
+                             f"{MIN_CALIBRATION_MOCKS} are needed: calibrate with more "
+                             "mocks (n_mocks; [inference] n_calibration of lensdual infer)")
+        g = Recalibration(pit)
+        level = g.inverse
         out["cdf_uncalibrated"] = cdf
-        cdf = recalibrate(cdf, pit)
+        cdf = g(cdf)
         dens = np.gradient(cdf, log_grid)
         calibration.update({
             "n_mocks": int(pit.size),
+            "n_mocks_left_out": n_left,
+            "mass_at_grid_ends": [g.low, g.high],
             "mock_coverage_uncalibrated": {
                 k: float(np.mean((pit >= lo) & (pit <= hi))) for k, (lo, hi) in INTERVALS.items()},
         })
     out["posterior"] = dens
     out["cdf"] = cdf
 
+    uncalibrated = np.asarray(out["cdf_uncalibrated"] if calibrations is not None else cdf)
+
     def q(p):
-        return 10 ** _quantile(log_grid, cdf, p) * u.kpc**-2
+        # through the uncalibrated CDF, linear between the nodes as the mocks' PITs
+        a = level(p)
+        x = log_grid[0] if a <= 0 else log_grid[-1] if a >= 1 else _quantile(log_grid,
+                                                                              uncalibrated, a)
+        return 10**x * u.kpc**-2
 
     out.meta["inference"] = {
         "median": q(0.5),
