@@ -244,7 +244,7 @@ def run_inference(config, *, client=None, progress=None):
                 calibration = calibrate_posterior(
                     clean, lens, sim, sigma_pos=sigma_pos, flux_rel_err=flux_rel_err,
                     n_mocks=config.n_calibration, seed=int(calibration_seeds[i]),
-                    anomaly=config.anomaly, **_check_kwargs(tab))
+                    anomaly=config.anomaly, client=client, **_check_kwargs(tab))
         n_tested = len(pair_anomalies(tab, config.anomaly))
         n_flagged = _n_flagged(tab, config.anomaly)
         with warnings.catch_warnings():

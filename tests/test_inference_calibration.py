@@ -286,6 +286,20 @@ def test_calibration_bad_input(setup):
             cal, n_tested=np.where(np.arange(cal.n_tested.size) < 10, 0, cal.n_tested)))
 
 
+def test_threaded_calibration_is_serial(setup):
+    from concurrent.futures import ThreadPoolExecutor
+
+    system, pairs, pop, sim, cal = setup
+    with ThreadPoolExecutor(2) as pool:
+        threaded = calibrate_posterior(pairs, system, sim, sigma_pos=SIGMA_POS,
+                                       flux_rel_err=0.02, n_mocks=50, seed=4, client=pool)
+    np.testing.assert_array_equal(threaded.log_likelihood, cal.log_likelihood)
+    np.testing.assert_array_equal(threaded.n_tested, cal.n_tested)
+    with pytest.raises(TypeError, match="client must be"):
+        calibrate_posterior(pairs, system, sim, sigma_pos=SIGMA_POS, flux_rel_err=0.02,
+                            n_mocks=50, client="pool")
+
+
 def test_default_seed_is_fresh_entropy(setup):
     system, pairs, pop, sim, cal = setup
     kw = {"sigma_pos": SIGMA_POS, "flux_rel_err": 0.02, "n_mocks": 50}

@@ -11,6 +11,10 @@ prose quotes from them, so the prose cannot drift from the listings:
   --n-universes 100``;
 - ``coverage_heldout_cusp.txt``: the same with ``--families cluster_cusp
   --n-universes 50 --n-real 200 --n-grid 10 --n-mocks 30``;
+- ``coverage_heldout_new.txt`` and ``coverage_heldout_group.txt``: the families
+  held out of the calibration, run once after it was built, ``--families
+  macs1149_s5_lenstool --n-universes 150`` and ``--families group_fold
+  --log-m-host 14 --n-universes 150``;
 - ``coverage_oracle.txt``: the same with ``--families smacs_analog
   --n-universes 150 --oracle-noise`` (each measured anomaly replaced by the
   truth plus independent noise of its reported error);
@@ -68,6 +72,12 @@ MID_BIN = "[-2, -1.5)"
 TOP_BIN = "[-1.5, -0.5)"
 #: The short names of the development families in the substitutions.
 SHORT = {"smacs_analog": "smacs", "macs1149_lenstool": "macs1149"}
+#: The families held out of the calibration, run once after it was built
+#: (``coverage_heldout_new.txt``, ``coverage_heldout_group.txt``), and the
+#: families held out of the composite weight, rerun with the calibration
+#: (``coverage_heldout.txt``, ``coverage_heldout_cusp.txt``), by short name.
+CALIBRATION_HELD_OUT = {"s5": "macs1149_s5_lenstool", "group": "group_fold",
+                        "a2744": "a2744_s3_lenstool", "cusp": "cluster_cusp"}
 
 _FAMILY = re.compile(r"^(\w+): (\d+) universes, (\d+) sources, ([\d.]+) mas, ([\d.]+) % flux"
                      r"(?:, (\w+) test)?; (?:line-of-sight haloes x ([\d.]+); )?"
@@ -263,6 +273,51 @@ def los_numbers(dev, los, heldout, oracle):
     return sub
 
 
+def calibration_numbers(dev, held, los, los_heldout, joint):
+    """The calibrated posterior's coverage: on the development families
+    (``inf_cal_*``), the held-out ones (``held``: short name -> run; ``inf_ho_*``),
+    with line-of-sight haloes (``inf_los_cal_*``) and under the joint test
+    (``inf_joint_cal_*``)."""
+    heads = [dev[1][f]["head"] for f in DEVELOPMENT]
+    if heads[0]["calibration_mocks"] is None or any(
+            h["calibration_mocks"] != heads[0]["calibration_mocks"] for h in heads):
+        raise ValueError("the development runs have no calibration, or different ones")
+    sub = {"inf_cal_mocks": heads[0]["calibration_mocks"],
+           "inf_cov_t_cal": heads[0]["t_calibration"]}
+    for family in DEVELOPMENT:
+        name = SHORT[family]
+        cal, wc = calibrated(dev[1][family]), weighted(dev[1][family])
+        sub[f"inf_cal_cov68_{name}"] = f"{100 * cal['cov68']:.1f}"
+        sub[f"inf_cal_cov95_{name}"] = f"{100 * cal['cov95']:.1f}"
+        sub[f"inf_cal_width_{name}"] = f"{cal['width95']:.2f}"
+        sub[f"inf_cw_width_{name}"] = f"{wc['width95']:.2f}"
+        sub[f"inf_cal_mocks68_{name}"] = _pct(cal["mocks"]["cov68"])
+        sub[f"inf_cal_mocks95_{name}"] = _pct(cal["mocks"]["cov95"])
+        for run, prefix in ((los, "inf_los_cal"), (joint, "inf_joint_cal")):
+            row = calibrated(run[1][family])
+            sub[f"{prefix}_cov68_{name}"] = f"{100 * row['cov68']:.1f}"
+            sub[f"{prefix}_cov95_{name}"] = f"{100 * row['cov95']:.1f}"
+            sub[f"{prefix}_cov68_err_{name}"] = _pct(row["cov68_err"])
+    rows = [calibrated(dev[1][f]) for f in DEVELOPMENT]
+    sub["inf_cal_bias_all"] = _signed_range([r["bias_median"] for r in rows])
+    for short, run in held.items():
+        fam = run[1][CALIBRATION_HELD_OUT[short]]
+        w1, wc, cal = fam["rows"][0], weighted(fam), calibrated(fam)
+        sub[f"inf_ho_{short}_universes"] = fam["head"]["universes"]
+        sub[f"inf_ho_{short}_w"] = f"{float(wc['w']):g}"
+        for key in ("cov68", "cov95"):
+            sub[f"inf_ho_{short}_cal_{key}"] = _pct(cal[key])
+            sub[f"inf_ho_{short}_w1_{key}"] = _pct(w1[key])
+            sub[f"inf_ho_{short}_w_{key}"] = _pct(wc[key])
+        sub[f"inf_ho_{short}_cal_cov68_err"] = _pct(cal["cov68_err"])
+        sub[f"inf_ho_{short}_cal_bias"] = f"{cal['bias_median']:+.2f}"
+        sub[f"inf_ho_{short}_cal_width"] = f"{cal['width95']:.2f}"
+    row = calibrated(los_heldout[1][HELD_OUT])
+    sub["inf_los_a2744_cal_cov68"] = _pct(row["cov68"])
+    sub["inf_los_a2744_cal_cov95"] = _pct(row["cov95"])
+    return sub
+
+
 def los_speed_numbers(path):
     """The line-of-sight haloes' planes, counts, cost and anomalies (``los_speed.txt``)."""
     text = Path(path).read_text()
@@ -397,6 +452,15 @@ def compute(folder=OUT):
                        read_coverage(folder / "coverage_los.txt"),
                        read_coverage(folder / "coverage_los_heldout.txt"),
                        read_coverage(folder / "coverage_los_oracle.txt"))
+    sub |= calibration_numbers(
+        read_coverage(folder / "coverage.txt"),
+        {"s5": read_coverage(folder / "coverage_heldout_new.txt"),
+         "group": read_coverage(folder / "coverage_heldout_group.txt"),
+         "a2744": read_coverage(folder / "coverage_heldout.txt"),
+         "cusp": read_coverage(folder / "coverage_heldout_cusp.txt")},
+        read_coverage(folder / "coverage_los.txt"),
+        read_coverage(folder / "coverage_los_heldout.txt"),
+        read_coverage(folder / "coverage_joint.txt"))
     sub |= los_speed_numbers(folder / "los_speed.txt")
     sub |= wdm_numbers(*read_wdm(folder / "wdm.txt"))
     sub |= posterior_numbers(folder / "posterior.txt")

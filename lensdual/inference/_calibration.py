@@ -6,6 +6,7 @@ from dataclasses import dataclass
 import numpy as np
 from astropy import units as u
 
+from .._parallel import check_client, run_tasks
 from ..exceptions import EstimatorWarning
 from ._forward import AnomalySimulation
 
@@ -73,28 +74,43 @@ def stratified_truths(log_grid, n):
     return log_grid[0] + (np.arange(n) + 0.5) / n * (log_grid[-1] - log_grid[0])
 
 
-def mock_log_likelihood(pairs, lens, simulation, truth, rng, *, sigma_pos, flux_rel_err,
+def mock_log_likelihood(pairs, lens, simulation, truth, seeds, *, sigma_pos, flux_rel_err,
                         anomaly, check_kwargs):
     """One mock universe at abundance ``truth`` (kpc^-2): its log-likelihood on the
-    simulation's grid and its duality table (three seeds drawn from ``rng``: the
-    population's realisation, the noise and the test's)."""
+    simulation's grid (None without a tested pair) and its duality table; ``seeds``
+    are those of the population's realisation, the noise and the test."""
     from .. import check_duality
     from ..simulation import noisy_constellation
     from ._forward import _apply_population
     from ._posterior import _system_log_likelihood
 
+    seed_population, seed_noise, seed_test = (int(x) for x in seeds)
     mock = _apply_population(pairs, lens, simulation.population, truth, simulation.radius,
-                             int(rng.integers(2**31)))
+                             seed_population)
     noisy = noisy_constellation(mock, sigma_pos=sigma_pos, flux_rel_err=flux_rel_err,
-                                seed=int(rng.integers(2**31)))
+                                seed=seed_noise)
     with warnings.catch_warnings():
         # a mock's untestable pairs are part of what the mocks measure
         warnings.simplefilter("ignore", EstimatorWarning)
-        result = check_duality(noisy, sigma_pos=sigma_pos, seed=int(rng.integers(2**31)),
-                               **check_kwargs)
+        result = check_duality(noisy, sigma_pos=sigma_pos, seed=seed_test, **check_kwargs)
     if not np.asarray(result["tested"], dtype=bool).any():
         return None, result
     return _system_log_likelihood(result, simulation, anomaly)[0], result
+
+
+def draw_mock_seeds(rng):
+    """The three seeds of one mock (population, noise, test), drawn in that order."""
+    return tuple(int(rng.integers(2**31)) for _ in range(3))
+
+
+def _calibration_task(task):
+    """One calibration mock: its log-likelihood (zeros without a tested pair) and its
+    number of tested pairs."""
+    pairs, lens, simulation, truth, seeds, kwargs = task
+    ll, result = mock_log_likelihood(pairs, lens, simulation, truth, seeds, **kwargs)
+    if ll is None:
+        return np.zeros(simulation.sigma_sub.size), 0
+    return ll, int(np.asarray(result["tested"], dtype=bool).sum())
 
 
 def mock_check_kwargs(anomaly, check_kwargs):
@@ -109,7 +125,7 @@ def mock_check_kwargs(anomaly, check_kwargs):
 
 
 def calibrate_posterior(pairs, lens, simulation, *, sigma_pos, flux_rel_err, n_mocks=300,
-                        seed=None, anomaly="geometric", **check_kwargs):
+                        seed=None, anomaly="geometric", client=None, **check_kwargs):
     r"""Mock universes that calibrate a constellation's abundance posterior.
 
     The likelihood of :func:`abundance_posterior` multiplies the pairs'
@@ -157,6 +173,9 @@ def calibrate_posterior(pairs, lens, simulation, *, sigma_pos, flux_rel_err, n_m
     anomaly : {"geometric", "joint"}
         The anomalies the posterior will read, as for
         :func:`abundance_posterior` (default ``"geometric"``).
+    client : dask.distributed.Client or concurrent.futures.Executor, optional
+        Runs the mocks as parallel tasks (a thread pool pays: the kernels
+        release the GIL); the result is identical to a serial run.
     **check_kwargs
         Passed to :func:`~lensdual.check_duality`, as for
         :func:`composite_weight`.
@@ -187,15 +206,12 @@ def calibrate_posterior(pairs, lens, simulation, *, sigma_pos, flux_rel_err, n_m
     truths = stratified_truths(np.log10(grid), n_mocks)
     entropy = int(np.random.SeedSequence(seed).entropy)
     rng = np.random.default_rng(entropy)
-    lls = np.zeros((n_mocks, grid.size))
-    n_tested = np.zeros(n_mocks, dtype=int)
-    for j, t in enumerate(truths):
-        ll, result = mock_log_likelihood(pairs, lens, simulation, 10**t, rng, sigma_pos=sigma_pos,
-                                         flux_rel_err=flux_rel_err, anomaly=anomaly,
-                                         check_kwargs=check_kwargs)
-        if ll is not None:
-            lls[j] = ll
-            n_tested[j] = int(np.asarray(result["tested"], dtype=bool).sum())
+    kwargs = {"sigma_pos": sigma_pos, "flux_rel_err": flux_rel_err, "anomaly": anomaly,
+              "check_kwargs": check_kwargs}
+    tasks = [(pairs, lens, simulation, 10**t, draw_mock_seeds(rng), kwargs) for t in truths]
+    results = run_tasks(_calibration_task, tasks, check_client(client))
+    lls = np.array([r[0] for r in results])
+    n_tested = np.array([r[1] for r in results], dtype=int)
     return PosteriorCalibration(truths, lls, simulation.sigma_sub.to(u.kpc**-2), anomaly,
                                 n_tested, simulation_key(simulation), entropy)
 

@@ -500,9 +500,15 @@ def composite_weight(pairs, lens, simulation, *, sigma_pos, flux_rel_err, n_mock
     weight : float
         :math:`\min(1, H / J)`, over the mocks with a tested pair (1 when
         fewer than two have one).
+
+    See Also
+    --------
+    calibrate_posterior : the abundance posterior recalibrated on mocks, which
+        holds its intervals where one weight for the whole prior does not
+        (the inference page's coverage runs).
     """
     from .._validation import as_int
-    from ._calibration import mock_check_kwargs, mock_log_likelihood
+    from ._calibration import draw_mock_seeds, mock_check_kwargs, mock_log_likelihood
 
     if not isinstance(simulation, AnomalySimulation):
         raise TypeError(f"simulation must be an AnomalySimulation, got "
@@ -518,7 +524,7 @@ def composite_weight(pairs, lens, simulation, *, sigma_pos, flux_rel_err, n_mock
     lls, truths = [], []
     for _ in range(n_mocks):
         truth = 10 ** rng.uniform(log_grid[0], log_grid[-1])
-        ll, _result = mock_log_likelihood(pairs, lens, simulation, truth, rng,
+        ll, _result = mock_log_likelihood(pairs, lens, simulation, truth, draw_mock_seeds(rng),
                                           sigma_pos=sigma_pos, flux_rel_err=flux_rel_err,
                                           anomaly=anomaly, check_kwargs=check_kwargs)
         if ll is None:
