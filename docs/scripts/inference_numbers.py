@@ -6,15 +6,18 @@ prose quotes from them, so the prose cannot drift from the listings:
 
 - ``coverage.txt``: ``benchmarks/inference_coverage.py --n-universes 150
   --out docs/_static/inference/coverage.txt`` (the SMACS0723 analogue and
-  MACS J1149, the families the composite weight was chosen on);
+  MACS J1149, the families the composite weight and the calibration were
+  chosen on);
 - ``coverage_heldout.txt``: the same with ``--families a2744_s3_lenstool
   --n-universes 100``;
 - ``coverage_heldout_cusp.txt``: the same with ``--families cluster_cusp
   --n-universes 50 --n-real 200 --n-grid 10 --n-mocks 30``;
 - ``coverage_heldout_new.txt`` and ``coverage_heldout_group.txt``: the families
   held out of the calibration, run once after it was built, ``--families
-  macs1149_s5_lenstool --n-universes 150`` and ``--families group_fold
-  --log-m-host 14 --n-universes 150``;
+  macs1149_s5_lenstool`` and ``--families group_fold --log-m-host 14``, both
+  with the cusp's settings (``--n-universes 100 --n-real 200 --n-grid 10
+  --n-mocks 30``), and
+  ``coverage_heldout_group_joint.txt`` the group's with ``--test joint``;
 - ``coverage_oracle.txt``: the same with ``--families smacs_analog
   --n-universes 150 --oracle-noise`` (each measured anomaly replaced by the
   truth plus independent noise of its reported error);
@@ -273,6 +276,18 @@ def los_numbers(dev, los, heldout, oracle):
     return sub
 
 
+def group_joint_numbers(path):
+    """The calibrated joint anomalies on the held-out group (``inf_joint_cal_group_*``)
+    and its geometric run's width."""
+    fam = read_coverage(path)[1][CALIBRATION_HELD_OUT["group"]]
+    if fam["head"]["test"] != "joint":
+        raise ValueError(f"{path}: not a run of the joint test")
+    row = calibrated(fam)
+    return {"inf_joint_cal_group_cov68": _pct(row["cov68"]),
+            "inf_joint_cal_group_cov95": _pct(row["cov95"]),
+            "inf_joint_cal_group_width": f"{row['width95']:.2f}"}
+
+
 def calibration_numbers(dev, held, los, los_heldout, joint):
     """The calibrated posterior's coverage: on the development families
     (``inf_cal_*``), the held-out ones (``held``: short name -> run; ``inf_ho_*``),
@@ -298,6 +313,7 @@ def calibration_numbers(dev, held, los, los_heldout, joint):
             sub[f"{prefix}_cov68_{name}"] = f"{100 * row['cov68']:.1f}"
             sub[f"{prefix}_cov95_{name}"] = f"{100 * row['cov95']:.1f}"
             sub[f"{prefix}_cov68_err_{name}"] = _pct(row["cov68_err"])
+            sub[f"{prefix}_width_{name}"] = f"{row['width95']:.2f}"
     rows = [calibrated(dev[1][f]) for f in DEVELOPMENT]
     sub["inf_cal_bias_all"] = _signed_range([r["bias_median"] for r in rows])
     for short, run in held.items():
@@ -312,6 +328,8 @@ def calibration_numbers(dev, held, los, los_heldout, joint):
         sub[f"inf_ho_{short}_cal_cov68_err"] = _pct(cal["cov68_err"])
         sub[f"inf_ho_{short}_cal_bias"] = f"{cal['bias_median']:+.2f}"
         sub[f"inf_ho_{short}_cal_width"] = f"{cal['width95']:.2f}"
+        sub[f"inf_ho_{short}_w_width"] = f"{wc['width95']:.2f}"
+        sub[f"inf_ho_{short}_mocks95"] = _pct(cal["mocks"]["cov95"])
     row = calibrated(los_heldout[1][HELD_OUT])
     sub["inf_los_a2744_cal_cov68"] = _pct(row["cov68"])
     sub["inf_los_a2744_cal_cov95"] = _pct(row["cov95"])
@@ -461,6 +479,7 @@ def compute(folder=OUT):
         read_coverage(folder / "coverage_los.txt"),
         read_coverage(folder / "coverage_los_heldout.txt"),
         read_coverage(folder / "coverage_joint.txt"))
+    sub |= group_joint_numbers(folder / "coverage_heldout_group_joint.txt")
     sub |= los_speed_numbers(folder / "los_speed.txt")
     sub |= wdm_numbers(*read_wdm(folder / "wdm.txt"))
     sub |= posterior_numbers(folder / "posterior.txt")
