@@ -149,19 +149,11 @@ def calibrate_posterior(pairs, lens, simulation, *, sigma_pos, flux_rel_err, n_m
 
     Parameters
     ----------
-    pairs : `~astropy.table.Table`
-        The constellation without measurement noise: positions in the lens's
-        frame and fluxes that obey duality in the smooth lens (e.g. the
-        observed positions with the fluxes of one arc scaled by the lens's
-        magnification ratios).
-    lens : `~lensdual.simulation.LensSystem` or `~lensdual.parametric.LenstoolModel`
-        The smooth lens of ``simulation``.
-    simulation : AnomalySimulation
-        :func:`simulate_anomalies` of ``pairs`` (its grid and population).
-    sigma_pos : `~astropy.units.Quantity`
-        Position noise per coordinate, as in the data.
-    flux_rel_err : float
-        Relative flux noise per image and band, as in the data.
+    pairs, lens, simulation, sigma_pos, flux_rel_err
+        As for :func:`composite_weight`: the constellation without measurement
+        noise, its smooth lens, its :func:`simulate_anomalies` result, and
+        the data's position noise per coordinate and relative flux noise per
+        image and band.
     n_mocks : int, optional
         Mock universes, at least 50. Default 300. Systems combined into one
         posterior need the same number (and grid): their mocks share truths.
