@@ -314,6 +314,8 @@ def calibration_numbers(dev, held, los, los_heldout, joint):
             sub[f"{prefix}_cov95_{name}"] = f"{100 * row['cov95']:.1f}"
             sub[f"{prefix}_cov68_err_{name}"] = _pct(row["cov68_err"])
             sub[f"{prefix}_width_{name}"] = f"{row['width95']:.2f}"
+            sub[f"{prefix}_mocks68_{name}"] = _pct(row["mocks"]["cov68"])
+            sub[f"{prefix}_w1_cov68_{name}"] = _pct(run[1][family]["rows"][0]["cov68"])
     rows = [calibrated(dev[1][f]) for f in DEVELOPMENT]
     sub["inf_cal_bias_all"] = _signed_range([r["bias_median"] for r in rows])
     for short, run in held.items():
@@ -332,6 +334,8 @@ def calibration_numbers(dev, held, los, los_heldout, joint):
         sub[f"inf_ho_{short}_mocks95"] = _pct(cal["mocks"]["cov95"])
     row = calibrated(los_heldout[1][HELD_OUT])
     sub["inf_los_a2744_cal_cov68"] = _pct(row["cov68"])
+    sub["inf_los_a2744_cal_mocks68"] = _pct(row["mocks"]["cov68"])
+    sub["inf_los_a2744_w1_cov68"] = _pct(los_heldout[1][HELD_OUT]["rows"][0]["cov68"])
     sub["inf_los_a2744_cal_cov95"] = _pct(row["cov95"])
     return sub
 
