@@ -297,8 +297,11 @@ def calibration_numbers(dev, held, los, los_heldout, joint):
     if heads[0]["calibration_mocks"] is None or any(
             h["calibration_mocks"] != heads[0]["calibration_mocks"] for h in heads):
         raise ValueError("the development runs have no calibration, or different ones")
-    sub = {"inf_cal_mocks": heads[0]["calibration_mocks"],
-           "inf_cov_t_cal": heads[0]["t_calibration"]}
+    n = int(heads[0]["calibration_mocks"])
+    sub = {"inf_cal_mocks": str(n), "inf_cov_t_cal": heads[0]["t_calibration"],
+           # the binomial error of a coverage measured on the calibration's mocks
+           "inf_cal_err68": f"{100 * (0.68 * 0.32 / n) ** 0.5:.1f}",
+           "inf_cal_err95": f"{100 * (0.95 * 0.05 / n) ** 0.5:.1f}"}
     for family in DEVELOPMENT:
         name = SHORT[family]
         cal, wc = calibrated(dev[1][family]), weighted(dev[1][family])
