@@ -578,9 +578,10 @@ def build_parser():
                     "'lensdual run'), each with its smooth lens (a Lenstool best.par, or a "
                     "lens family for mocks), into a posterior on pyHalo's sub-halo "
                     "abundance sigma_sub: the forward model of every pair's flux anomaly "
-                    "under a CDM or WDM population on a grid of abundances, each system's "
-                    "composite-likelihood weight, and the posterior under a log-uniform "
-                    "prior (see the docs page 'What the flags say about dark matter'); "
+                    "under a CDM or WDM population on a grid of abundances, the posterior "
+                    "under a log-uniform prior, calibrated on mock universes of each system "
+                    "(or with a composite-likelihood weight) (see the docs page 'What the "
+                    "flags say about dark matter'); "
                     "with WDM and log_mhm a list of half-mode masses, the joint posterior "
                     "on sigma_sub and the half-mode mass. The "
                     "file is checked before any work starts (exit code 2 and nothing "
@@ -595,8 +596,8 @@ def build_parser():
                        help="output directory (overrides [output] outdir of the file; "
                             "default lensdual-inference beside the file)")
     infer.add_argument("--threads", type=_int_range(1), default=1,
-                       help="threads of the forward model (the result does not depend on "
-                            "them)")
+                       help="threads of the forward model and the calibration's mocks (the "
+                            "result does not depend on them)")
     _add_output_options(infer)
     infer.set_defaults(func=_cmd_infer)
     return parser
