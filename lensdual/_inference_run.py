@@ -207,7 +207,7 @@ def run_inference(config, *, client=None, progress=None):
     masses = config.log_mhm if half_mode else (config.log_mhm,)
     tables, sims, weights, infos, calibrations = [], [], [], [], []
     seeds = np.random.SeedSequence(config.seed).generate_state(2 * len(config.systems))
-    calibrate = config.calibrate and not half_mode
+    calibrate = config.calibrates
     calibration_seeds = np.random.SeedSequence([config.seed, 1]).generate_state(
         len(config.systems))
     for i, spec in enumerate(config.systems):
@@ -228,9 +228,11 @@ def run_inference(config, *, client=None, progress=None):
         sigma_pos = spec.sigma_pos if spec.sigma_pos is not None else table_sigma_pos(tab)
         flux_rel_err = (spec.flux_rel_err if spec.flux_rel_err is not None
                         else table_flux_rel_err(tab))
+        # the constellation without noise that the mocks (weight, calibration) start from
+        clean = (clean_pairs(tab, lens, pops[0], flux_rel_err)
+                 if config.effective_weight == "composite" or calibrate else None)
         if config.effective_weight == "composite":
             with _step(progress, f"composite weight {spec.name}"):
-                clean = clean_pairs(tab, lens, pops[0], flux_rel_err)
                 weight = composite_weight(clean, lens, sim, sigma_pos=sigma_pos,
                                           flux_rel_err=flux_rel_err, n_mocks=config.n_mocks,
                                           seed=int(seeds[2 * i + 1]), anomaly=config.anomaly,
@@ -240,7 +242,6 @@ def run_inference(config, *, client=None, progress=None):
         calibration = None
         if calibrate:
             with _step(progress, f"calibration {spec.name}"):
-                clean = clean_pairs(tab, lens, pops[0], flux_rel_err)
                 calibration = calibrate_posterior(
                     clean, lens, sim, sigma_pos=sigma_pos, flux_rel_err=flux_rel_err,
                     n_mocks=config.n_calibration, seed=int(calibration_seeds[i]),

@@ -328,7 +328,7 @@ def _cmd_infer(args):
         steps.append(f"forward model {spec.name}")
         if config.effective_weight == "composite":
             steps.append(f"composite weight {spec.name}")
-        if config.calibrate and not config.half_mode:
+        if config.calibrates:
             steps.append(f"calibration {spec.name}")
     steps += ["posterior", "write"]
     progress = _Progress(steps, args, desc="lensdual infer")

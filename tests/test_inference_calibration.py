@@ -24,7 +24,6 @@ from lensdual.inference import (  # noqa: E402
 from lensdual.inference._calibration import (  # noqa: E402
     Recalibration,
     mock_pit,
-    recalibrate,
     stratified_truths,
 )
 from lensdual.simulation import noisy_constellation  # noqa: E402
@@ -83,7 +82,7 @@ def test_recalibration_of_gaussian_pit_is_the_closed_form(k):
     z = stats.norm.ppf((np.arange(20000) + 0.5) / 20000)
     pit = stats.norm.cdf(k * z)
     x = np.linspace(0.01, 0.99, 99)
-    np.testing.assert_allclose(recalibrate(x, pit), stats.norm.cdf(stats.norm.ppf(x) / k),
+    np.testing.assert_allclose(Recalibration(pit)(x), stats.norm.cdf(stats.norm.ppf(x) / k),
                                atol=2e-4)
 
 
@@ -142,7 +141,7 @@ def test_widened_gaussian_posterior_holds_on_fresh_universes():
         p = np.exp(ll - ll.max())
         cdf = np.concatenate([[0.0], np.cumsum((p[1:] + p[:-1]) / 2 * np.diff(log_grid))])
         cdf /= cdf[-1]
-        for key, c in (("raw", cdf), ("calibrated", recalibrate(cdf, pit))):
+        for key, c in (("raw", cdf), ("calibrated", Recalibration(pit)(cdf))):
             lo, hi = np.interp([0.16, 0.84], c, log_grid)
             covered[key].append(lo <= t <= hi)
     assert np.mean(covered["raw"]) == pytest.approx(2 * stats.norm.cdf(1 / k) - 1, abs=0.04)
@@ -151,7 +150,7 @@ def test_widened_gaussian_posterior_holds_on_fresh_universes():
     ll = -0.5 * ((log_grid - centre) / s) ** 2
     p = np.exp(ll)
     cdf = np.concatenate([[0.0], np.cumsum((p[1:] + p[:-1]) / 2 * np.diff(log_grid))])
-    lo, hi = np.interp([0.16, 0.84], recalibrate(cdf / cdf[-1], pit), log_grid)
+    lo, hi = np.interp([0.16, 0.84], Recalibration(pit)(cdf / cdf[-1]), log_grid)
     assert (hi - lo) / 2 == pytest.approx(k * s, rel=0.06)
 
 

@@ -149,6 +149,12 @@ class InferenceConfig:
         return isinstance(self.log_mhm, tuple)
 
     @property
+    def calibrates(self):
+        """Whether the run calibrates its posterior: ``calibrate``, and not the joint
+        posterior with the half-mode mass."""
+        return bool(self.calibrate) and not self.half_mode
+
+    @property
     def effective_weight(self):
         """The weight every system gets: ``weight``, else 1 with the calibration and
         ``"composite"`` without it."""

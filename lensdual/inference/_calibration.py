@@ -309,8 +309,3 @@ class Recalibration:
         if q >= 1.0 - self.high:
             return 1.0
         return float(np.interp(q, self.y, self.x))
-
-
-def recalibrate(cdf, pit):
-    """``G(cdf)`` for the mocks' PIT values ``pit`` (:class:`Recalibration`)."""
-    return Recalibration(pit)(cdf)

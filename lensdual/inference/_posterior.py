@@ -273,6 +273,7 @@ def abundance_posterior(tables, simulations, *, weights=None, anomaly="geometric
     out["log10_sigma_sub"] = log_grid
     out["log_likelihood"] = logl
     calibration = {"calibrated": calibrations is not None}
+    uncalibrated = cdf
     level = float  # the uncalibrated CDF level of a quantile
     if calibrations is not None:
         calibrations = check_calibrations(calibrations, simulations, anomaly)
@@ -297,8 +298,6 @@ def abundance_posterior(tables, simulations, *, weights=None, anomaly="geometric
         })
     out["posterior"] = dens
     out["cdf"] = cdf
-
-    uncalibrated = np.asarray(out["cdf_uncalibrated"] if calibrations is not None else cdf)
 
     def q(p):
         # through the uncalibrated CDF, linear between the nodes as the mocks' PITs
