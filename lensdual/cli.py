@@ -328,7 +328,7 @@ def _cmd_infer(args):
         steps.append(f"forward model {spec.name}")
         if config.effective_weight == "composite":
             steps.append(f"composite weight {spec.name}")
-        if config.calibrates:
+        if config.calibrate:
             steps.append(f"calibration {spec.name}")
     steps += ["posterior", "write"]
     progress = _Progress(steps, args, desc="lensdual infer")

@@ -248,8 +248,6 @@ def test_calibrated_posterior_is_the_api_s(mocks, tmp_path, capsys):
 def test_calibration_problems(mocks, tmp_path):
     ok = [_system(mocks[0])]
     cases = [
-        ({**SMALL, "model": "WDM", "log_mhm": [6, 8], "calibrate": True},
-         "[inference] calibrate: the calibration applies to the abundance posterior"),
         ({**SMALL, "calibrate": "yes"},
          "[inference] calibrate: expected a boolean (true or false)"),
         ({**SMALL, "n_calibration": 20}, "[inference] n_calibration: must be >= 50, got 20"),
@@ -257,11 +255,11 @@ def test_calibration_problems(mocks, tmp_path):
     for inference, expected in cases:
         problems = _problems(write_config(tmp_path / "bad.toml", inference, ok))
         assert len(problems) == 1 and problems[0].startswith(expected), problems
-    # a grid of half-mode masses turns the default calibration off
+    # a grid of half-mode masses is calibrated by default too
     grid = {k: v for k, v in SMALL.items() if k != "calibrate"}
     config = load_inference_config(write_config(
         tmp_path / "hm.toml", {**grid, "model": "WDM", "log_mhm": [6, 8]}, ok))
-    assert not config.calibrate and config.effective_weight == "composite"
+    assert config.calibrate and config.effective_weight == 1.0
 
 
 # ---------------------------------------------------------------- the half-mode mass
@@ -303,6 +301,43 @@ def test_half_mode_grid_end_to_end(mocks, tmp_path, capsys):
     expected = half_mode_posterior(tab, run.simulations, weights=1.0)
     np.testing.assert_allclose(run.posterior["log_likelihood"], expected["log_likelihood"])
     assert "log10_mhm" not in single.posterior.colnames
+
+
+def test_calibrated_half_mode_posterior_is_the_api_s(mocks, tmp_path, capsys):
+    """The default calibration with a grid of half-mode masses: both marginals are
+    half_mode_posterior's recalibrated on calibrate_posterior's mocks, scored on every
+    mass's forward model, and the report gives both mock coverages."""
+    from lensdual._inference_run import clean_pairs, run_inference
+    from lensdual.inference import calibrate_posterior
+
+    inference = {k: v for k, v in SMALL.items() if k != "calibrate"}
+    inference.update({"n_calibration": 60, "seed": 3, "model": "WDM", "log_mhm": [9, 6]})
+    cfg = write_config(tmp_path / "hmcal.toml", inference, [_system(mocks[0], name="mock A")])
+    config = load_inference_config(cfg)
+    run = run_inference(config)
+    system, info = calibration_system(FAMILY)
+    tab = QTable.read(mocks[0], format="ascii.ecsv")
+    duality = tab.meta["duality"]
+    pop = SubhaloPopulation(info["z_lens"], info["z_source"], model="WDM", log_mhm=6)
+    (seed,) = np.random.SeedSequence([3, 1]).generate_state(1)
+    sims = [per_mass[0] for per_mass in run.simulations]
+    calibration = calibrate_posterior(
+        clean_pairs(tab, system, pop, 0.02), system, sims, sigma_pos=5 * u.mas,
+        flux_rel_err=0.02, n_mocks=60, seed=int(seed), method=duality["method"],
+        snr_definition=duality["snr_definition"], snr_threshold=duality["snr_threshold"])
+    expected = half_mode_posterior(tab, run.simulations, calibrations=calibration).meta[
+        "inference"]
+    m = run.posterior.meta["inference"]
+    assert m["calibrated"] and m["n_mocks"] + m["n_mocks_left_out"] == 60
+    for key in ("interval_68", "interval_95"):
+        np.testing.assert_allclose(m[key].to_value(u.kpc**-2),
+                                   expected[key].to_value(u.kpc**-2), rtol=1e-12)
+    for key in ("log10_mhm_interval_68", "log10_mhm_interval_95", "marginal_log10_mhm"):
+        np.testing.assert_allclose(m[key], expected[key], rtol=1e-12)
+    assert m["weights"] == [1.0]
+    text, post = _infer(cfg, tmp_path / "out", capsys)
+    cov = m["log10_mhm_mock_coverage_uncalibrated"]
+    assert (f"those of the half-mode mass {100 * cov['68']:.0f} %" in " ".join(text.split()))
 
 
 def test_half_mode_grid_problems(mocks, tmp_path):

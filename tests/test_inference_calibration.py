@@ -19,10 +19,12 @@ from lensdual.inference import (  # noqa: E402
     abundance_posterior,
     apply_population,
     calibrate_posterior,
+    half_mode_posterior,
     simulate_anomalies,
 )
 from lensdual.inference._calibration import (  # noqa: E402
     Recalibration,
+    latin_hypercube_partner,
     mock_pit,
     stratified_truths,
 )
@@ -308,3 +310,134 @@ def test_default_seed_is_fresh_entropy(setup):
     assert not np.array_equal(a.log_likelihood, b.log_likelihood)
     again = calibrate_posterior(pairs, system, sim, seed=a.seed, **kw)
     np.testing.assert_array_equal(again.log_likelihood, a.log_likelihood)
+
+
+# ------------------------------------------------------------------ the half-mode mass
+
+
+def test_latin_hypercube_partner_is_stratified_and_spread():
+    log_m = np.array([5.0, 7.0, 10.0])
+    m = latin_hypercube_partner(log_m, 40)
+    np.testing.assert_allclose(np.sort(m), stratified_truths(log_m, 40))
+    np.testing.assert_array_equal(m, latin_hypercube_partner(log_m, 40))
+    # every quarter of the abundance's strata holds mocks of every quarter of the masses
+    s_quarter = np.arange(40) // 10
+    m_quarter = np.floor((m - 5.0) / 5.0 * 4).astype(int)
+    counts = np.zeros((4, 4), int)
+    np.add.at(counts, (s_quarter, m_quarter), 1)
+    assert counts.min() >= 1
+
+
+@pytest.fixture(scope="module")
+def half_mode_setup(setup):
+    system, pairs, pop, sim, cal = setup
+    sims = [simulate_anomalies(pairs, system, SubhaloPopulation(
+        pop.z_lens, pop.z_source, model="WDM", log_mhm=m), sim.sigma_sub,
+        n_realisations=MIN_REALISATIONS, seed=2) for m in (9.0, 6.0)]
+    hm = calibrate_posterior(pairs, system, sims, sigma_pos=SIGMA_POS, flux_rel_err=0.02,
+                             n_mocks=60, seed=8)
+    return system, pairs, pop, sims, hm
+
+
+def test_half_mode_mocks_are_made_as_the_data(half_mode_setup):
+    """A half-mode mock, remade by hand: the population at its true half-mode mass,
+    its noise and test, scored on both masses' simulations (lightest first)."""
+    system, pairs, pop, sims, hm = half_mode_setup
+    assert repr(hm).startswith("<PosteriorCalibration: 60 mocks on 6 abundances x 2 half-mode")
+    np.testing.assert_array_equal(hm.log10_mhm, [6.0, 9.0])
+    assert hm.log_likelihood.shape == (60, 2, 6)
+    np.testing.assert_allclose(np.sort(hm.log10_mhm_truth), stratified_truths([6.0, 9.0], 60))
+    rng = np.random.default_rng(8)
+    seeds = [tuple(int(rng.integers(2**31)) for _ in range(3)) for _ in range(3)]
+    j = 2
+    wdm = SubhaloPopulation(pop.z_lens, pop.z_source, model="WDM",
+                            log_mhm=hm.log10_mhm_truth[j])
+    mock = apply_population(pairs, system, wdm, 10 ** hm.log10_truth[j] * KPC2,
+                            seed=seeds[j][0])
+    noisy = noisy_constellation(mock, sigma_pos=SIGMA_POS, flux_rel_err=0.02, seed=seeds[j][1])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", EstimatorWarning)
+        result = check_duality(noisy, sigma_pos=SIGMA_POS, seed=seeds[j][2], test="geometric")
+    for k, s in enumerate(sims[::-1]):
+        np.testing.assert_allclose(hm.log_likelihood[j, k],
+                                   abundance_posterior(result, s)["log_likelihood"], rtol=1e-12)
+
+
+def _marginal_pits(log_s, log_m, lls, truth_s, truth_m):
+    """Each mock's two marginal PITs in plain numpy (trapezoids; upper tails summed
+    from the top), from its joint log-likelihood on the (mass, abundance) grid."""
+    out = []
+    for ll, ts, tm in zip(lls, truth_s, truth_m, strict=True):
+        p = np.exp(ll - ll.max())
+        row = []
+        for grid, dens, t in ((log_s, np.trapezoid(p, log_m, axis=0), ts),
+                              (log_m, np.trapezoid(p, log_s, axis=1), tm)):
+            cells = (dens[1:] + dens[:-1]) / 2 * np.diff(grid)
+            up = np.concatenate([[0.0], np.cumsum(cells)]) / cells.sum()
+            down = np.concatenate([np.cumsum(cells[::-1])[::-1], [0.0]]) / cells.sum()
+            lower = np.interp(t, grid, up)
+            row.append(lower if lower <= 0.5 else 1 - np.interp(t, grid, down))
+        out.append(row)
+    return np.array(out)
+
+
+def test_calibrated_half_mode_marginals_match_the_plain_reference(half_mode_setup):
+    system, pairs, pop, sims, hm = half_mode_setup
+    data = _data(system, pairs, SubhaloPopulation(pop.z_lens, pop.z_source, model="WDM",
+                                                  log_mhm=7.0), 0.05, 70)
+    raw = half_mode_posterior(data, sims)
+    post = half_mode_posterior(data, sims, calibrations=hm)
+    np.testing.assert_array_equal(post["posterior"], raw["posterior"])
+    m, r = post.meta["inference"], raw.meta["inference"]
+    assert m["calibrated"] and not r["calibrated"]
+    log_s = np.log10(sims[0].sigma_sub.to_value(KPC2))
+    log_m = np.array([6.0, 9.0])
+    used = hm.n_tested > 0
+    pits = _marginal_pits(log_s, log_m, hm.log_likelihood[used], hm.log10_truth[used],
+                          hm.log10_mhm_truth[used])
+    assert m["n_mocks"] == used.sum() and m["n_mocks_left_out"] == (~used).sum()
+    for col, grid, marginal, prefix, unit in ((0, log_s, "marginal_sigma_sub", "", True),
+                                              (1, log_m, "marginal_log10_mhm", "log10_mhm_",
+                                               False)):
+        dens = np.asarray(r[marginal])
+        np.testing.assert_allclose(m[marginal + "_uncalibrated"], dens)
+        cdf = np.concatenate([[0.0], np.cumsum((dens[1:] + dens[:-1]) / 2 * np.diff(grid))])
+        cdf /= cdf[-1]
+        g = Recalibration(pits[:, col])
+        np.testing.assert_allclose(m[marginal], np.gradient(g(cdf), grid), atol=1e-12)
+        cov = m[prefix + "mock_coverage_uncalibrated"]["68"]
+        assert cov == pytest.approx(np.mean((pits[:, col] >= 0.16) & (pits[:, col] <= 0.84)))
+        for key, levels in (("interval_68", (0.16, 0.84)), ("interval_95", (0.025, 0.975))):
+            expected = [np.interp(g.inverse(q), cdf, grid) for q in levels]
+            got = (np.log10(m[key].to_value(KPC2)) if unit else m[prefix + key])
+            np.testing.assert_allclose(got, expected, rtol=1e-12)
+
+
+def test_half_mode_calibration_bad_input(setup, half_mode_setup):
+    system, pairs, pop, sim, cal = setup
+    _, _, _, sims, hm = half_mode_setup
+    data = _data(system, pairs, pop, 0.05, 80)
+    kw = {"sigma_pos": SIGMA_POS, "flux_rel_err": 0.02, "n_mocks": 50}
+    with pytest.raises(ValueError, match="made for the abundance posterior"):
+        half_mode_posterior(data, sims, calibrations=cal)
+    with pytest.raises(ValueError, match="made for the half-mode posterior"):
+        abundance_posterior(data, sims[1], calibrations=hm)
+    with pytest.raises(ValueError, match="WDM populations"):
+        calibrate_posterior(pairs, system, [sim, sims[0]], **kw)
+    with pytest.raises(ValueError, match="at least two"):
+        calibrate_posterior(pairs, system, [sims[0]], **kw)
+    with pytest.raises(ValueError, match="each half-mode mass once"):
+        calibrate_posterior(pairs, system, [sims[0], sims[0]], **kw)
+    other = simulate_anomalies(pairs, system, SubhaloPopulation(
+        pop.z_lens, pop.z_source, model="WDM", log_mhm=7.0, shmf_log_slope=-1.8),
+        sim.sigma_sub, n_realisations=MIN_REALISATIONS, seed=2)
+    with pytest.raises(ValueError, match="differ only in log_mhm"):
+        calibrate_posterior(pairs, system, [sims[0], other], **kw)
+    with pytest.raises(TypeError, match="or a list of them"):
+        calibrate_posterior(pairs, system, [sims[0], "x"], **kw)
+    # the calibration of other masses
+    seven = simulate_anomalies(pairs, system, SubhaloPopulation(
+        pop.z_lens, pop.z_source, model="WDM", log_mhm=7.0), sim.sigma_sub,
+        n_realisations=MIN_REALISATIONS, seed=2)
+    with pytest.raises(ValueError, match="was not made on simulation 1"):
+        half_mode_posterior(data, [sims[1], seven], calibrations=hm)

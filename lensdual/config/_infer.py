@@ -105,9 +105,9 @@ class InferenceConfig:
     seed : int
         Seed of the realisations and the mocks.
     calibrate : bool
-        Whether the abundance posterior is recalibrated on mock universes
-        (:func:`~lensdual.inference.calibrate_posterior`); False with a grid
-        of half-mode masses.
+        Whether the posterior is recalibrated on mock universes
+        (:func:`~lensdual.inference.calibrate_posterior`; with a grid of
+        half-mode masses, both marginals).
     n_calibration : int
         Mocks of each system's calibration.
     weight : str, float or None
@@ -147,12 +147,6 @@ class InferenceConfig:
         """Whether the run is the joint posterior on ``sigma_sub`` and the half-mode mass
         (``log_mhm`` is a grid)."""
         return isinstance(self.log_mhm, tuple)
-
-    @property
-    def calibrates(self):
-        """Whether the run calibrates its posterior: ``calibrate``, and not the joint
-        posterior with the half-mode mass."""
-        return bool(self.calibrate) and not self.half_mode
 
     @property
     def effective_weight(self):
@@ -255,7 +249,7 @@ class _InferenceValidator(_Validator):
             self.add('[inference] log_mhm: a WDM parameter; give model = "WDM" with it')
         self.population(out)
         out["sigma_sub"] = self.bounds(table.get("sigma_sub", _ABSENT))
-        out["calibrate"] = self.calibrate(table, out["log_mhm"])
+        out["calibrate"] = self.calibrate(table)
         out["weight"] = self.weight(table.get("weight", _ABSENT))
         n = out["n_sigma_sub"]
         if _effective_weight(out) == "composite" and n is not _BAD and n < 5:
@@ -330,19 +324,9 @@ class _InferenceValidator(_Validator):
             return _BAD
         return (lo, hi)
 
-    def calibrate(self, table, log_mhm):
-        """The calibration switch: by default on, off for the joint posterior with the
-        half-mode mass (a grid of log_mhm), which it cannot calibrate."""
-        grid = isinstance(log_mhm, tuple)
-        if "calibrate" not in table:
-            return not grid
-        value = self.get(table, "calibrate", "inference")
-        if value is True and grid:
-            self.add("[inference] calibrate: the calibration applies to the abundance "
-                     "posterior; the joint posterior with a list of log_mhm keeps its weight "
-                     "(set calibrate = false)")
-            return _BAD
-        return value
+    def calibrate(self, table):
+        """The calibration switch (default on)."""
+        return self.get(table, "calibrate", "inference")
 
     def weight(self, value):
         if value is _ABSENT:

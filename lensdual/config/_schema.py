@@ -365,10 +365,9 @@ INFERENCE_FIELDS = (
        "realisations of the population per abundance and image", minimum=MIN_REALISATIONS),
     _F("inference", "seed", "integer", 0, "seed of the realisations and the mocks", minimum=0),
     _F("inference", "calibrate", "boolean", True,
-       "recalibrate the abundance posterior on n_calibration mock universes of each system, "
-       "made as the data (lensdual.inference.calibrate_posterior), so that its intervals hold "
-       "the truth as often as they say; not with a list of log_mhm, whose joint posterior "
-       "keeps the composite weight"),
+       "recalibrate the posterior on n_calibration mock universes of each system, made as "
+       "the data (lensdual.inference.calibrate_posterior), so that its intervals hold the "
+       "truth as often as they say (with a list of log_mhm, both marginals)"),
     _F("inference", "n_calibration", "integer", 300,
        "mock universes of each system's calibration (calibrate = true); combined systems "
        "share their truths", minimum=50),

@@ -45,9 +45,17 @@ class PosteriorCalibration:
         the calibration (the data always have one).
     simulation_key : tuple
         What identifies the simulation the mocks were scored on: its
-        population, pair ids and disc radii.
+        population, pair ids and disc radii (a tuple of these, one per
+        half-mode mass, for the half-mode posterior).
     seed : int
         The entropy of the mocks' random numbers.
+    log10_mhm_truth : ndarray (M,), optional
+        For :func:`half_mode_posterior`: each mock's true ``log10`` half-mode
+        mass, also stratified (a Latin hypercube with ``log10_truth``, the
+        same for every constellation); None for the abundance posterior.
+    log10_mhm : ndarray (K,), optional
+        The half-mode masses of the simulations, increasing; then
+        ``log_likelihood`` is (M, K, S).
     """
 
     log10_truth: np.ndarray
@@ -57,10 +65,18 @@ class PosteriorCalibration:
     n_tested: np.ndarray
     simulation_key: tuple
     seed: int
+    log10_mhm_truth: np.ndarray | None = None
+    log10_mhm: np.ndarray | None = None
+
+    @property
+    def half_mode(self):
+        """Whether the mocks calibrate the joint posterior with the half-mode mass."""
+        return self.log10_mhm is not None
 
     def __repr__(self):
+        masses = (f" x {self.log10_mhm.size} half-mode masses" if self.half_mode else "")
         return (f"<PosteriorCalibration: {self.log10_truth.size} mocks on "
-                f"{self.sigma_sub.size} abundances, anomaly={self.anomaly!r}>")
+                f"{self.sigma_sub.size} abundances{masses}, anomaly={self.anomaly!r}>")
 
 
 def simulation_key(simulation):
@@ -74,19 +90,50 @@ def stratified_truths(log_grid, n):
     return log_grid[0] + (np.arange(n) + 0.5) / n * (log_grid[-1] - log_grid[0])
 
 
+def latin_hypercube_partner(log_grid, n):
+    """The second coordinate of ``n`` stratified truths: the midpoints of ``n``
+    strata of ``log_grid``'s range, the k-th mock's stratum the rank of
+    ``frac((k + 1/2) phi)`` (phi the golden ratio), so that each coordinate fills
+    its prior evenly and the pairs spread over the plane, the same for every
+    call."""
+    ranks = np.argsort(np.argsort(np.modf((np.arange(n) + 0.5) * _GOLDEN)[0]))
+    return stratified_truths(log_grid, n)[ranks]
+
+
+_GOLDEN = (1 + np.sqrt(5)) / 2
+
+
+def population_at(population, log_mhm):
+    """``population`` with the half-mode mass ``log_mhm`` (its other settings kept)."""
+    from ._population import SubhaloPopulation
+
+    p = population
+    return SubhaloPopulation(
+        p.z_lens, p.z_source, model="WDM", log_mlow=p.log_mlow, log_mhigh=p.log_mhigh,
+        log_m_host=p.log_m_host, shmf_log_slope=p.shmf_log_slope, log_mhm=float(log_mhm),
+        cosmology=p.cosmology, host_scaling_factor=p.host_scaling_factor,
+        redshift_scaling_factor=p.redshift_scaling_factor,
+        host_centre=p.host_centre * u.arcsec, los_normalization=p.los_normalization,
+        two_halo=p.two_halo)
+
+
 def mock_log_likelihood(pairs, lens, simulation, truth, seeds, *, sigma_pos, flux_rel_err,
-                        anomaly, check_kwargs):
+                        anomaly, check_kwargs, log_mhm=None):
     """One mock universe at abundance ``truth`` (kpc^-2): its log-likelihood on the
     simulation's grid (None without a tested pair) and its duality table; ``seeds``
-    are those of the population's realisation, the noise and the test."""
+    are those of the population's realisation, the noise and the test. With
+    ``simulation`` a list (one per half-mode mass) the population is that of its
+    first entry at half-mode mass ``log_mhm`` and the log-likelihood is (K, S)."""
     from .. import check_duality
     from ..simulation import noisy_constellation
     from ._forward import _apply_population
     from ._posterior import _system_log_likelihood
 
     seed_population, seed_noise, seed_test = (int(x) for x in seeds)
-    mock = _apply_population(pairs, lens, simulation.population, truth, simulation.radius,
-                             seed_population)
+    sims = simulation if isinstance(simulation, list) else [simulation]
+    population = (sims[0].population if log_mhm is None
+                  else population_at(sims[0].population, log_mhm))
+    mock = _apply_population(pairs, lens, population, truth, sims[0].radius, seed_population)
     noisy = noisy_constellation(mock, sigma_pos=sigma_pos, flux_rel_err=flux_rel_err,
                                 seed=seed_noise)
     with warnings.catch_warnings():
@@ -95,7 +142,8 @@ def mock_log_likelihood(pairs, lens, simulation, truth, seeds, *, sigma_pos, flu
         result = check_duality(noisy, sigma_pos=sigma_pos, seed=seed_test, **check_kwargs)
     if not np.asarray(result["tested"], dtype=bool).any():
         return None, result
-    return _system_log_likelihood(result, simulation, anomaly)[0], result
+    lls = [_system_log_likelihood(result, s, anomaly)[0] for s in sims]
+    return (np.array(lls) if isinstance(simulation, list) else lls[0]), result
 
 
 def draw_mock_seeds(rng):
@@ -106,10 +154,13 @@ def draw_mock_seeds(rng):
 def _calibration_task(task):
     """One calibration mock: its log-likelihood (zeros without a tested pair) and its
     number of tested pairs."""
-    pairs, lens, simulation, truth, seeds, kwargs = task
-    ll, result = mock_log_likelihood(pairs, lens, simulation, truth, seeds, **kwargs)
+    pairs, lens, simulation, truth, log_mhm, seeds, kwargs = task
+    ll, result = mock_log_likelihood(pairs, lens, simulation, truth, seeds, log_mhm=log_mhm,
+                                     **kwargs)
     if ll is None:
-        return np.zeros(simulation.sigma_sub.size), 0
+        shape = ((len(simulation), simulation[0].sigma_sub.size) if log_mhm is not None
+                 else simulation.sigma_sub.size)
+        return np.zeros(shape), 0
     return ll, int(np.asarray(result["tested"], dtype=bool).sum())
 
 
@@ -147,13 +198,24 @@ def calibrate_posterior(pairs, lens, simulation, *, sigma_pos, flux_rel_err, n_m
     error of ``n_mocks`` (2.7 points at 68 % with 300 mocks). Mocks without
     a tested pair are left out (the data always have one).
 
+    Given the simulations of one constellation for several WDM half-mode
+    masses (as :func:`half_mode_posterior` takes them), the mocks calibrate
+    the joint posterior's two marginals: each mock has a true abundance and
+    a true half-mode mass (stratified in both, paired as a Latin hypercube;
+    the population at that mass, between the grid's masses too), and
+    :func:`half_mode_posterior` recalibrates each marginal on its own
+    PITs.
+
     Parameters
     ----------
-    pairs, lens, simulation, sigma_pos, flux_rel_err
+    pairs, lens, sigma_pos, flux_rel_err
         As for :func:`composite_weight`: the constellation without measurement
-        noise, its smooth lens, its :func:`simulate_anomalies` result, and
-        the data's position noise per coordinate and relative flux noise per
-        image and band.
+        noise, its smooth lens, and the data's position noise per coordinate
+        and relative flux noise per image and band.
+    simulation : AnomalySimulation or list of AnomalySimulation
+        The constellation's :func:`simulate_anomalies` result; or, for the
+        half-mode posterior, one per half-mode mass (WDM populations that
+        differ only in ``log_mhm``, on one grid, pairs and radius).
     n_mocks : int, optional
         Mock universes, at least 50. Default 300. Systems combined into one
         posterior need the same number (and grid): their mocks share truths.
@@ -179,39 +241,77 @@ def calibrate_posterior(pairs, lens, simulation, *, sigma_pos, flux_rel_err, n_m
     Raises
     ------
     TypeError
-        ``simulation`` is not an `AnomalySimulation`.
+        ``simulation`` is not an `AnomalySimulation` (or a list of them).
     ValueError
-        ``n_mocks`` below 50, an unknown ``anomaly``, or a grid of fewer than
-        two abundances.
+        ``n_mocks`` below 50, an unknown ``anomaly``, a grid of fewer than
+        two abundances, or half-mode simulations that are not WDM, repeat a
+        mass, or differ in anything but the mass.
     """
     from .._validation import as_int
 
-    if not isinstance(simulation, AnomalySimulation):
-        raise TypeError(f"simulation must be an AnomalySimulation, got "
-                        f"{type(simulation).__name__}")
+    sims, log_mhm = _calibrated_simulations(simulation)
     n_mocks = as_int(n_mocks, "n_mocks", minimum=MIN_CALIBRATION_MOCKS)
     check_kwargs = mock_check_kwargs(anomaly, check_kwargs)
-    grid = simulation.sigma_sub.to_value(u.kpc**-2)
+    grid = sims[0].sigma_sub.to_value(u.kpc**-2)
     if grid.size < 2:
         raise ValueError("the simulation's grid has one abundance: there is no posterior to "
                          "calibrate")
     truths = stratified_truths(np.log10(grid), n_mocks)
+    mhm_truths = (None if log_mhm is None else latin_hypercube_partner(log_mhm, n_mocks))
     entropy = int(np.random.SeedSequence(seed).entropy)
     rng = np.random.default_rng(entropy)
     kwargs = {"sigma_pos": sigma_pos, "flux_rel_err": flux_rel_err, "anomaly": anomaly,
               "check_kwargs": check_kwargs}
-    tasks = [(pairs, lens, simulation, 10**t, draw_mock_seeds(rng), kwargs) for t in truths]
+    target = sims[0] if log_mhm is None else sims
+    tasks = [(pairs, lens, target, 10**t, None if mhm_truths is None else float(mhm_truths[k]),
+              draw_mock_seeds(rng), kwargs) for k, t in enumerate(truths)]
     results = run_tasks(_calibration_task, tasks, check_client(client))
     lls = np.array([r[0] for r in results])
     n_tested = np.array([r[1] for r in results], dtype=int)
-    return PosteriorCalibration(truths, lls, simulation.sigma_sub.to(u.kpc**-2), anomaly,
-                                n_tested, simulation_key(simulation), entropy)
+    key = (simulation_key(sims[0]) if log_mhm is None
+           else tuple(simulation_key(s) for s in sims))
+    return PosteriorCalibration(truths, lls, sims[0].sigma_sub.to(u.kpc**-2), anomaly,
+                                n_tested, key, entropy, mhm_truths, log_mhm)
+
+
+def _calibrated_simulations(simulation):
+    """The simulations of a calibration as a list (sorted by half-mode mass) and the
+    masses (None for a single simulation), checked."""
+    if isinstance(simulation, AnomalySimulation):
+        return [simulation], None
+    sims = list(simulation) if isinstance(simulation, (list, tuple)) else None
+    if not sims or not all(isinstance(s, AnomalySimulation) for s in sims):
+        raise TypeError(f"simulation must be an AnomalySimulation, or a list of them (one per "
+                        f"half-mode mass), got {type(simulation).__name__}")
+    if len(sims) < 2:
+        raise ValueError("a half-mode calibration needs the simulations of at least two "
+                         "half-mode masses")
+    if any(s.population is None or s.population.model != "WDM" for s in sims):
+        raise ValueError("the simulations of a half-mode calibration must be of WDM "
+                         "populations (model='WDM', log_mhm=...)")
+    masses = np.array([s.population.log_mhm for s in sims], dtype=float)
+    if np.unique(masses).size != masses.size:
+        raise ValueError(f"each half-mode mass once, got log_mhm {masses.tolist()}")
+    order = np.argsort(masses)
+    sims = [sims[k] for k in order]
+
+    def rest(s):
+        p = s.population
+        return (p.z_lens, p.z_source, p.log_mlow, p.log_mhigh, p.log_m_host, p.shmf_log_slope,
+                p.los_normalization, p.two_halo, repr(p.cosmology),
+                *simulation_key(s)[1:], s.sigma_sub.to_value(u.kpc**-2).tobytes())
+
+    if len({rest(s) for s in sims}) != 1:
+        raise ValueError("the half-mode simulations must differ only in log_mhm (one grid, "
+                         "pairs, radius and population otherwise)")
+    return sims, masses[order]
 
 
 def check_calibrations(calibrations, simulations, anomaly):
-    """The calibrations as a list, one per simulation, made on that simulation (its
-    grid, population, pairs and radii) for ``anomaly``, with one set of truths and
-    distinct seeds."""
+    """The calibrations as a list, one per system, each made on that system's
+    simulation (its grid, population, pairs and radii; for the half-mode posterior
+    the list of its simulations, one per half-mode mass, increasing) for ``anomaly``,
+    with one set of truths and distinct seeds."""
     if isinstance(calibrations, PosteriorCalibration):
         calibrations = [calibrations]
     calibrations = list(calibrations)
@@ -221,16 +321,25 @@ def check_calibrations(calibrations, simulations, anomaly):
     if len(calibrations) != len(simulations):
         raise ValueError(f"calibrations must be one per constellation: {len(calibrations)} for "
                          f"{len(simulations)}")
-    grid = simulations[0].sigma_sub.to_value(u.kpc**-2)
+    half_mode = isinstance(simulations[0], list)
+    first = simulations[0][0] if half_mode else simulations[0]
+    grid = first.sigma_sub.to_value(u.kpc**-2)
     for k, (c, sim) in enumerate(zip(calibrations, simulations, strict=True)):
+        if c.half_mode != half_mode:
+            raise ValueError(
+                f"calibration {k + 1} was made for the "
+                f"{'half-mode' if c.half_mode else 'abundance'} posterior: calibrate with "
+                + ("the simulations of every half-mode mass" if half_mode
+                   else "the abundance's one simulation"))
         if (c.sigma_sub.size != grid.size
                 or not np.allclose(c.sigma_sub.to_value(u.kpc**-2), grid, rtol=1e-12)):
             raise ValueError("a calibration was made on another sigma_sub grid than the "
                              "simulations'")
-        if c.simulation_key != simulation_key(sim):
+        key = tuple(simulation_key(s) for s in sim) if half_mode else simulation_key(sim)
+        if c.simulation_key != key:
             raise ValueError(f"calibration {k + 1} was not made on simulation {k + 1} (another "
-                             "population, pairs or radius): give each constellation the "
-                             "calibration of its own simulation")
+                             "population, pairs, radius or half-mode masses): give each "
+                             "constellation the calibration of its own simulation")
         if c.anomaly != anomaly:
             raise ValueError(f"a calibration's mocks read the {c.anomaly!r} anomalies, the "
                              f"posterior the {anomaly!r} ones")
@@ -244,10 +353,10 @@ def check_calibrations(calibrations, simulations, anomaly):
     return calibrations
 
 
-def _cdf_and_survival(log_grid, ll):
-    """A posterior's CDF and survival function on the grid (trapezoids), each summed
-    from its own end so that neither tail rounds to 0 or 1 before it must."""
-    p = np.exp(ll - np.nanmax(ll))
+def _cdf_and_survival(log_grid, p):
+    """The CDF and survival function of the density ``p`` (not normalised, NaN read
+    as 0) on the grid (trapezoids), each summed from its own end so that neither
+    tail rounds to 0 or 1 before it must."""
     p = np.where(np.isfinite(p), p, 0.0)
     cells = 0.5 * (p[1:] + p[:-1]) * np.diff(log_grid)
     total = cells.sum()
@@ -256,21 +365,35 @@ def _cdf_and_survival(log_grid, ll):
     return cdf, sf
 
 
+def _pit(log_grid, p, truth):
+    """The truth's probability integral transform under the density ``p`` on the grid;
+    the upper half from the survival function, so that 1 - tiny does not round to 1."""
+    cdf, sf = _cdf_and_survival(log_grid, p)
+    lower = np.interp(truth, log_grid, cdf)
+    return lower if lower <= 0.5 else 1.0 - np.interp(truth, log_grid, sf)
+
+
 def mock_pit(log_grid, calibrations, weights):
     """Each joint mock's probability integral transform (its truth's place in the
     posterior of the systems' weighted, summed log-likelihoods) over the mocks with a
     tested pair in every system and a likelihood somewhere on the grid, and the number
-    of mocks left out."""
+    of mocks left out. For half-mode calibrations the PITs are (n, 2): those of the
+    abundance's and of the half-mode mass's marginal."""
     ll = sum(w * c.log_likelihood for w, c in zip(weights, calibrations, strict=True))
     tested = np.all([c.n_tested > 0 for c in calibrations], axis=0)
-    usable = tested & np.isfinite(ll).any(axis=1)
-    truths = calibrations[0].log10_truth
+    usable = tested & np.isfinite(ll).reshape(ll.shape[0], -1).any(axis=1)
+    first = calibrations[0]
     pit = []
     for j in np.flatnonzero(usable):
-        cdf, sf = _cdf_and_survival(log_grid, ll[j])
-        lower = np.interp(truths[j], log_grid, cdf)
-        # the upper half from the survival function: 1 - tiny does not round to 1
-        pit.append(lower if lower <= 0.5 else 1.0 - np.interp(truths[j], log_grid, sf))
+        with np.errstate(invalid="ignore"):
+            p = np.exp(ll[j] - np.nanmax(ll[j]))
+        if not first.half_mode:
+            pit.append(_pit(log_grid, p, first.log10_truth[j]))
+            continue
+        p = np.where(np.isfinite(p), p, 0.0)
+        log_m = first.log10_mhm
+        pit.append((_pit(log_grid, np.trapezoid(p, log_m, axis=0), first.log10_truth[j]),
+                    _pit(log_m, np.trapezoid(p, log_grid, axis=1), first.log10_mhm_truth[j])))
     return np.array(pit), int((~usable).sum())
 
 

@@ -148,6 +148,26 @@ def _quantile(log_grid, cdf, q):
     return float(np.interp(q, cdf, log_grid))
 
 
+def _calibrated_quantile(log_grid, cdf, a):
+    """The grid value at uncalibrated CDF level ``a`` (the calibration's
+    ``G^-1(q)``): through the uncalibrated CDF, linear between the nodes as the
+    mocks' PITs are; the grid's ends at levels 0 and 1."""
+    return log_grid[0] if a <= 0 else log_grid[-1] if a >= 1 else _quantile(log_grid, cdf, a)
+
+
+def _check_mock_count(pit, n_left):
+    if len(pit) < MIN_CALIBRATION_MOCKS:
+        raise ValueError(f"only {len(pit)} of the calibration's {len(pit) + n_left} mocks have "
+                         "a tested pair in every system and a likelihood on the grid; at least "
+                         f"{MIN_CALIBRATION_MOCKS} are needed: calibrate with more mocks "
+                         "(n_mocks; [inference] n_calibration of lensdual infer)")
+
+
+def _coverage(pit):
+    """How often the mocks' uncalibrated equal-tailed intervals held their truths."""
+    return {k: float(np.mean((pit >= lo) & (pit <= hi))) for k, (lo, hi) in INTERVALS.items()}
+
+
 def _log_likelihood(tables, simulations, weights, anomaly="geometric"):
     """The weighted log-likelihood of the constellations ``tables`` on the grid of their
     ``simulations`` (lists, one per constellation), checked; returns it, the number
@@ -278,12 +298,7 @@ def abundance_posterior(tables, simulations, *, weights=None, anomaly="geometric
     if calibrations is not None:
         calibrations = check_calibrations(calibrations, simulations, anomaly)
         pit, n_left = mock_pit(log_grid, calibrations, weights)
-        if pit.size < MIN_CALIBRATION_MOCKS:
-            raise ValueError(f"only {pit.size} of the calibration's "
-                             f"{calibrations[0].log10_truth.size} mocks have a tested pair in "
-                             "every system and a likelihood on the grid; at least "
-                             f"{MIN_CALIBRATION_MOCKS} are needed: calibrate with more "
-                             "mocks (n_mocks; [inference] n_calibration of lensdual infer)")
+        _check_mock_count(pit, n_left)
         g = Recalibration(pit)
         level = g.inverse
         out["cdf_uncalibrated"] = cdf
@@ -293,18 +308,13 @@ def abundance_posterior(tables, simulations, *, weights=None, anomaly="geometric
             "n_mocks": int(pit.size),
             "n_mocks_left_out": n_left,
             "mass_at_grid_ends": [g.low, g.high],
-            "mock_coverage_uncalibrated": {
-                k: float(np.mean((pit >= lo) & (pit <= hi))) for k, (lo, hi) in INTERVALS.items()},
+            "mock_coverage_uncalibrated": _coverage(pit),
         })
     out["posterior"] = dens
     out["cdf"] = cdf
 
     def q(p):
-        # through the uncalibrated CDF, linear between the nodes as the mocks' PITs
-        a = level(p)
-        x = log_grid[0] if a <= 0 else log_grid[-1] if a >= 1 else _quantile(log_grid,
-                                                                              uncalibrated, a)
-        return 10**x * u.kpc**-2
+        return 10 ** _calibrated_quantile(log_grid, uncalibrated, level(p)) * u.kpc**-2
 
     out.meta["inference"] = {
         "median": q(0.5),
@@ -323,7 +333,8 @@ def abundance_posterior(tables, simulations, *, weights=None, anomaly="geometric
     return out
 
 
-def half_mode_posterior(tables, simulations, *, weights=None, anomaly="geometric"):
+def half_mode_posterior(tables, simulations, *, weights=None, anomaly="geometric",
+                        calibrations=None):
     r"""Joint posterior on the sub-halo abundance and the WDM half-mode mass.
 
     The likelihood of :func:`abundance_posterior`, evaluated for every
@@ -350,19 +361,32 @@ def half_mode_posterior(tables, simulations, *, weights=None, anomaly="geometric
         :func:`abundance_posterior`.
     anomaly : {"geometric", "joint"}
         The pairs' anomalies, as for :func:`abundance_posterior`.
+    calibrations : PosteriorCalibration or list of PosteriorCalibration, optional
+        One per constellation, made by :func:`calibrate_posterior` on that
+        constellation's simulations of every half-mode mass (one
+        ``n_mocks``, distinct seeds): each marginal's CDF :math:`F` is
+        replaced by :math:`G(F)`, :math:`G` the distribution over the mocks
+        of their truth's place in their own marginal, as for
+        :func:`abundance_posterior`. The joint density is left as it is.
 
     Returns
     -------
     posterior : `~astropy.table.QTable`
         One row per (half-mode mass, abundance): ``log10_mhm``,
         ``sigma_sub`` (kpc^-2), ``log10_sigma_sub``, ``log_likelihood`` and
-        ``posterior`` (the joint density per dex squared).
+        ``posterior`` (the joint density per dex squared, not recalibrated).
         ``meta["inference"]`` holds the abundance's marginal (``median``,
         ``interval_68``, ``interval_95``, ``upper_95``, kpc^-2), the half-mode
         mass's (``log10_mhm_median``, ``log10_mhm_interval_68``,
         ``log10_mhm_interval_95``, ``log10_mhm_upper_95``), both marginal
         densities (``marginal_sigma_sub``, ``marginal_log10_mhm``), ``n_pairs``,
-        ``n_systems``, ``prior`` and the populations.
+        ``n_systems``, ``prior``, the populations and ``calibrated``. With
+        calibrations the marginals are the recalibrated ones, and it also
+        holds ``marginal_sigma_sub_uncalibrated``,
+        ``marginal_log10_mhm_uncalibrated``, ``n_mocks``,
+        ``n_mocks_left_out`` and, per parameter, ``mass_at_grid_ends`` and
+        ``mock_coverage_uncalibrated`` (as for :func:`abundance_posterior`;
+        the half-mode mass's prefixed ``log10_mhm_``).
 
     Raises
     ------
@@ -417,12 +441,33 @@ def half_mode_posterior(tables, simulations, *, weights=None, anomaly="geometric
     out["log10_sigma_sub"] = np.tile(log_s, log_m.size)
     out["log_likelihood"] = logl.ravel()
     out["posterior"] = dens.ravel()
+    calibration = {"calibrated": calibrations is not None}
+    level_s = level_m = float  # the uncalibrated CDF level of a quantile
+    if calibrations is not None:
+        per_system = [[slices[k][j] for k in order] for j in range(len(tables))]
+        calibrations = check_calibrations(calibrations, per_system, anomaly)
+        pit, n_left = mock_pit(log_s, calibrations, used)
+        _check_mock_count(pit, n_left)
+        g_s, g_m = Recalibration(pit[:, 0]), Recalibration(pit[:, 1])
+        level_s, level_m = g_s.inverse, g_m.inverse
+        calibration.update({
+            "marginal_sigma_sub_uncalibrated": marg_s.tolist(),
+            "marginal_log10_mhm_uncalibrated": marg_m.tolist(),
+            "n_mocks": int(len(pit)),
+            "n_mocks_left_out": n_left,
+            "mass_at_grid_ends": [g_s.low, g_s.high],
+            "log10_mhm_mass_at_grid_ends": [g_m.low, g_m.high],
+            "mock_coverage_uncalibrated": _coverage(pit[:, 0]),
+            "log10_mhm_mock_coverage_uncalibrated": _coverage(pit[:, 1]),
+        })
+        marg_s = np.gradient(g_s(cdf_s), log_s)
+        marg_m = np.gradient(g_m(cdf_m), log_m)
 
     def q(p):
-        return 10 ** _quantile(log_s, cdf_s, p) * u.kpc**-2
+        return 10 ** _calibrated_quantile(log_s, cdf_s, level_s(p)) * u.kpc**-2
 
     def qm(p):
-        return _quantile(log_m, cdf_m, p)
+        return _calibrated_quantile(log_m, cdf_m, level_m(p))
 
     out.meta["inference"] = {
         "median": q(0.5),
@@ -443,6 +488,7 @@ def half_mode_posterior(tables, simulations, *, weights=None, anomaly="geometric
         "weights": [float(w) for w in used],
         "populations": [repr(slices[k][0].population) for k in order],
         "anomaly": anomaly,
+        **calibration,
     }
     return out
 
