@@ -15,7 +15,10 @@ too few neighbours) and by the geometric test with the linearised SNR (the
 default when ``benchmarks/finite_size_bias.py``'s record was made). Reported
 per seed and test: the clean pairs tested and flagged (the patch pair and the
 sub-haloed pair apart), whether the patch pair and the sub-haloed pair were
-flagged; then the totals and the seeds where the two tests differ.
+flagged; then the totals and the seeds where the two tests differ. Then, per
+seed, the pipeline's diffuse-light doubts (the same for both tests): the clean
+pairs, the patch pair and the sub-haloed pair made doubtful because the light
+under their two images differs.
 """
 
 import argparse
@@ -33,7 +36,8 @@ TESTS = {"default": {}, "geometric_log": {"test": "geometric", "snr_definition":
 
 
 def one(seed):
-    """``{test: (clean tested, clean flagged, patch flagged, sub-halo flagged)}``."""
+    """``{test: (clean tested, clean flagged, patch flagged, sub-halo flagged)}`` and the
+    diffuse-light doubts ``(clean, patch, sub-halo)``."""
     system, truth = simulate_demo(seed=seed)
     demo = render_demo(system, truth, seed=seed, scene="realistic")
     analysis = analyse(demo.images, psf=demo.psf, sigma_pos="auto", seed=seed,
@@ -52,7 +56,10 @@ def one(seed):
         tested = np.asarray(res["tested"], dtype=bool)
         out[name] = (int((clean & tested).sum()), int((clean & flag).sum()),
                      bool((patch & flag).any()), bool((sub & flag).any()))
-    return out
+        diffuse = np.array(["diffuse light" in str(d) for d in res["doubt"]])
+        doubts = (int((clean & diffuse).sum()), bool((patch & diffuse).any()),
+                  bool((sub & diffuse).any()))
+    return out, doubts
 
 
 def main(argv=None):
@@ -64,10 +71,12 @@ def main(argv=None):
     rec.say("seed test clean_tested clean_flagged patch_flagged subhalo_flagged")
     totals = {name: np.zeros(4, dtype=int) for name in TESTS}
     differ = []
+    doubts = []
     for seed in range(args.seeds):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            rows = one(seed)
+            rows, doubt = one(seed)
+        doubts.append(doubt)
         for name, row in rows.items():
             rec.say(f"{seed} {name} {row[0]} {row[1]} {row[2]} {row[3]}")
             totals[name] += np.array(row, dtype=int)
@@ -78,6 +87,13 @@ def main(argv=None):
         rec.say(f"{name} {t[0]} {t[1]} {t[2]} {t[3]} {args.seeds}")
     rec.say(f"seeds where the two tests differ: {len(differ)}"
             + (f" ({', '.join(map(str, differ))})" if differ else ""))
+    rec.say("\ndiffuse-light doubts per seed: seed clean_doubtful patch_doubtful "
+            "subhalo_doubtful")
+    for seed, (c, p, s) in enumerate(doubts):
+        rec.say(f"{seed} {c} {p} {s}")
+    d = np.array(doubts, dtype=int)
+    rec.say(f"diffuse-light doubts: clean {d[:, 0].sum()} patch {d[:, 1].sum()} "
+            f"subhalo {d[:, 2].sum()} seeds {args.seeds}")
     rec.write(args.output)
 
 

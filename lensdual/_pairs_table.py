@@ -123,6 +123,12 @@ def size_snr_col(arc, band):
     return f"size_snr{_arc(arc)}_{band}"
 
 
+def bkg_col(arc, band):
+    """The photometry's fitted background under the source on ``arc`` (surface
+    brightness): ``bkg1_<band>`` or ``bkg2_<band>``."""
+    return f"bkg{_arc(arc)}_{band}"
+
+
 def band_flux_cols(band):
     """``(flux1_<band>, flux2_<band>, flux_err1_<band>, flux_err2_<band>)``."""
     return (flux_col(1, band), flux_col(2, band), flux_err_col(1, band), flux_err_col(2, band))

@@ -29,6 +29,7 @@ import numpy as np
 from astropy import units as u
 
 from . import _precompile as precompile
+from ._diffuse_light import doubt_diffuse_light
 from ._doubts import add_doubt, no_doubts
 from ._lost_pairs import with_lost_pairs
 from ._pairs_table import (
@@ -302,6 +303,7 @@ def analyse(images, *, psf=None, estimator=DEFAULT_METHOD, sigma_pos="auto",
                       lambda k: f"not measured ({measured['photometry_note'][k]})")
         if isinstance(sigma_pos, str):
             _doubt_missing_position_errors(measured, doubt)
+        diffuse = doubt_diffuse_light(measured, bands, doubt)
         measured["doubt"] = np.array([str(d) for d in doubt], dtype=str)
         step = (f"mu_size ({estimator})" if estimator == "adaptive"
                 else f"mu_size ({estimator}, {n_bootstrap} bootstraps)")
@@ -319,6 +321,7 @@ def analyse(images, *, psf=None, estimator=DEFAULT_METHOD, sigma_pos="auto",
             result = check_duality(measured, estimator, sigma_pos=sigma,
                                    n_bootstrap=n_bootstrap, snr_threshold=snr_threshold,
                                    seed=seed, test=test, snr_definition=snr_definition)
+            result.meta["diffuse_light"] = diffuse
         if null_realisations and estimator == "adaptive":
             with progress.step(f"null calibration ({null_realisations} realisations)"):
                 _add_null_calibration(result, measured, sigma, null_realisations,

@@ -34,6 +34,9 @@ _STRATEGY = {
     "none": ("raw", None),
 }
 _DEFAULT_BACKGROUND = "ridge"
+#: The strategies whose fitted ``bkg`` is the light under a source in the image
+#: itself (not in a filtered image, not fixed at 0).
+SURFACE_BRIGHTNESS_BACKGROUNDS = ("ridge", "plane", "quadratic", "constant", "local")
 
 _BKG_TERMS = {
     None: (),

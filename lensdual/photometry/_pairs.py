@@ -17,6 +17,7 @@ from .._pairs_table import (
     PAIR_ID,
     POSITION_COLUMNS,
     SKY_COLUMNS,
+    bkg_col,
     flags_col,
     flux_col,
     flux_err_col,
@@ -32,7 +33,7 @@ from .._pairs_table import (
 )
 from .._validation import as_positions
 from ..exceptions import LensdualWarning
-from ._background import _DEFAULT_BACKGROUND
+from ._background import _DEFAULT_BACKGROUND, SURFACE_BRIGHTNESS_BACKGROUNDS
 from ._flags import _BAD_FLAGS, describe_flags
 from ._inputs import (
     _as_oversampling,
@@ -216,6 +217,7 @@ class _ArcResult(NamedTuple):
     fluxes: dict  # band -> (flux, flux_err, flags)
     offsets: dict  # band -> (dx, dy, significance, n_sources), bands that were shifted
     sizes: dict  # band -> (size in mas, its significance); empty for point sources
+    backgrounds: dict  # band -> the fitted background (image unit / arcsec^2); may be empty
 
 
 #: A band's median position offset from the first band of its arc is removed
@@ -274,7 +276,8 @@ def _usable_fluxes(res, flags, bad):
     return flux, flux_err, flags
 
 
-def _measure_arc(arc, images, sky_init, bands, phot_of, reference, troubles, src_ids):
+def _measure_arc(arc, images, sky_init, bands, phot_of, reference, troubles, src_ids,
+                 with_background=False):
     """Measure all bands of one arc and combine the positions: an `_ArcResult`.
 
     A band whose median offset from the first band exceeds
@@ -285,7 +288,7 @@ def _measure_arc(arc, images, sky_init, bands, phot_of, reference, troubles, src
     sum_w = np.zeros(n)
     sum_x = np.zeros(n)
     sum_y = np.zeros(n)
-    fluxes, sizes = {}, {}
+    fluxes, sizes, backgrounds = {}, {}, {}
     per_band = []
     for band in bands:
         img = images[band]
@@ -295,6 +298,8 @@ def _measure_arc(arc, images, sky_init, bands, phot_of, reference, troubles, src
         ok = np.isfinite(xb) & np.isfinite(yb) & np.isfinite(sig) & (sig > 0) & ~bad
         per_band.append((np.where(ok, xb, np.nan), np.where(ok, yb, np.nan), sig, ok))
         fluxes[band] = _usable_fluxes(res, flags, bad)
+        if with_background:
+            backgrounds[band] = _surface_brightness(res, bad, img.wcs, arc, band)
         if "size" in res.colnames:
             sizes[band] = (_size_mas(res, img.wcs, arc, band), np.asarray(res["size_snr"]))
     offsets = {}
@@ -315,7 +320,24 @@ def _measure_arc(arc, images, sky_init, bands, phot_of, reference, troubles, src
         ym = np.where(sum_w > 0, sum_y / sum_w, np.nan)
         err = np.where(sum_w > 0, 1.0 / np.sqrt(sum_w), np.nan)
     troubles.note(np.flatnonzero(sum_w == 0), f"no band measured its L{arc} position (NaN)")
-    return _ArcResult(xm, ym, err, fluxes, offsets, sizes)
+    return _ArcResult(xm, ym, err, fluxes, offsets, sizes, backgrounds)
+
+
+def _pixel_area_arcsec2(wcs, arc, band):
+    """The mean pixel area of an image (arcsec^2)."""
+    from astropy.wcs.utils import proj_plane_pixel_scales
+
+    wcs = _as_wcs(wcs, f"images_l{arc}[{band!r}].wcs")
+    unit = u.Unit(wcs.celestial.world_axis_units[0] or "deg")
+    return float(np.prod(proj_plane_pixel_scales(wcs.celestial)) * unit.to(u.arcsec) ** 2)
+
+
+def _surface_brightness(res, bad, wcs, arc, band):
+    """The fitted background at each source (per pixel) as a surface brightness (per
+    arcsec^2), NaN where the fit is unusable."""
+    bkg = u.Quantity(res["bkg"], copy=True) / (_pixel_area_arcsec2(wcs, arc, band) * u.arcsec**2)
+    bkg[bad] = np.nan
+    return bkg
 
 
 def _size_mas(res, wcs, arc, band):
@@ -374,6 +396,10 @@ def _write_fluxes(out, per_arc, bands):
                 size, snr = per_arc[arc].sizes[band]
                 out[size_col(arc, band)] = size * u.mas
                 out[size_snr_col(arc, band)] = snr
+        if band in per_arc["1"].backgrounds:
+            b1, b2 = per_arc["1"].backgrounds[band], per_arc["2"].backgrounds[band]
+            out[bkg_col(1, band)] = b1
+            out[bkg_col(2, band)] = b2.to(b1.unit)
 
 
 def _measured(per_arc, bands, troubles):
@@ -490,6 +516,15 @@ def measure_pairs(
           ``flux_err2_<band>`` (image unit; L2 converted to the unit of L1),
           and ``flags1_<band>``, ``flags2_<band>`` (:class:`PhotometryFlag`
           bits; 0 is a clean fit);
+        * with a ``background`` fitted in the image itself (one of
+          :data:`SURFACE_BRIGHTNESS_BACKGROUNDS`: ``"ridge"``, the default,
+          the polynomials and ``"local"``), per band ``bkg1_<band>``,
+          ``bkg2_<band>``: that background at the fitted position, per
+          arcsec\ :sup:`2` (image unit; L2 converted to the unit of L1), NaN
+          where the fit is unusable. Lensing conserves surface brightness, so
+          the lensed arc's light is the same under both images of a pair;
+          light that is not lensed (a patch under one image, a member's or
+          the intracluster light) is not;
         * with ``source_model="resolved"``, per band ``size1_<band>``,
           ``size2_<band>`` (mas): the standard deviation of the fitted
           Gaussian along its major axis (before the PSF; negative: the
@@ -615,7 +650,8 @@ def measure_pairs(
         # a masked id (a partner that was never detected) is named by its pair only
         src_ids = np.ma.asarray(out[id_col(arc)]) if id_col(arc) in out.colnames else None
         per_arc[arc] = _measure_arc(
-            arc, images, sky_init, bands, phot_of, reference, troubles, src_ids
+            arc, images, sky_init, bands, phot_of, reference, troubles, src_ids,
+            with_background=background in SURFACE_BRIGHTNESS_BACKGROUNDS,
         )
 
     _write_positions(out, per_arc, reference)

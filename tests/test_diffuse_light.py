@@ -1,0 +1,201 @@
+"""The diffuse-light doubt: pairs whose images sit on different light that is not lensed."""
+
+import warnings
+
+import numpy as np
+import pytest
+from astropy import units as u
+from astropy.table import QTable
+from scipy import stats
+
+from lensdual._diffuse_light import (
+    DIFFUSE_LIGHT_ALPHA,
+    MIN_DIFFUSE_PAIRS,
+    diffuse_light_threshold,
+    doubt_diffuse_light,
+    studentized_plane_residuals,
+)
+from lensdual._doubts import no_doubts
+
+SB = u.nJy / u.arcsec**2
+
+
+def _externally_studentized(x, y, d):
+    """The textbook form from the full fit alone: r_i / (s_(i) sqrt(1 - h_ii)), with
+    s_(i)^2 = (RSS - r_i^2 / (1 - h_ii)) / (n - p - 1)."""
+    X = np.column_stack([np.ones_like(x), x, y])
+    hat = X @ np.linalg.solve(X.T @ X, X.T)
+    r = d - hat @ d
+    h = np.diag(hat)
+    n, p = X.shape
+    s2 = (r @ r - r**2 / (1 - h)) / (n - p - 1)
+    return r / np.sqrt(s2 * (1 - h))
+
+
+def test_leave_one_out_residuals_are_the_externally_studentized_ones():
+    rng = np.random.default_rng(3)
+    x, y = rng.uniform(-2, 2, 15), rng.uniform(-1, 1, 15)
+    d = 0.3 + 0.2 * x - 0.5 * y + rng.normal(0, 0.1, 15)
+    np.testing.assert_allclose(studentized_plane_residuals(x, y, d),
+                               _externally_studentized(x, y, d), rtol=1e-10)
+
+
+def test_false_doubts_per_constellation_are_alpha():
+    """Normal scatter about a plane: a constellation has a doubtful pair with
+    probability at most alpha (Bonferroni), close to it for a small alpha."""
+    rng = np.random.default_rng(4)
+    n, trials = 12, 4000
+    threshold = diffuse_light_threshold(n)
+    assert threshold == pytest.approx(stats.t.ppf(1 - DIFFUSE_LIGHT_ALPHA / (2 * n), n - 4))
+    hits = 0
+    for _ in range(trials):
+        x, y = rng.uniform(-2, 2, n), rng.uniform(-1, 1, n)
+        d = 1.0 - 0.4 * x + rng.normal(0, 0.2, n)
+        hits += np.any(np.abs(studentized_plane_residuals(x, y, d)) > threshold)
+    rate = hits / trials
+    # alpha = 1 %: within four binomial errors below it, and at most it plus four
+    err = np.sqrt(DIFFUSE_LIGHT_ALPHA * (1 - DIFFUSE_LIGHT_ALPHA) / trials)
+    assert DIFFUSE_LIGHT_ALPHA - 4 * err < rate < DIFFUSE_LIGHT_ALPHA + 4 * err
+
+
+def _table(n=12, patch=None, seed=5, bands=("F150W", "F200W"), units=None):
+    """A pairs table with the photometry's backgrounds: a gradient of light that is
+    not lensed on L1, the same lensed arc light under both images, noise; ``patch``
+    (index, surface brightness) adds light under one L1 image."""
+    rng = np.random.default_rng(seed)
+    t = QTable()
+    t["pair_id"] = np.arange(1, n + 1)
+    x1, y1 = rng.uniform(-3, 3, n), rng.uniform(-1, 1, n)
+    t["x1"], t["y1"] = x1 * u.arcsec, y1 * u.arcsec
+    for k, band in enumerate(bands):
+        unit = SB if units is None else units[k]
+        arc = rng.uniform(200, 400, n)
+        icl = 50 + 20 * x1 - 10 * y1
+        b1 = arc + icl + rng.normal(0, 5, n)
+        b2 = arc + rng.normal(0, 5, n)
+        if patch is not None:
+            b1[patch[0]] += patch[1]
+        t[f"bkg1_{band}"] = b1 * unit
+        t[f"bkg2_{band}"] = b2 * unit
+    return t
+
+
+def test_a_patch_under_one_image_makes_its_pair_doubtful():
+    t = _table(patch=(4, 60.0))
+    doubt = no_doubts(len(t))
+    summary = doubt_diffuse_light(t, ["F150W", "F200W"], doubt)
+    assert summary["n_pairs"] == 12
+    assert summary["threshold"] == pytest.approx(diffuse_light_threshold(12))
+    assert doubt[4].startswith("diffuse light differs between the images (t = ")
+    assert np.all(doubt[np.arange(12) != 4] == "")
+    assert abs(t["diffuse_light_t"][4]) > summary["threshold"]
+    # the same table without the patch: nothing doubtful
+    clean = _table()
+    doubt = no_doubts(len(clean))
+    doubt_diffuse_light(clean, ["F150W", "F200W"], doubt)
+    assert np.all(doubt == "") and np.all(np.isfinite(clean["diffuse_light_t"]))
+
+
+def test_only_pairs_without_doubt_are_compared():
+    t = _table(patch=(4, 60.0))
+    doubt = no_doubts(len(t))
+    doubt[4] = "already doubtful"
+    doubt[7] = "another reason"
+    summary = doubt_diffuse_light(t, ["F150W", "F200W"], doubt)
+    assert summary["n_pairs"] == 10 and doubt[4] == "already doubtful"
+    assert np.isnan(t["diffuse_light_t"][4]) and np.isnan(t["diffuse_light_t"][7])
+    # too few pairs: nothing compared
+    small = _table(n=MIN_DIFFUSE_PAIRS - 1, patch=(1, 500.0))
+    doubt = no_doubts(len(small))
+    summary = doubt_diffuse_light(small, ["F150W", "F200W"], doubt)
+    assert summary["threshold"] is None and np.all(doubt == "")
+    assert np.all(np.isnan(small["diffuse_light_t"]))
+    # no background columns (another background strategy): nothing compared
+    bare = QTable({"x1": [0.0] * 8 * u.arcsec, "y1": [0.0] * 8 * u.arcsec})
+    doubt = no_doubts(8)
+    assert doubt_diffuse_light(bare, ["F150W"], doubt)["n_pairs"] == 0
+
+
+def test_bands_in_other_units_count_by_their_spread():
+    """A band in units that do not convert (counts) enters in units of its own
+    spread: the patch is still found, and the result does not depend on the scale."""
+    counts = u.ct / u.s / u.arcsec**2
+    a = _table(patch=(4, 60.0), units=[SB, counts])
+    b = _table(patch=(4, 60.0), units=[SB, counts])
+    b["bkg1_F200W"] *= 1000
+    b["bkg2_F200W"] *= 1000
+    da, db = no_doubts(12), no_doubts(12)
+    doubt_diffuse_light(a, ["F150W", "F200W"], da)
+    doubt_diffuse_light(b, ["F150W", "F200W"], db)
+    assert da[4] != "" and list(da) == list(db)
+    np.testing.assert_allclose(a["diffuse_light_t"], b["diffuse_light_t"], rtol=1e-10)
+
+
+def test_measure_pairs_reports_the_background_as_a_surface_brightness():
+    """A flat sky of 5 per pixel under two sources, pixels of 0.04 arcsec: the
+    background under each image is 5 / 0.0016 per arcsec^2."""
+    from lensdual.photometry import measure_pairs
+
+    pytest.importorskip("photutils")
+    from astropy.coordinates import SkyCoord
+    from astropy.nddata import CCDData, StdDevUncertainty
+    from astropy.wcs import WCS
+
+    def image(sources, scale, sky):
+        w = WCS(naxis=2)
+        w.wcs.ctype = ["RA---TAN", "DEC--TAN"]
+        w.wcs.crval = [150.0, 2.0]
+        w.wcs.crpix = [31, 31]
+        w.wcs.cdelt = [-scale / 3600, scale / 3600]
+        yy, xx = np.mgrid[:60, :60]
+        data = np.full((60, 60), sky)
+        sig = 4.0 / 2.3548
+        for x, y, f in sources:
+            data += f * np.exp(-((xx - x) ** 2 + (yy - y) ** 2) / (2 * sig**2)) / (
+                2 * np.pi * sig**2)
+        rng = np.random.default_rng(1)
+        data = data + rng.normal(0, 0.05, data.shape)
+        return CCDData(data * u.nJy, wcs=w, uncertainty=StdDevUncertainty(np.full(data.shape,
+                                                                                   0.05)))
+
+    srcs = [(20.0, 30.0, 400.0), (40.0, 30.0, 300.0)]
+    l1 = {"F150W": image(srcs, 0.04, 5.0)}
+    l2 = {"F150W": image(srcs, 0.04, 5.0)}
+    sky = l1["F150W"].wcs.pixel_to_world([20.0, 40.0], [30.0, 30.0])
+    pairs = QTable({"pair_id": [1, 2], "sky1": sky, "sky2": SkyCoord(sky)})
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        out = measure_pairs(l1, l2, pairs, psf=4.0, background="constant")
+        none = measure_pairs(l1, l2, pairs, psf=4.0, background="residual")
+    assert out["bkg1_F150W"].unit.is_equivalent(SB)
+    np.testing.assert_allclose(out["bkg1_F150W"].to_value(SB), 5.0 / 0.04**2, rtol=0.02)
+    np.testing.assert_allclose(out["bkg2_F150W"].to_value(SB), 5.0 / 0.04**2, rtol=0.02)
+    assert "bkg1_F150W" not in none.colnames
+
+
+def test_the_pipeline_doubts_the_pair_on_a_bright_patch():
+    """The realistic demo scene with a patch of 160 nJy under pair 0's L1 image (its
+    flux ratio about 20 % off): the pair is doubtful for its diffuse light and
+    untested; the run records the comparison."""
+    pytest.importorskip("poppy")
+    from lensdual.demo import compare_with_truth, render_demo, simulate_demo
+    from lensdual.pipeline import analyse
+
+    system, truth = simulate_demo(subhalo="none", seed=0)
+    demo = render_demo(system, truth, seed=0, scene="realistic",
+                       patch={"flux": 160 * u.nJy})
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = analyse(demo.images, psf=demo.psf, sigma_pos="auto", seed=0).result
+    comp = compare_with_truth(res, truth, demo.centre)
+    pairs = demo.mocks.pairs
+    under = np.asarray(pairs["source"])[np.asarray(pairs["patch1"], bool)]
+    row = np.flatnonzero(np.isin(np.asarray(comp["source"]), under))
+    assert row.size == 1
+    (k,) = row
+    assert str(res["doubt"][k]).startswith("diffuse light differs between the images")
+    assert not res["tested"][k] and not res["anomalous"][k]
+    meta = res.meta["diffuse_light"]
+    assert meta["n_pairs"] >= MIN_DIFFUSE_PAIRS and meta["alpha"] == DIFFUSE_LIGHT_ALPHA
+    others = np.arange(len(res)) != k
+    assert not any("diffuse light" in str(d) for d in np.asarray(res["doubt"])[others])
