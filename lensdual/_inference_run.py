@@ -289,6 +289,7 @@ def run_inference(config, *, client=None, progress=None):
                                             calibrations=calibrations if calibrate else None)
     posterior.meta["systems"] = infos
     posterior.meta["inference"]["seed"] = int(config.seed)
+    posterior.meta["inference"]["anomaly_source"] = config.anomaly_source
     return InferenceRun(posterior, sims)
 
 
@@ -320,6 +321,13 @@ def format_inference_report(posterior, *, title="lensdual infer"):
     m = posterior.meta["inference"]
     kpc2 = u.kpc**-2
     half_mode = "log10_mhm" in posterior.colnames
+    anomalies = (f"  anomalies: {m['anomaly']}"
+                 + {"joint": " (the flux ratio against the joint test's prediction)",
+                    "geometric": " (the flux ratio against mu_size)"}.get(m["anomaly"], "")
+                 + ("; anomaly = \"auto\": " + ("every table is a joint-test table"
+                                                 if m["anomaly"] == "joint" else
+                                                 "not every table is a joint-test table")
+                    if m.get("anomaly_source") == "auto" else ""))
     summary = (f"  median {m['median'].to_value(kpc2):.3g}   68 % {_interval(m['interval_68'])}"
                f"   95 % {_interval(m['interval_95'])}   95 % upper limit "
                f"{m['upper_95'].to_value(kpc2):.3g}")
@@ -327,7 +335,7 @@ def format_inference_report(posterior, *, title="lensdual infer"):
         lines = [f"{title}: posterior on the sub-halo abundance sigma_sub (kpc^-2)",
                  f"  {m['n_systems']} system(s), {m['n_pairs']} tested pair(s); prior "
                  f"{m['prior']}; {m['n_realisations']} realisations per abundance",
-                 f"  {m['population']}", "", summary, ""]
+                 f"  {m['population']}", anomalies, "", summary, ""]
     else:
         pops = m["populations"]
         grid = ", ".join(f"{v:g}" for v in np.unique(np.asarray(posterior["log10_mhm"])))
@@ -336,7 +344,7 @@ def format_inference_report(posterior, *, title="lensdual infer"):
                  f"  {m['n_systems']} system(s), {m['n_pairs']} tested pair(s); prior "
                  f"{m['prior']}; {m['n_realisations']} realisations per abundance",
                  f"  half-mode masses log10 m_hm = {grid}; the lightest's population: "
-                 f"{pops[0]}", "",
+                 f"{pops[0]}", anomalies, "",
                  "  sigma_sub (marginal):",
                  summary,
                  "  half-mode mass, log10 m_hm (marginal):",

@@ -118,7 +118,7 @@ def test_infer_end_to_end(mocks, tmp_path, capsys):
 def test_two_systems_are_the_api_s_posterior(mocks, tmp_path):
     """Weight 1, two systems: the posterior is abundance_posterior of the two forward
     models (the seeds of lensdual infer: one stream per system from [inference] seed)."""
-    from lensdual._inference_run import run_inference
+    from lensdual._inference_run import format_inference_report, run_inference
 
     cfg = write_config(tmp_path / "two.toml", {**SMALL, "weight": 1, "seed": 7},
                        [_system(p) for p in mocks])
@@ -137,19 +137,38 @@ def test_two_systems_are_the_api_s_posterior(mocks, tmp_path):
     np.testing.assert_allclose(run.posterior["log_likelihood"], expected["log_likelihood"])
     assert run.posterior.meta["inference"]["n_systems"] == 2
     assert [s["weight"] for s in run.posterior.meta["systems"]] == [1.0, 1.0]
+    # the default, anomaly = "auto", with tables of the geometric test (12 sources: the
+    # pipeline's "auto" test runs the geometric one)
     assert run.posterior.meta["inference"]["anomaly"] == "geometric"
-    # [inference] anomaly = "joint": the joint test's anomalies of the same mocks
-    # analysed by the joint test (12 sources: "auto" runs the geometric test)
+    assert run.posterior.meta["inference"]["anomaly_source"] == "auto"
+    report = format_inference_report(run.posterior)
+    assert 'anomalies: geometric (the flux ratio against mu_size); anomaly = "auto"' in report
+    # the same mocks analysed by the joint test: "auto" reads the joint anomalies, as
+    # anomaly = "joint" does
     joint_paths = [_mock(tmp_path / f"joint_{k}.ecsv", seed, test="joint")
                    for k, seed in enumerate((3, 4))]
-    cfg = write_config(tmp_path / "joint.toml",
-                       {**SMALL, "weight": 1, "seed": 7, "anomaly": "joint"},
-                       [_system(p) for p in joint_paths])
-    joint = run_inference(load_inference_config(cfg))
     joint_tables = [QTable.read(p, format="ascii.ecsv") for p in joint_paths]
     expected = abundance_posterior(joint_tables, sims, anomaly="joint")
-    np.testing.assert_allclose(joint.posterior["log_likelihood"], expected["log_likelihood"])
-    assert joint.posterior.meta["inference"]["anomaly"] == "joint"
+    for extra in ({"anomaly": "joint"}, {}):
+        cfg = write_config(tmp_path / "joint.toml", {**SMALL, "weight": 1, "seed": 7, **extra},
+                           [_system(p) for p in joint_paths])
+        joint = run_inference(load_inference_config(cfg))
+        np.testing.assert_allclose(joint.posterior["log_likelihood"],
+                                   expected["log_likelihood"])
+        m = joint.posterior.meta["inference"]
+        assert m["anomaly"] == "joint"
+        assert m["anomaly_source"] == ("configured" if extra else "auto")
+    # one table of each: "auto" falls back on the geometric anomalies, "joint" is refused
+    mixed = [_system(joint_paths[0]), _system(mocks[1])]
+    config = load_inference_config(write_config(tmp_path / "mixed.toml",
+                                                {**SMALL, "weight": 1}, mixed))
+    assert config.anomaly == "geometric" and config.anomaly_source == "auto"
+    problems = _problems(write_config(tmp_path / "mixed_joint.toml",
+                                      {**SMALL, "weight": 1, "anomaly": "joint"}, mixed))
+    assert problems == ['[inference] anomaly: "joint" reads the joint test\'s prediction, and '
+                        "the tables of mock_b are of the geometric test (check_duality "
+                        'test="joint", or lensdual run with 13 sources or more); use '
+                        '"geometric" or "auto"']
 
 
 def test_line_of_sight_haloes_reach_the_forward_model(mocks, tmp_path):
@@ -452,7 +471,7 @@ def _bad(mocks, tmp_path):
          "[inference] weight: expected \"composite\" or a number in (0, 1], got 'compsite' "
          "(did you mean 'composite'?)"),
         ("bad anomaly", {**SMALL, "anomaly": "field"}, [ok],
-         "[inference] anomaly: 'field' is not one of 'geometric', 'joint'"),
+         "[inference] anomaly: 'field' is not one of 'auto', 'geometric', 'joint'"),
         ("bad model", {**SMALL, "model": "SIDM"}, [ok],
          "[inference] model: 'SIDM' is not one of 'CDM', 'WDM'"),
         ("WDM without log_mhm", {**SMALL, "model": "WDM"}, [ok],
@@ -520,8 +539,10 @@ def test_defaults_are_the_schema_s(mocks, tmp_path):
     config = load_inference_config(cfg)
     assert config.outdir == tmp_path.resolve() / "lensdual-inference"
     for f in INFERENCE_FIELDS:
-        if f.table == "inference":
+        if f.table == "inference" and f.name != "anomaly":
             assert getattr(config, f.attribute) == f.default, f.name
+    # "auto" is resolved on the tables (of the geometric test here)
+    assert config.anomaly == "geometric" and config.anomaly_source == "auto"
     # the weight's default depends on the calibration: 1 with it (the default)
     assert config.calibrate and config.weight is None and config.effective_weight == 1.0
     assert config.grid.unit == u.kpc**-2 and len(config.grid) == 30

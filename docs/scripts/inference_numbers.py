@@ -399,15 +399,26 @@ def posterior_numbers(path):
 
 def read_half_mode_coverage(path):
     """``{"sigma_sub": {...}, "log10_mhm": {...}}`` (coverages and their errors, bias,
-    width) and the run's summary line of ``inference_half_mode_coverage.py``."""
+    width) and the run's summary line of ``inference_half_mode_coverage.py``; with a
+    calibration also ``calibrated_sigma_sub``, ``calibrated_log10_mhm`` and
+    ``mocks`` (the calibration's mocks used and their uncalibrated coverages)."""
     lines = Path(path).read_text().splitlines()
     out = {}
     for line in lines:
         words = line.split()
-        if words and words[0] in ("sigma_sub", "log10_mhm"):
-            out[words[0]] = {k: float(v) for k, v in re.findall(r"(\w+)=([-+\d.]+)", line)}
-            out[words[0]] |= {f"{k}_err": float(v) for k, v in
-                              re.findall(r"(cov\d+)=[\d.]+ \(\+-([\d.]+)\)", line)}
+        key = ("calibrated_" + words[1] if words and words[0] == "calibrated"
+               else words[0] if words else None)
+        if key in ("sigma_sub", "log10_mhm", "calibrated_sigma_sub", "calibrated_log10_mhm"):
+            out[key] = {k: float(v) for k, v in re.findall(r"(\w+)=([-+\d.]+)", line)}
+            out[key] |= {f"{k}_err": float(v) for k, v in
+                         re.findall(r"(cov\d+)=[\d.]+ \(\+-([\d.]+)\)", line)}
+        m = re.search(r"the calibration's mocks \((\d+) used\): uncalibrated sigma_sub "
+                      r"cov68=([\d.]+) cov95=([\d.]+), log10_mhm cov68=([\d.]+) "
+                      r"cov95=([\d.]+)", line)
+        if m:
+            out["mocks"] = {"n": int(m.group(1)), "sigma_cov68": float(m.group(2)),
+                            "sigma_cov95": float(m.group(3)), "mhm_cov68": float(m.group(4)),
+                            "mhm_cov95": float(m.group(5))}
     return out, lines[1]
 
 
@@ -452,18 +463,29 @@ def half_mode_numbers(example_path, coverage_path):
 
 
 def _half_mode_coverage(cov, prefix):
-    """Both marginals' 68 and 95 % coverage and the abundance's bias, named ``prefix_*``."""
+    """Both marginals' 68 and 95 % coverage and the abundance's bias, named ``prefix_*``;
+    with a calibration the same named ``prefix_cal_*``, the abundance's 95 % widths
+    (``prefix_width_sigma``, ``prefix_cal_width_sigma``) and the half-mode mass's
+    calibrated one (``prefix_cal_width``)."""
     sub = {}
     for name, key in (("sigma", "sigma_sub"), ("mhm", "log10_mhm")):
         for c in ("cov68", "cov95"):
             sub[f"{prefix}_{name}_{c}"] = _pct(cov[key][c])
+            if f"calibrated_{key}" in cov:
+                sub[f"{prefix}_cal_{name}_{c}"] = _pct(cov[f"calibrated_{key}"][c])
     sub[f"{prefix}_bias"] = f"{cov['sigma_sub']['bias_median']:+.2f}"
+    if "calibrated_sigma_sub" in cov:
+        sub[f"{prefix}_cal_bias"] = f"{cov['calibrated_sigma_sub']['bias_median']:+.2f}"
+        sub[f"{prefix}_width_sigma"] = f"{cov['sigma_sub']['width95']:.2f}"
+        sub[f"{prefix}_cal_width_sigma"] = f"{cov['calibrated_sigma_sub']['width95']:.2f}"
+        sub[f"{prefix}_cal_width"] = f"{cov['calibrated_log10_mhm']['width95']:.1f}"
+        sub[f"{prefix}_cal_mocks"] = str(cov["mocks"]["n"])
     return sub
 
 
-def half_mode_second_family(path):
-    """The same coverage on a second family (``inf_hm2_*``)."""
-    return _half_mode_coverage(read_half_mode_coverage(path)[0], "inf_hm2")
+def half_mode_second_family(path, prefix="inf_hm2"):
+    """The same coverage on another family (``prefix_*``)."""
+    return _half_mode_coverage(read_half_mode_coverage(path)[0], prefix)
 
 
 def compute(folder=OUT):
@@ -492,6 +514,7 @@ def compute(folder=OUT):
     sub |= posterior_numbers(folder / "posterior.txt")
     sub |= half_mode_numbers(folder / "half_mode.txt", folder / "half_mode_coverage.txt")
     sub |= half_mode_second_family(folder / "half_mode_coverage_macs1149.txt")
+    sub |= half_mode_second_family(folder / "half_mode_coverage_group.txt", "inf_hm3")
     return sub
 
 

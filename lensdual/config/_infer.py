@@ -117,7 +117,11 @@ class InferenceConfig:
         Mocks of each composite weight.
     anomaly : str
         The pairs' anomalies, ``"geometric"`` or ``"joint"``
-        (:func:`~lensdual.inference.pair_anomalies`).
+        (:func:`~lensdual.inference.pair_anomalies`); ``"auto"`` in the file
+        is resolved when it is read: ``"joint"`` where every system's table is
+        a joint-test table, else ``"geometric"``.
+    anomaly_source : str
+        ``"configured"`` (``anomaly`` given) or ``"auto"``.
     los_normalization : float
         Line-of-sight haloes (pyHalo's ``LOS_normalization``; 0: none).
     two_halo : bool
@@ -141,6 +145,7 @@ class InferenceConfig:
     anomaly: str = _d("anomaly")
     los_normalization: float = _d("los_normalization")
     two_halo: bool = _d("two_halo")
+    anomaly_source: str = "configured"
 
     @property
     def half_mode(self):
@@ -506,6 +511,8 @@ class _InferenceValidator(_Validator):
         outdir = self.output()
         settings = self.inference()
         systems = self.systems(_mocks(settings))
+        if settings is not None and not self.problems:
+            self.anomaly(settings, systems)
         if self.problems or settings is None:
             raise ConfigError(self.problems, self.path)
         config = InferenceConfig(path=self.path, outdir=outdir, systems=systems, **settings)
@@ -513,6 +520,22 @@ class _InferenceValidator(_Validator):
         if self.problems:
             raise ConfigError(self.problems, self.path)
         return config
+
+
+    def anomaly(self, settings, systems):
+        """Resolve ``anomaly = "auto"`` on the systems' tables (in ``settings``); a
+        joint anomaly needs every table to be a joint-test table."""
+        joint = [s.table.meta.get("duality", {}).get("test", "geometric") == "joint"
+                 for s in systems]
+        if settings["anomaly"] == "auto":
+            settings["anomaly"] = "joint" if all(joint) else "geometric"
+            settings["anomaly_source"] = "auto"
+        elif settings["anomaly"] == "joint" and not all(joint):
+            names = [s.name for s, j in zip(systems, joint, strict=True) if not j]
+            self.add('[inference] anomaly: "joint" reads the joint test\'s prediction, and the '
+                     f"tables of {', '.join(names)} are of the geometric test (check_duality "
+                     'test="joint", or lensdual run with 13 sources or more); use "geometric" '
+                     'or "auto"')
 
 
 def _effective_weight(settings):

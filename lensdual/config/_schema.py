@@ -380,11 +380,12 @@ INFERENCE_FIELDS = (
        note='"composite" (by simulation) or a number in (0, 1]'),
     _F("inference", "n_mocks", "integer", 100,
        'mock universes of each composite weight (weight = "composite")', minimum=20),
-    _F("inference", "anomaly", "string", "geometric",
+    _F("inference", "anomaly", "string", "auto",
        'the pairs\' anomalies: "geometric" (the flux ratio against mu_size, in every duality '
-       'table; the one whose coverage holds) or "joint" (against the joint test\'s '
-       "prediction; a table of the joint test)",
-       choices=ANOMALIES),
+       'table), "joint" (against the joint test\'s prediction, which also reads the '
+       'neighbours\' flux ratios; every table a joint-test table) or "auto" (joint where '
+       "every system's table is a joint-test table, else geometric)",
+       choices=("auto", *ANOMALIES)),
 
     _F(INFERENCE_SYSTEM, "name", "string", None,
        "the system's name in the report and the posterior's metadata",

@@ -20,9 +20,9 @@ The chain, for one or many analysed constellations:
    mass, from simulations of WDM populations on a grid of half-mode masses.
 4. :func:`calibrate_posterior`: mock universes of a constellation, made as
    the data, on which :func:`abundance_posterior` recalibrates its intervals
-   (the pairs' errors are correlated through shared baselines);
-   :func:`composite_weight` the older correction, a power of the likelihood,
-   kept for :func:`half_mode_posterior`.
+   (the pairs' errors are correlated through shared baselines), and
+   :func:`half_mode_posterior` both of its marginals;
+   :func:`composite_weight` the older correction, a power of the likelihood.
 
 See the docs page "What the flags say about dark matter" for the model, its
 checks and its injection-recovery coverage.

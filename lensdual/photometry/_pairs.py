@@ -323,19 +323,44 @@ def _measure_arc(arc, images, sky_init, bands, phot_of, reference, troubles, src
     return _ArcResult(xm, ym, err, fluxes, offsets, sizes, backgrounds)
 
 
+def _in_image(background):
+    """Whether the background strategy fits the light under a source in the image itself
+    (a name of :data:`SURFACE_BRIGHTNESS_BACKGROUNDS` or a LocalBackground)."""
+    from photutils.background import LocalBackground
+
+    return (isinstance(background, LocalBackground)
+            or (isinstance(background, str) and background in SURFACE_BRIGHTNESS_BACKGROUNDS))
+
+
 def _pixel_area_arcsec2(wcs, arc, band):
-    """The mean pixel area of an image (arcsec^2)."""
-    from astropy.wcs.utils import proj_plane_pixel_scales
+    """The pixel area of an image at its reference pixel (arcsec^2)."""
+    from astropy.wcs.utils import proj_plane_pixel_area
 
     wcs = _as_wcs(wcs, f"images_l{arc}[{band!r}].wcs")
     unit = u.Unit(wcs.celestial.world_axis_units[0] or "deg")
-    return float(np.prod(proj_plane_pixel_scales(wcs.celestial)) * unit.to(u.arcsec) ** 2)
+    return float(proj_plane_pixel_area(wcs.celestial) * unit.to(u.arcsec) ** 2)
+
+
+def _per_solid_angle(unit):
+    """Whether ``unit`` is already per solid angle (a surface brightness, e.g. MJy/sr)."""
+    d = u.Unit(unit).decompose()
+    return any(b == u.rad and p == -2 for b, p in zip(d.bases, d.powers, strict=True))
 
 
 def _surface_brightness(res, bad, wcs, arc, band):
-    """The fitted background at each source (per pixel) as a surface brightness (per
-    arcsec^2), NaN where the fit is unusable."""
-    bkg = u.Quantity(res["bkg"], copy=True) / (_pixel_area_arcsec2(wcs, arc, band) * u.arcsec**2)
+    """The fitted background at each source as a surface brightness per arcsec^2 (an
+    image unit per pixel divided by the pixel area; one per solid angle converted),
+    NaN where the fit is unusable."""
+    bkg = u.Quantity(res["bkg"], copy=True)
+    if _per_solid_angle(bkg.unit):
+        unit = bkg.unit
+        flux = u.Unit(1.0)
+        for base, power in zip(unit.bases, unit.powers, strict=True):
+            if base.physical_type not in ("angle", "solid angle"):
+                flux = flux * base**power
+        bkg = bkg.to(flux * unit.scale / u.arcsec**2)
+    else:
+        bkg = bkg / (_pixel_area_arcsec2(wcs, arc, band) * u.arcsec**2)
     bkg[bad] = np.nan
     return bkg
 
@@ -518,11 +543,13 @@ def measure_pairs(
           bits; 0 is a clean fit);
         * with a ``background`` fitted in the image itself (one of
           :data:`SURFACE_BRIGHTNESS_BACKGROUNDS`: ``"ridge"``, the default,
-          the polynomials and ``"local"``), per band ``bkg1_<band>``,
-          ``bkg2_<band>``: that background at the fitted position, per
-          arcsec\ :sup:`2` (image unit; L2 converted to the unit of L1), NaN
-          where the fit is unusable. Lensing conserves surface brightness, so
-          the lensed arc's light is the same under both images of a pair;
+          the polynomials and ``"local"``, or a LocalBackground), per band
+          ``bkg1_<band>``, ``bkg2_<band>``: that background at the fitted
+          position per arcsec\ :sup:`2` (the image unit per pixel over the
+          pixel area; an image unit per solid angle, e.g. MJy/sr, converted;
+          L2 in the unit of L1), NaN where the fit is unusable. Lensing
+          conserves surface brightness, so the lensed arc's light is the same
+          under both images of a pair;
           light that is not lensed (a patch under one image, a member's or
           the intracluster light) is not;
         * with ``source_model="resolved"``, per band ``size1_<band>``,
@@ -651,7 +678,7 @@ def measure_pairs(
         src_ids = np.ma.asarray(out[id_col(arc)]) if id_col(arc) in out.colnames else None
         per_arc[arc] = _measure_arc(
             arc, images, sky_init, bands, phot_of, reference, troubles, src_ids,
-            with_background=background in SURFACE_BRIGHTNESS_BACKGROUNDS,
+            with_background=_in_image(background),
         )
 
     _write_positions(out, per_arc, reference)
