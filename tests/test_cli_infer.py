@@ -330,7 +330,7 @@ def test_calibrated_half_mode_posterior_is_the_api_s(mocks, tmp_path, capsys):
     from lensdual.inference import calibrate_posterior
 
     inference = {k: v for k, v in SMALL.items() if k != "calibrate"}
-    inference.update({"n_calibration": 60, "seed": 3, "model": "WDM", "log_mhm": [9, 6]})
+    inference.update({"n_calibration": 60, "seed": 3, "model": "WDM", "log_mhm": [9, 6, 7]})
     cfg = write_config(tmp_path / "hmcal.toml", inference, [_system(mocks[0], name="mock A")])
     config = load_inference_config(cfg)
     run = run_inference(config)

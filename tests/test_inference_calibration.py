@@ -328,12 +328,19 @@ def test_latin_hypercube_partner_is_stratified_and_spread():
     assert counts.min() >= 1
 
 
+#: The half-mode tests' population settings, none of them the default.
+WDM_SETTINGS = {"model": "WDM", "log_m_host": 14.6, "shmf_log_slope": -1.85,
+                "host_scaling_factor": 0.6, "host_centre": (0.3, -0.2) * u.arcsec}
+#: Three unevenly spaced half-mode masses, given out of order.
+MASSES = (9.0, 6.0, 7.0)
+
+
 @pytest.fixture(scope="module")
 def half_mode_setup(setup):
     system, pairs, pop, sim, cal = setup
     sims = [simulate_anomalies(pairs, system, SubhaloPopulation(
-        pop.z_lens, pop.z_source, model="WDM", log_mhm=m), sim.sigma_sub,
-        n_realisations=MIN_REALISATIONS, seed=2) for m in (9.0, 6.0)]
+        pop.z_lens, pop.z_source, log_mhm=m, **WDM_SETTINGS), sim.sigma_sub,
+        n_realisations=MIN_REALISATIONS, seed=2) for m in MASSES]
     hm = calibrate_posterior(pairs, system, sims, sigma_pos=SIGMA_POS, flux_rel_err=0.02,
                              n_mocks=60, seed=8)
     return system, pairs, pop, sims, hm
@@ -343,22 +350,22 @@ def test_half_mode_mocks_are_made_as_the_data(half_mode_setup):
     """A half-mode mock, remade by hand: the population at its true half-mode mass,
     its noise and test, scored on both masses' simulations (lightest first)."""
     system, pairs, pop, sims, hm = half_mode_setup
-    assert repr(hm).startswith("<PosteriorCalibration: 60 mocks on 6 abundances x 2 half-mode")
-    np.testing.assert_array_equal(hm.log10_mhm, [6.0, 9.0])
-    assert hm.log_likelihood.shape == (60, 2, 6)
+    assert repr(hm).startswith("<PosteriorCalibration: 60 mocks on 6 abundances x 3 half-mode")
+    np.testing.assert_array_equal(hm.log10_mhm, [6.0, 7.0, 9.0])
+    assert hm.log_likelihood.shape == (60, 3, 6)
     np.testing.assert_allclose(np.sort(hm.log10_mhm_truth), stratified_truths([6.0, 9.0], 60))
     rng = np.random.default_rng(8)
     seeds = [tuple(int(rng.integers(2**31)) for _ in range(3)) for _ in range(3)]
     j = 2
-    wdm = SubhaloPopulation(pop.z_lens, pop.z_source, model="WDM",
-                            log_mhm=hm.log10_mhm_truth[j])
+    wdm = SubhaloPopulation(pop.z_lens, pop.z_source, log_mhm=hm.log10_mhm_truth[j],
+                            **WDM_SETTINGS)
     mock = apply_population(pairs, system, wdm, 10 ** hm.log10_truth[j] * KPC2,
                             seed=seeds[j][0])
     noisy = noisy_constellation(mock, sigma_pos=SIGMA_POS, flux_rel_err=0.02, seed=seeds[j][1])
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", EstimatorWarning)
         result = check_duality(noisy, sigma_pos=SIGMA_POS, seed=seeds[j][2], test="geometric")
-    for k, s in enumerate(sims[::-1]):
+    for k, s in enumerate(sorted(sims, key=lambda s: s.population.log_mhm)):
         np.testing.assert_allclose(hm.log_likelihood[j, k],
                                    abundance_posterior(result, s)["log_likelihood"], rtol=1e-12)
 
@@ -383,15 +390,15 @@ def _marginal_pits(log_s, log_m, lls, truth_s, truth_m):
 
 def test_calibrated_half_mode_marginals_match_the_plain_reference(half_mode_setup):
     system, pairs, pop, sims, hm = half_mode_setup
-    data = _data(system, pairs, SubhaloPopulation(pop.z_lens, pop.z_source, model="WDM",
-                                                  log_mhm=7.0), 0.05, 70)
+    data = _data(system, pairs, SubhaloPopulation(pop.z_lens, pop.z_source, log_mhm=7.5,
+                                                  **WDM_SETTINGS), 0.05, 70)
     raw = half_mode_posterior(data, sims)
     post = half_mode_posterior(data, sims, calibrations=hm)
     np.testing.assert_array_equal(post["posterior"], raw["posterior"])
     m, r = post.meta["inference"], raw.meta["inference"]
     assert m["calibrated"] and not r["calibrated"]
     log_s = np.log10(sims[0].sigma_sub.to_value(KPC2))
-    log_m = np.array([6.0, 9.0])
+    log_m = np.array([6.0, 7.0, 9.0])
     used = hm.n_tested > 0
     pits = _marginal_pits(log_s, log_m, hm.log_likelihood[used], hm.log10_truth[used],
                           hm.log10_mhm_truth[used])
@@ -428,16 +435,23 @@ def test_half_mode_calibration_bad_input(setup, half_mode_setup):
         calibrate_posterior(pairs, system, [sims[0]], **kw)
     with pytest.raises(ValueError, match="each half-mode mass once"):
         calibrate_posterior(pairs, system, [sims[0], sims[0]], **kw)
-    other = simulate_anomalies(pairs, system, SubhaloPopulation(
-        pop.z_lens, pop.z_source, model="WDM", log_mhm=7.0, shmf_log_slope=-1.8),
-        sim.sigma_sub, n_realisations=MIN_REALISATIONS, seed=2)
-    with pytest.raises(ValueError, match="differ only in log_mhm"):
-        calibrate_posterior(pairs, system, [sims[0], other], **kw)
+    # another slope, or another host centre, at another mass: not one population
+    for change in ({"shmf_log_slope": -1.8}, {"host_centre": (0.0, 0.0) * u.arcsec}):
+        other = simulate_anomalies(pairs, system, SubhaloPopulation(
+            pop.z_lens, pop.z_source, log_mhm=8.0, **{**WDM_SETTINGS, **change}),
+            sim.sigma_sub, n_realisations=MIN_REALISATIONS, seed=2)
+        with pytest.raises(ValueError, match="differ only in log_mhm"):
+            calibrate_posterior(pairs, system, [sims[0], other], **kw)
     with pytest.raises(TypeError, match="or a list of them"):
         calibrate_posterior(pairs, system, [sims[0], "x"], **kw)
-    # the calibration of other masses
-    seven = simulate_anomalies(pairs, system, SubhaloPopulation(
-        pop.z_lens, pop.z_source, model="WDM", log_mhm=7.0), sim.sigma_sub,
+    # the calibration of other masses, or of the same masses with another slope
+    eight = simulate_anomalies(pairs, system, SubhaloPopulation(
+        pop.z_lens, pop.z_source, log_mhm=8.0, **WDM_SETTINGS), sim.sigma_sub,
         n_realisations=MIN_REALISATIONS, seed=2)
     with pytest.raises(ValueError, match="was not made on simulation 1"):
-        half_mode_posterior(data, [sims[1], seven], calibrations=hm)
+        half_mode_posterior(data, [sims[1], sims[2], eight], calibrations=hm)
+    slope = [simulate_anomalies(pairs, system, SubhaloPopulation(
+        pop.z_lens, pop.z_source, log_mhm=m, **{**WDM_SETTINGS, "shmf_log_slope": -1.8}),
+        sim.sigma_sub, n_realisations=MIN_REALISATIONS, seed=2) for m in MASSES]
+    with pytest.raises(ValueError, match="was not made on simulation 1"):
+        half_mode_posterior(data, slope, calibrations=hm)

@@ -1,4 +1,5 @@
-"""Calibration of the abundance posterior by simulation (private)."""
+"""Calibration of the abundance posterior, and of the joint posterior with the half-mode
+mass, by simulation (private)."""
 
 import warnings
 from dataclasses import dataclass
@@ -19,11 +20,12 @@ MIN_CALIBRATION_MOCKS = 50
 
 @dataclass(frozen=True, eq=False)
 class PosteriorCalibration:
-    """The mock universes that calibrate one constellation's abundance posterior.
+    """The mock universes that calibrate one constellation's abundance posterior, or
+    its joint posterior with the half-mode mass.
 
     Made by :func:`calibrate_posterior`; passed to
-    :func:`abundance_posterior` (``calibrations=``). Every parameter is also
-    an attribute.
+    :func:`abundance_posterior` or :func:`half_mode_posterior`
+    (``calibrations=``). Every parameter is also an attribute.
 
     Parameters
     ----------
@@ -80,8 +82,10 @@ class PosteriorCalibration:
 
 
 def simulation_key(simulation):
-    """The population, pair ids and disc radii of an `AnomalySimulation`."""
-    return (repr(simulation.population), tuple(int(p) for p in simulation.pair_id),
+    """The population's settings, pair ids and disc radii of an `AnomalySimulation`."""
+    pop = simulation.population
+    return (None if pop is None else pop._settings(),
+            tuple(int(p) for p in simulation.pair_id),
             tuple(float(r) for r in np.ravel(simulation.radius)))
 
 
@@ -296,10 +300,10 @@ def _calibrated_simulations(simulation):
     sims = [sims[k] for k in order]
 
     def rest(s):
-        p = s.population
-        return (p.z_lens, p.z_source, p.log_mlow, p.log_mhigh, p.log_m_host, p.shmf_log_slope,
-                p.los_normalization, p.two_halo, repr(p.cosmology),
-                *simulation_key(s)[1:], s.sigma_sub.to_value(u.kpc**-2).tobytes())
+        # every setting but log_mhm (the eighth), the pairs, radii and grid
+        settings = s.population._settings()
+        return (settings[:7] + settings[8:], *simulation_key(s)[1:],
+                s.sigma_sub.to_value(u.kpc**-2).tobytes())
 
     if len({rest(s) for s in sims}) != 1:
         raise ValueError("the half-mode simulations must differ only in log_mhm (one grid, "

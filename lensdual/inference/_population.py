@@ -190,6 +190,17 @@ class SubhaloPopulation:
         self.two_halo = bool(two_halo)
         self._setup()
 
+    def _settings(self):
+        """Every setting of the population, as a tuple (equal tuples: the same
+        population): model, redshifts, mass range, host mass, slope, ``log_mhm``,
+        cosmology, host and redshift scaling factors, host centre, line-of-sight
+        normalisation and two-halo term."""
+        return (self.model, self.z_lens, self.z_source, self.log_mlow, self.log_mhigh,
+                self.log_m_host, self.shmf_log_slope, self.log_mhm, repr(self.cosmology),
+                self.host_scaling_factor, self.redshift_scaling_factor,
+                tuple(float(c) for c in self.host_centre), self.los_normalization,
+                self.two_halo)
+
     def __repr__(self):
         extra = f", log_mhm={self.log_mhm}" if self.model == "WDM" else ""
         if self.los_normalization > 0:
