@@ -15,8 +15,9 @@ multiple of the flux difference ``f1 - f2`` (the mean over the bands): its
 externally studentized residual ``t`` follows Student's t with ``n - 5``
 degrees of freedom where the differences scatter normally about that model.
 A pair whose ``|t|`` exceeds the two-sided quantile at
-:data:`DIFFUSE_LIGHT_ALPHA`, Bonferroni-corrected over the ``n`` pairs, is
-doubtful: its flux ratio may hold light that is not the source's. A
+:data:`DIFFUSE_LIGHT_ALPHA`, Bonferroni-corrected over the ``n`` pairs, has a
+doubtful flux ratio (``flux_doubt``): it may hold light that is not the
+source's. Its positions are not in doubt, so it stays in the geometry. A
 sub-halo's magnification moves ``f1 - f2`` and, through the leak, ``d`` along
 the fitted multiple, so it does not make a pair doubtful.
 """
@@ -25,7 +26,7 @@ import numpy as np
 from astropy import units as u
 from scipy import stats
 
-from ._doubts import add_doubt
+from ._doubts import add_doubt, no_doubts
 from ._pairs_table import ARCS, bkg_col, flux_col, x_col, y_col
 
 __all__ = []
@@ -94,15 +95,17 @@ def _differences(measured, bands):
 
 
 def doubt_diffuse_light(measured, bands, doubt, alpha=DIFFUSE_LIGHT_ALPHA):
-    """Make doubtful (in place) the pairs whose images sit on different light that is
-    not lensed, and add the column ``diffuse_light_t`` (NaN where not compared).
+    """Add the columns ``flux_doubt`` (why a pair's flux ratio is doubtful: its images
+    sit on different light that is not lensed; "" where not) and ``diffuse_light_t``
+    (NaN where not compared) to ``measured``.
 
-    Only pairs without a doubt and with the backgrounds and fluxes of every band used
-    take part; with fewer than :data:`MIN_DIFFUSE_PAIRS` of them nothing is compared.
-    Returns the summary for ``meta``: the pairs compared, the bands, ``alpha`` and the
-    threshold (None when nothing was compared).
+    Only pairs without a ``doubt`` and with the backgrounds and fluxes of every band
+    used take part; with fewer than :data:`MIN_DIFFUSE_PAIRS` of them nothing is
+    compared. Returns the summary for ``meta``: the pairs compared, the bands,
+    ``alpha`` and the threshold (None when nothing was compared).
     """
     t = np.full(len(measured), np.nan)
+    flux_doubt = no_doubts(len(measured))
     found = _differences(measured, bands)
     summary = {"alpha": alpha, "n_pairs": 0, "bands": [], "threshold": None}
     if found is not None:
@@ -120,10 +123,11 @@ def doubt_diffuse_light(measured, bands, doubt, alpha=DIFFUSE_LIGHT_ALPHA):
                 t[ok] = studentized_residuals(design, d[ok])
             threshold = diffuse_light_threshold(n, alpha)
             summary.update(n_pairs=n, bands=list(used), threshold=threshold)
-            add_doubt(doubt, np.abs(np.nan_to_num(t)) > threshold, lambda k: (
+            add_doubt(flux_doubt, np.abs(np.nan_to_num(t)) > threshold, lambda k: (
                 f"diffuse light differs between the images (t = {t[k]:.1f} against the "
                 f"other pairs' model; beyond {threshold:.1f}, the {100 * alpha:g} % level over "
                 f"{n} pairs): light that is not lensed, e.g. a patch of emission under one "
                 "image, may be in its flux ratio"))
+    measured["flux_doubt"] = flux_doubt.astype(str)
     measured["diffuse_light_t"] = t
     return summary

@@ -91,6 +91,8 @@ def _flag(row):
 def _untested_reason(row):
     if "doubt" in row.colnames and str(row["doubt"]):
         return "doubtful pairing"
+    if "flux_doubt" in row.colnames and str(row["flux_doubt"]):
+        return "doubtful flux ratio"
     if "smooth_field_fails" in row.colnames and row["smooth_field_fails"]:
         return "geometry and neighbours' fluxes disagree: the smooth field fails here"
     status = str(row["mu_size_status"]) if "mu_size_status" in row.colnames else ""
@@ -183,6 +185,13 @@ def verdict(result, sigma_pos):
                      "pairs and never counted as anomalies: "
                      + "; ".join(f"pair {r['pair_id']} ({r['id1']}, {r['id2']}): {r['doubt']}"
                                  for r in doubtful) + ". ")
+        fluxes = untested[[bool(str(d)) for d in untested["flux_doubt"]]] if "flux_doubt" in \
+            untested.colnames else untested[:0]
+        if len(fluxes):
+            text += ("Pairs whose flux ratio is doubtful keep their place in the geometry and "
+                     "are never counted as anomalies: "
+                     + "; ".join(f"pair {r['pair_id']}: {r['flux_doubt']}" for r in fluxes)
+                     + ". ")
     if method != "adaptive" and len(result) < _FEW_PAIRS:
         text += (f"WARNING: only {len(result)} pairs: the {method} estimator then fits one "
                  "nearly global map (mu_size almost the same for every pair) and its error "

@@ -429,6 +429,31 @@ def _doubts(tab, theta1, theta2, flux, chromatic_alpha):
     return doubt.astype(str)
 
 
+def _flux_doubts(tab):
+    """Why each pair's flux ratio alone is doubtful (the input's ``flux_doubt`` column;
+    "" where it is not)."""
+    if "flux_doubt" not in tab.colnames:
+        return np.array([""] * len(tab), dtype=object)
+    return doubts_of(QTable({"doubt": tab["flux_doubt"]}))
+
+
+def _without_doubtful_fluxes(flux, flux_doubt):
+    """``flux`` with NaN in every float column of the pairs whose flux ratio is
+    doubtful: they inform no test (nor the chromatic check, nor the joint test's flux
+    field)."""
+    held = flux_doubt != ""
+    if not held.any():
+        return flux
+    out = flux.copy()
+    for name in out.colnames:
+        col = out[name]
+        if np.issubdtype(np.asarray(col).dtype, np.floating):
+            unit = getattr(col, "unit", None)
+            col[held] = np.nan if unit is None or not isinstance(col, u.Quantity) \
+                else np.nan * unit
+    return out
+
+
 def _chromatic_hint(doubt):
     """Where most pairs are chromatic, what that usually means."""
     chromatic = np.char.startswith(np.asarray(doubt, dtype=str), "colours differ")
@@ -651,7 +676,11 @@ def check_duality(
     are left out of the size-magnification estimate of the other pairs, so a
     mis-pair cannot distort the Jacobians of its neighbours, and are not
     tested: their ``mu_size`` is NaN, ``mu_size_status`` is ``"excluded"``
-    and ``doubt`` says why.
+    and ``doubt`` says why. A pair whose flux ratio alone is doubtful (a
+    non-empty ``flux_doubt`` column, e.g. light that is not lensed under one
+    image, see :ref:`mock-distrust`) keeps its place in the geometry and its
+    ``mu_size``; its flux ratio informs no test (its own, the chromatic
+    check, the joint test's flux field), and it is not tested.
 
     Examples
     --------
@@ -694,7 +723,9 @@ def check_duality(
                                                     n_flux)
     theta1, theta2 = _positions(tab)
     _pairs_table.check_distinct_arcs(tab)
-    doubt = _doubts(tab, theta1, theta2, flux, chromatic_alpha)
+    flux_doubt = _flux_doubts(tab)
+    tested_flux = _without_doubtful_fluxes(flux, flux_doubt)
+    doubt = _doubts(tab, theta1, theta2, tested_flux, chromatic_alpha)
     keep = doubt == ""
     try:
         size = size_magnification(
@@ -730,9 +761,9 @@ def check_duality(
 
     mu_size = np.asarray(size["mu_size"], dtype=float)
     with np.errstate(invalid="ignore", divide="ignore"):
-        ratio = np.asarray(flux["mu_flux"], dtype=float) / mu_size
+        ratio = np.asarray(tested_flux["mu_flux"], dtype=float) / mu_size
         ln_size_err = np.asarray(size["ln_mu_size_err"], dtype=float)
-        ln_flux_err = np.asarray(flux["ln_mu_flux_err"], dtype=float)
+        ln_flux_err = np.asarray(tested_flux["ln_mu_flux_err"], dtype=float)
         ln_total = np.hypot(ln_flux_err, ln_size_err)
         snr = np.abs(np.log(ratio)) / ln_total
         rel_size_err = np.asarray(size["mu_size_err"]) / mu_size
@@ -746,7 +777,7 @@ def check_duality(
     tab["snr"] = snr
     tab["snr_paper"] = snr_paper
     profile = _profile_of(size) if snr_definition in _PROFILE_DEFINITIONS else None
-    chosen = _chosen_snr(tab, size, flux, snr_definition, profile)
+    chosen = _chosen_snr(tab, size, tested_flux, snr_definition, profile)
     tested = (np.isfinite(chosen) & np.isin(np.asarray(size["mu_size_status"]), TESTABLE_STATUS)
               & (dof > 0))
     dof = np.where(tested, dof, np.nan)
@@ -757,13 +788,15 @@ def check_duality(
     tab["snr_dof"] = dof
     tab["significance"] = signif
     tab["doubt"] = doubt
+    if "flux_doubt" in tab.colnames:
+        tab["flux_doubt"] = flux_doubt.astype(str)
     tab["tested"] = tested
     tab["p_value"] = pval
     tab["p_value_holm"] = holm_adjust(pval)
     tab["anomalous"] = tested & (signif > snr_threshold)
     joint_meta = {}
     if test == "joint":
-        joint_meta = _joint_test(tab, theta2, flux, sigma_pos, keep, snr_threshold,
+        joint_meta = _joint_test(tab, theta2, tested_flux, sigma_pos, keep, snr_threshold,
                                  profile if snr_definition == "conservative" else None)
 
     tab.meta["bands"] = bands

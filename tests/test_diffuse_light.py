@@ -103,14 +103,16 @@ def test_a_patch_under_one_image_makes_its_pair_doubtful():
     assert summary["n_pairs"] == 12
     assert summary["threshold"] == pytest.approx(diffuse_light_threshold(12))
     assert summary["bands"] == ["F150W", "F200W"]
-    assert doubt[4].startswith("diffuse light differs between the images (t = ")
-    assert np.all(doubt[np.arange(12) != 4] == "")
+    assert np.all(doubt == "")  # the pairing's doubts are not touched
+    reason = np.asarray(t["flux_doubt"])
+    assert reason[4].startswith("diffuse light differs between the images (t = ")
+    assert np.all(reason[np.arange(12) != 4] == "")
     assert abs(t["diffuse_light_t"][4]) > summary["threshold"]
     # the same table without the patch: nothing doubtful
     clean = _table()
     doubt = no_doubts(len(clean))
     doubt_diffuse_light(clean, ["F150W", "F200W"], doubt)
-    assert np.all(doubt == "") and np.all(np.isfinite(clean["diffuse_light_t"]))
+    assert np.all(clean["flux_doubt"] == "") and np.all(np.isfinite(clean["diffuse_light_t"]))
 
 
 def test_a_sub_halo_seen_through_a_psf_leak_is_not_doubtful():
@@ -121,16 +123,16 @@ def test_a_sub_halo_seen_through_a_psf_leak_is_not_doubtful():
     t = _table(leak=0.05, boost=(4, 2.0))
     doubt = no_doubts(len(t))
     doubt_diffuse_light(t, ["F150W", "F200W"], doubt)
-    assert np.all(doubt == "")
+    assert np.all(t["flux_doubt"] == "")
     assert abs(t["diffuse_light_t"][4]) < 3
     plane = np.column_stack([np.ones(12), t["x1"].value, t["y1"].value])
     d = np.mean([(t[f"bkg1_{b}"] - t[f"bkg2_{b}"]).value for b in ("F150W", "F200W")], axis=0)
     assert abs(studentized_residuals(plane, d)[4]) > diffuse_light_threshold(12)
     # the patch is still found under the leak
     t = _table(leak=0.05, patch=(4, 60.0))
-    doubt = no_doubts(len(t))
-    doubt_diffuse_light(t, ["F150W", "F200W"], doubt)
-    assert doubt[4] != "" and np.all(doubt[np.arange(12) != 4] == "")
+    doubt_diffuse_light(t, ["F150W", "F200W"], no_doubts(len(t)))
+    reason = np.asarray(t["flux_doubt"])
+    assert reason[4] != "" and np.all(reason[np.arange(12) != 4] == "")
 
 
 def test_a_pair_missing_a_band_is_not_compared():
@@ -143,7 +145,7 @@ def test_a_pair_missing_a_band_is_not_compared():
     doubt = no_doubts(len(t))
     summary = doubt_diffuse_light(t, ["F150W", "F200W"], doubt)
     assert summary["n_pairs"] == 11 and np.isnan(t["diffuse_light_t"][3])
-    assert np.all(doubt == "")
+    assert np.all(t["flux_doubt"] == "")
 
 
 def test_only_pairs_without_doubt_are_compared():
@@ -152,13 +154,13 @@ def test_only_pairs_without_doubt_are_compared():
     doubt[4] = "already doubtful"
     doubt[7] = "another reason"
     summary = doubt_diffuse_light(t, ["F150W", "F200W"], doubt)
-    assert summary["n_pairs"] == 10 and doubt[4] == "already doubtful"
+    assert summary["n_pairs"] == 10 and t["flux_doubt"][4] == ""
     assert np.isnan(t["diffuse_light_t"][4]) and np.isnan(t["diffuse_light_t"][7])
     # too few pairs: nothing compared
     small = _table(n=MIN_DIFFUSE_PAIRS - 1, patch=(1, 500.0))
     doubt = no_doubts(len(small))
     summary = doubt_diffuse_light(small, ["F150W", "F200W"], doubt)
-    assert summary["threshold"] is None and np.all(doubt == "")
+    assert summary["threshold"] is None and np.all(small["flux_doubt"] == "")
     assert np.all(np.isnan(small["diffuse_light_t"]))
     # no background columns (another background strategy): nothing compared
     bare = QTable({"x1": [0.0] * 8 * u.arcsec, "y1": [0.0] * 8 * u.arcsec})
@@ -169,7 +171,7 @@ def test_only_pairs_without_doubt_are_compared():
     line["y1"] = 0.5 * line["x1"]
     doubt = no_doubts(12)
     doubt_diffuse_light(line, ["F150W", "F200W"], doubt)
-    assert np.all(doubt == "") and np.all(np.isnan(line["diffuse_light_t"]))
+    assert np.all(line["flux_doubt"] == "") and np.all(np.isnan(line["diffuse_light_t"]))
 
 
 def test_bands_in_units_that_do_not_convert_are_left_out():
@@ -177,21 +179,19 @@ def test_bands_in_units_that_do_not_convert_are_left_out():
     whatever the other band holds; a band in another convertible unit is converted."""
     counts = u.ct / u.s / u.arcsec**2
     a = _table(patch=(4, 60.0), units=[SB, counts])
-    da = no_doubts(12)
-    assert doubt_diffuse_light(a, ["F150W", "F200W"], da)["bands"] == ["F150W"]
+    assert doubt_diffuse_light(a, ["F150W", "F200W"], no_doubts(12))["bands"] == ["F150W"]
     b = _table(patch=(4, 60.0), units=[SB, counts])
     b["bkg1_F200W"] *= 1000
-    db = no_doubts(12)
-    doubt_diffuse_light(b, ["F150W", "F200W"], db)
-    assert da[4] != "" and list(da) == list(db)
+    doubt_diffuse_light(b, ["F150W", "F200W"], no_doubts(12))
+    assert a["flux_doubt"][4] != "" and list(a["flux_doubt"]) == list(b["flux_doubt"])
     np.testing.assert_allclose(a["diffuse_light_t"], b["diffuse_light_t"], rtol=1e-12)
     c = _table(patch=(4, 60.0))
     mjy = _table(patch=(4, 60.0))
     for arc in "12":
         mjy[f"bkg{arc}_F200W"] = mjy[f"bkg{arc}_F200W"].to(u.MJy / u.sr)
-    dc, dm = no_doubts(12), no_doubts(12)
-    doubt_diffuse_light(c, ["F150W", "F200W"], dc)
-    assert doubt_diffuse_light(mjy, ["F150W", "F200W"], dm)["bands"] == ["F150W", "F200W"]
+    doubt_diffuse_light(c, ["F150W", "F200W"], no_doubts(12))
+    assert doubt_diffuse_light(mjy, ["F150W", "F200W"], no_doubts(12))["bands"] == [
+        "F150W", "F200W"]
     np.testing.assert_allclose(c["diffuse_light_t"], mjy["diffuse_light_t"], rtol=1e-9)
 
 
@@ -271,9 +271,59 @@ def test_the_pipeline_doubts_the_pair_on_a_bright_patch():
     row = np.flatnonzero(np.isin(np.asarray(comp["source"]), under))
     assert row.size == 1
     (k,) = row
-    assert str(res["doubt"][k]).startswith("diffuse light differs between the images")
+    assert str(res["flux_doubt"][k]).startswith("diffuse light differs between the images")
     assert not res["tested"][k] and not res["anomalous"][k]
+    # its positions are not in doubt: it keeps its size magnification
+    assert res["doubt"][k] == "" and np.isfinite(res["mu_size"][k])
     meta = res.meta["diffuse_light"]
     assert meta["n_pairs"] >= MIN_DIFFUSE_PAIRS and meta["alpha"] == DIFFUSE_LIGHT_ALPHA
     others = np.arange(len(res)) != k
-    assert not any("diffuse light" in str(d) for d in np.asarray(res["doubt"])[others])
+    assert not any(np.asarray(res["flux_doubt"])[others])
+
+
+@pytest.mark.parametrize("test", ["geometric", "joint"])
+def test_a_doubtful_flux_ratio_stays_in_the_geometry(test):
+    """check_duality with ``flux_doubt``: the pair keeps its size magnification and
+    its place in the others' (the same as without the doubt), is not tested, and its
+    flux ratio informs nothing else: the others' results are those of the same table
+    with the pair's fluxes unmeasured (NaN)."""
+    from lensdual.duality import check_duality
+
+    rng = np.random.default_rng(7)
+    n = 16
+    theta2 = rng.uniform(-1, 1, (n, 2))
+    theta1 = theta2 @ np.array([[1.5, 0.3], [0.1, -0.8]]).T + 0.05 * theta2**2
+    flux2 = rng.uniform(80, 120, n)
+    det = np.abs(np.linalg.det(np.array([[1.5, 0.3], [0.1, -0.8]])))
+    flux1 = det * flux2 * np.exp(rng.normal(0, 0.01, n))
+    flux1[5] *= 1.6  # light under pair 6's L1 image
+    pairs = QTable({"x1": theta1[:, 0] * u.arcsec, "y1": theta1[:, 1] * u.arcsec,
+                    "x2": theta2[:, 0] * u.arcsec, "y2": theta2[:, 1] * u.arcsec})
+    for band, colour in (("F150W", 1.0), ("F200W", 1.3)):
+        pairs[f"flux1_{band}"] = colour * flux1
+        pairs[f"flux2_{band}"] = colour * flux2
+        pairs[f"flux_err1_{band}"] = 0.01 * colour * flux1
+        pairs[f"flux_err2_{band}"] = 0.01 * colour * flux2
+    kw = {"sigma_pos": 0.002 * u.arcsec, "seed": 1, "test": test, "snr_definition": "log"}
+    plain = check_duality(pairs, **kw)
+    assert plain["anomalous"][5]
+    doubted = pairs.copy()
+    reasons = [""] * n
+    reasons[5] = "diffuse light differs between the images"
+    doubted["flux_doubt"] = reasons
+    result = check_duality(doubted, **kw)
+    assert not result["tested"][5] and not result["anomalous"][5]
+    assert result["doubt"][5] == "" and result["flux_doubt"][5].startswith("diffuse light")
+    np.testing.assert_allclose(result["mu_size"], plain["mu_size"], rtol=1e-12)
+    assert result["mu_flux"][5] == pytest.approx(plain["mu_flux"][5])
+    unmeasured = pairs.copy()
+    for name in ("flux1_F150W", "flux2_F150W", "flux1_F200W", "flux2_F200W"):
+        unmeasured[name][5] = np.nan
+    with pytest.warns(Warning, match="no band has a finite flux ratio for row"):
+        reference = check_duality(unmeasured, **kw)
+    others = np.arange(n) != 5
+    for name in ("significance", "tested", "anomalous") + (
+            ("ln_mu_field", "ln_mu_predicted") if test == "joint" else ()):
+        np.testing.assert_allclose(np.asarray(result[name], float)[others],
+                                   np.asarray(reference[name], float)[others], rtol=1e-10,
+                                   err_msg=name)
