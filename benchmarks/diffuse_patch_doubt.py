@@ -41,7 +41,7 @@ FLUXES = (20.0, 40.0, 80.0, 160.0, 320.0)  # nJy
 
 
 def _diffuse(res):
-    return np.array(["diffuse light" in str(d) for d in res["doubt"]])
+    return np.array([bool(str(d)) for d in res["flux_doubt"]])
 
 
 def one(seed, flux):
@@ -61,7 +61,7 @@ def one(seed, flux):
     flag = np.asarray(res["anomalous"], dtype=bool)
     # the same measurements without the diffuse-light doubts
     bare = res.copy()
-    bare["doubt"] = np.where(diffuse, "", np.asarray(res["doubt"], dtype=str))
+    bare["flux_doubt"] = [""] * len(bare)
     without = check_duality(bare, "adaptive", sigma_pos=analysis.sigma_pos, seed=seed)
     flag_without = np.asarray(without["anomalous"], dtype=bool)
     t = np.asarray(res["diffuse_light_t"], dtype=float)

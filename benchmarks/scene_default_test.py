@@ -17,8 +17,8 @@ per seed and test: the clean pairs tested and flagged (the patch pair and the
 sub-haloed pair apart), whether the patch pair and the sub-haloed pair were
 flagged; then the totals and the seeds where the two tests differ. Then, per
 seed, the pipeline's diffuse-light doubts (the same for both tests): the clean
-pairs, the patch pair and the sub-haloed pair made doubtful because the light
-under their two images differs.
+pairs, the patch pair and the sub-haloed pair whose flux ratio was doubtful
+because the light under their two images differs (``flux_doubt``).
 """
 
 import argparse
@@ -56,7 +56,7 @@ def one(seed):
         tested = np.asarray(res["tested"], dtype=bool)
         out[name] = (int((clean & tested).sum()), int((clean & flag).sum()),
                      bool((patch & flag).any()), bool((sub & flag).any()))
-        diffuse = np.array(["diffuse light" in str(d) for d in res["doubt"]])
+        diffuse = np.array([bool(str(d)) for d in res["flux_doubt"]])
         doubts = (int((clean & diffuse).sum()), bool((patch & diffuse).any()),
                   bool((sub & diffuse).any()))
     return out, doubts
