@@ -451,13 +451,31 @@ def test_inference_numbers_are_the_benchmarks_outputs(tmp_path):
     # recovered" and the WDM draw's upper limit is "below the truth"
     assert "_static/inference/half_mode_coverage.txt" in page
     assert "_static/inference/half_mode.txt" in page
-    for name in ("half_mode_coverage.txt", "half_mode_coverage_macs1149.txt"):
+    # and, calibrated, "within the targets" on the two families and the held-out group,
+    # the abundance's intervals narrower than the composite weight's in the SMACS0723
+    # analogue
+    for name in ("half_mode_coverage.txt", "half_mode_coverage_macs1149.txt",
+                 "half_mode_coverage_group.txt"):
         assert f"_static/inference/{name}" in page
         cov, _ = module.read_half_mode_coverage(folder / name)
-        for key in ("sigma_sub", "log10_mhm"):
+        for key in ("sigma_sub", "log10_mhm", "calibrated_sigma_sub", "calibrated_log10_mhm"):
             assert abs(cov[key]["cov68"] - module.TARGET68[0]) <= module.TARGET68[1]
             assert abs(cov[key]["cov95"] - module.TARGET95[0]) <= module.TARGET95[1]
-        assert abs(cov["sigma_sub"]["bias_median"]) <= module.MAX_BIAS
+        for key in ("sigma_sub", "calibrated_sigma_sub"):
+            assert abs(cov[key]["bias_median"]) <= module.MAX_BIAS
+    cov, _ = module.read_half_mode_coverage(folder / "half_mode_coverage.txt")
+    assert cov["calibrated_sigma_sub"]["width95"] < cov["sigma_sub"]["width95"]
+    # system 5's joint anomalies: 68 % "within" (said as a number), 95 % short "by less
+    # than their binomial error", "as the geometric anomalies' do there", and narrower
+    s5_joint = module.calibrated(module.read_coverage(
+        folder / "coverage_heldout_new_joint.txt")[1]["macs1149_s5_lenstool"])
+    s5_geo = module.calibrated(module.read_coverage(
+        folder / "coverage_heldout_new.txt")[1]["macs1149_s5_lenstool"])
+    assert abs(s5_joint["cov68"] - module.TARGET68[0]) <= module.TARGET68[1]
+    for row in (s5_joint, s5_geo):
+        short = module.TARGET95[0] - module.TARGET95[1] - row["cov95"]
+        assert 0 < short <= row["cov95_err"]
+    assert s5_joint["width95"] < s5_geo["width95"]
     lo, hi = map(float, sub["inf_hm_ex_cdm_sigma95"].split(" to "))
     assert lo <= float(sub["inf_hm_ex_sigma_truth"]) <= hi
     assert float(sub["inf_hm_ex_wdm_upper"]) < float(sub["inf_hm_ex_wdm_truth"])

@@ -17,7 +17,8 @@ prose quotes from them, so the prose cannot drift from the listings:
   macs1149_s5_lenstool`` and ``--families group_fold --log-m-host 14``, both
   with the cusp's settings (``--n-universes 100 --n-real 200 --n-grid 10
   --n-mocks 30``), and
-  ``coverage_heldout_group_joint.txt`` the group's with ``--test joint``;
+  ``coverage_heldout_group_joint.txt`` and ``coverage_heldout_new_joint.txt``
+  the group's and system 5's with ``--test joint``;
 - ``coverage_oracle.txt``: the same with ``--families smacs_analog
   --n-universes 150 --oracle-noise`` (each measured anomaly replaced by the
   truth plus independent noise of its reported error);
@@ -28,7 +29,10 @@ prose quotes from them, so the prose cannot drift from the listings:
   ``--los-normalization 1`` (line-of-sight haloes in the universes and the
   model); ``coverage_los_heldout.txt`` the same with ``--families
   a2744_s3_lenstool --n-universes 100``, and ``coverage_los_oracle.txt``
-  with ``--families smacs_analog --oracle-noise``;
+  with ``--families smacs_analog --oracle-noise``; ``coverage_los_smacs600.txt``
+  with ``--families smacs_analog --n-universes 600 --n-calibration 600`` and
+  ``coverage_los_a2744_400.txt`` with ``--families a2744_s3_lenstool
+  --n-universes 400 --n-calibration 600`` (both ``--los-normalization 1``);
 - ``los_speed.txt``: ``benchmarks/bench_inference_los.py`` (the SMACS0723
   analogue, 20 sources, 1000 realisations x 30 abundances);
 - ``wdm.txt``: ``benchmarks/inference_wdm.py --out
@@ -39,9 +43,10 @@ prose quotes from them, so the prose cannot drift from the listings:
   example: ten constellations under CDM and under WDM);
 - ``half_mode_coverage.txt``: ``benchmarks/inference_half_mode_coverage.py
   --n-universes 200 --n-systems 5 --out
-  docs/_static/inference/half_mode_coverage.txt``, and
-  ``half_mode_coverage_macs1149.txt`` the same with ``--family
-  macs1149_lenstool``.
+  docs/_static/inference/half_mode_coverage.txt`` (with the calibration's
+  default 300 mocks), ``half_mode_coverage_macs1149.txt`` the same with
+  ``--family macs1149_lenstool`` and ``half_mode_coverage_group.txt`` with
+  ``--family group_fold --log-m-host 14``.
 
 Run from the repository root after rerunning one of them::
 
@@ -276,16 +281,17 @@ def los_numbers(dev, los, heldout, oracle):
     return sub
 
 
-def group_joint_numbers(path):
-    """The calibrated joint anomalies on the held-out group (``inf_joint_cal_group_*``)
-    and its geometric run's width."""
-    fam = read_coverage(path)[1][CALIBRATION_HELD_OUT["group"]]
+def group_joint_numbers(path, short="group"):
+    """The calibrated joint anomalies on a held-out family (``inf_joint_cal_<short>_*``:
+    the group's, or system 5's)."""
+    fam = read_coverage(path)[1][CALIBRATION_HELD_OUT[short]]
     if fam["head"]["test"] != "joint":
         raise ValueError(f"{path}: not a run of the joint test")
     row = calibrated(fam)
-    return {"inf_joint_cal_group_cov68": _pct(row["cov68"]),
-            "inf_joint_cal_group_cov95": _pct(row["cov95"]),
-            "inf_joint_cal_group_width": f"{row['width95']:.2f}"}
+    return {f"inf_joint_cal_{short}_cov68": _pct(row["cov68"]),
+            f"inf_joint_cal_{short}_cov95": _pct(row["cov95"]),
+            f"inf_joint_cal_{short}_cov95_err": _pct(row["cov95_err"]),
+            f"inf_joint_cal_{short}_width": f"{row['width95']:.2f}"}
 
 
 def calibration_numbers(dev, held, los, los_heldout, joint):
@@ -509,6 +515,7 @@ def compute(folder=OUT):
         read_coverage(folder / "coverage_los_heldout.txt"),
         read_coverage(folder / "coverage_joint.txt"))
     sub |= group_joint_numbers(folder / "coverage_heldout_group_joint.txt")
+    sub |= group_joint_numbers(folder / "coverage_heldout_new_joint.txt", "s5")
     sub |= los_speed_numbers(folder / "los_speed.txt")
     sub |= wdm_numbers(*read_wdm(folder / "wdm.txt"))
     sub |= posterior_numbers(folder / "posterior.txt")
