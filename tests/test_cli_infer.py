@@ -539,7 +539,7 @@ def test_defaults_are_the_schema_s(mocks, tmp_path):
     config = load_inference_config(cfg)
     assert config.outdir == tmp_path.resolve() / "lensdual-inference"
     for f in INFERENCE_FIELDS:
-        if f.table == "inference" and f.name != "anomaly":
+        if f.table == "inference" and f.attribute != "anomaly":
             assert getattr(config, f.attribute) == f.default, f.name
     # "auto" is resolved on the tables (of the geometric test here)
     assert config.anomaly == "geometric" and config.anomaly_source == "auto"

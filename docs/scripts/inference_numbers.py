@@ -349,6 +349,26 @@ def calibration_numbers(dev, held, los, los_heldout, joint):
     return sub
 
 
+def los_more_numbers(runs):
+    """The line-of-sight reruns with more universes and mocks (``inf_losmore_<name>_*``,
+    ``runs``: name -> (path, family)): the calibrated coverages, their binomial errors,
+    the mocks' and the universes' uncalibrated 68 % coverage, the counts."""
+    sub = {}
+    for name, (path, family) in runs.items():
+        fam = read_coverage(path)[1][family]
+        if fam["head"]["los"] == "0":
+            raise ValueError(f"{path}: not a run with line-of-sight haloes")
+        cal, w1 = calibrated(fam), fam["rows"][0]
+        sub[f"inf_losmore_{name}_universes"] = fam["head"]["universes"]
+        sub[f"inf_losmore_{name}_mocks"] = str(cal["mocks"]["used"])
+        for key in ("cov68", "cov95"):
+            sub[f"inf_losmore_{name}_{key}"] = f"{100 * cal[key]:.1f}"
+            sub[f"inf_losmore_{name}_{key}_err"] = f"{100 * cal[key + '_err']:.1f}"
+        sub[f"inf_losmore_{name}_mocks68"] = f"{100 * cal['mocks']['cov68']:.1f}"
+        sub[f"inf_losmore_{name}_w1_cov68"] = f"{100 * w1['cov68']:.1f}"
+    return sub
+
+
 def los_speed_numbers(path):
     """The line-of-sight haloes' planes, counts, cost and anomalies (``los_speed.txt``)."""
     text = Path(path).read_text()
@@ -516,6 +536,8 @@ def compute(folder=OUT):
         read_coverage(folder / "coverage_joint.txt"))
     sub |= group_joint_numbers(folder / "coverage_heldout_group_joint.txt")
     sub |= group_joint_numbers(folder / "coverage_heldout_new_joint.txt", "s5")
+    sub |= los_more_numbers({"smacs": (folder / "coverage_los_smacs600.txt", "smacs_analog"),
+                             "a2744": (folder / "coverage_los_a2744_400.txt", HELD_OUT)})
     sub |= los_speed_numbers(folder / "los_speed.txt")
     sub |= wdm_numbers(*read_wdm(folder / "wdm.txt"))
     sub |= posterior_numbers(folder / "posterior.txt")

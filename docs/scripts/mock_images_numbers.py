@@ -11,7 +11,10 @@ prose cannot drift from them:
 - ``performance/demo_time_realistic.txt``: ``benchmarks/bench_demo_time.py
   --scene realistic`` (the realistic demo's wall time);
 - ``scenes/default_test.txt``: ``benchmarks/scene_default_test.py --seeds 30``
-  (the realistic scene under the default test and under the former one).
+  (the realistic scene under the default test and under the former one, and
+  the diffuse-light check's doubts);
+- ``scenes/diffuse_patch_doubt.txt``: ``benchmarks/diffuse_patch_doubt.py
+  --seeds 12`` (the diffuse-light check against the patch's flux).
 
 Run from the repository root after rerunning a benchmark::
 
@@ -19,6 +22,8 @@ Run from the repository root after rerunning a benchmark::
         --out docs/_static/scenes/finite_size_bias.txt
     python benchmarks/acceptance_pixels.py --seeds 20 --output docs/_static/scenes/acceptance.txt
     python benchmarks/scene_default_test.py --seeds 30 --output docs/_static/scenes/default_test.txt
+    python benchmarks/diffuse_patch_doubt.py --seeds 12 \
+        --output docs/_static/scenes/diffuse_patch_doubt.txt
     python docs/scripts/mock_images_numbers.py
 """
 
@@ -198,9 +203,58 @@ def default_test_numbers(path):
     tested, false, patch, subhalo, seeds = (int(g) for g in m.groups())
     n_differ = int(search(r"seeds where the two tests differ: (\d+)",
                           text.splitlines(), path).group(1))
+    doubts = re.search(r"^diffuse-light doubts: clean (\d+) patch (\d+) subhalo (\d+) "
+                       r"seeds (\d+)$", text, re.MULTILINE)
+    if doubts is None:
+        raise ValueError(f"{path}: no totals of the diffuse-light doubts")
+    clean_d, patch_d, sub_d, seeds_d = (int(g) for g in doubts.groups())
     return {"mock_def_clean": str(tested), "mock_def_false": str(false),
             "mock_def_patch": f"{patch} of {seeds}", "mock_def_subhalo": f"{subhalo} of {seeds}",
-            "mock_def_differ": "no seed" if n_differ == 0 else f"{n_differ} of {seeds} seeds"}
+            "mock_def_differ": "no seed" if n_differ == 0 else f"{n_differ} of {seeds} seeds",
+            "mock_def_doubt_clean": str(clean_d), "mock_def_doubt_patch": f"{patch_d} of {seeds_d}",
+            "mock_def_doubt_subhalo": f"{sub_d} of {seeds_d}"}
+
+
+#: The columns of a row of ``diffuse_patch_doubt.py``'s table.
+PATCH_COLUMNS = ("flux", "seeds", "doubtful", "flagged", "flagged_without", "error", "t",
+                 "clean_doubtful", "clean_flagged", "clean_tested", "subhalo_flagged",
+                 "subhalo_doubtful")
+
+
+def read_patch_scan(path):
+    """``diffuse_patch_doubt.py``'s rows: {flux (nJy): {column: value}}."""
+    rows = {}
+    for line in Path(path).read_text().splitlines():
+        words = line.split()
+        if len(words) == len(PATCH_COLUMNS) and re.fullmatch(r"[\d.]+", words[0]):
+            rows[float(words[0])] = {k: float(v) for k, v in zip(PATCH_COLUMNS, words,
+                                                                   strict=True)}
+    if not rows:
+        raise ValueError(f"{path}: no rows of the patch scan")
+    return rows
+
+
+def patch_scan_numbers(path):
+    """Per patch flux ``F`` (nJy): the seeds where the pair's flux ratio was doubtful
+    (``mock_pd_F_doubt``), where it would have been flagged without the check
+    (``mock_pd_F_without``) and was flagged with it (``mock_pd_F_flagged``), its flux
+    ratio's median error (``mock_pd_F_err``, %); over every flux the clean pairs'
+    doubts and the sub-haloed pair's."""
+    rows = read_patch_scan(path)
+    sub = {}
+    for flux, r in rows.items():
+        key = f"{flux:g}"
+        n = int(r["seeds"])
+        sub[f"mock_pd_{key}_doubt"] = f"{int(r['doubtful'])} of {n}"
+        sub[f"mock_pd_{key}_without"] = f"{int(r['flagged_without'])} of {n}"
+        sub[f"mock_pd_{key}_flagged"] = f"{int(r['flagged'])}"
+        sub[f"mock_pd_{key}_err"] = f"{100 * r['error']:+.1f}"
+    sub["mock_pd_seeds"] = str(int(max(r["seeds"] for r in rows.values())))
+    sub["mock_pd_clean_doubt"] = str(int(sum(r["clean_doubtful"] for r in rows.values())))
+    sub["mock_pd_clean_tested"] = str(int(sum(r["clean_tested"] for r in rows.values())))
+    sub["mock_pd_subhalo_doubt"] = str(int(sum(r["subhalo_doubtful"] for r in rows.values())))
+    sub["mock_pd_runs"] = str(int(sum(r["seeds"] for r in rows.values())))
+    return sub
 
 
 def compute(folder=OUT):
@@ -208,7 +262,8 @@ def compute(folder=OUT):
     return (finite_size_numbers(folder / "finite_size_bias.txt")
             | acceptance_numbers(folder / "acceptance.txt")
             | demo_time_numbers(folder.parent / "performance" / "demo_time_realistic.txt")
-            | default_test_numbers(folder / "default_test.txt"))
+            | default_test_numbers(folder / "default_test.txt")
+            | patch_scan_numbers(folder / "diffuse_patch_doubt.txt"))
 
 
 def main(out=OUT):
