@@ -18,12 +18,12 @@ def no_doubts(n):
     return np.array([""] * n, dtype=object)
 
 
-def doubts_of(tab):
-    """The reasons in the ``doubt`` column of ``tab`` (masked or None: no doubt)."""
-    if "doubt" not in tab.colnames:
+def doubts_of(tab, column="doubt"):
+    """The reasons in the ``column`` of ``tab`` (absent, masked or None: no doubt)."""
+    if column not in tab.colnames:
         return no_doubts(len(tab))
     return np.array([str(d) if d is not None and str(d) not in ("", "--") else ""
-                     for d in np.asarray(tab["doubt"], dtype=object)], dtype=object)
+                     for d in np.asarray(tab[column], dtype=object)], dtype=object)
 
 
 def add_doubt(doubt, mask, reason):

@@ -429,14 +429,6 @@ def _doubts(tab, theta1, theta2, flux, chromatic_alpha):
     return doubt.astype(str)
 
 
-def _flux_doubts(tab):
-    """Why each pair's flux ratio alone is doubtful (the input's ``flux_doubt`` column;
-    "" where it is not)."""
-    if "flux_doubt" not in tab.colnames:
-        return np.array([""] * len(tab), dtype=object)
-    return doubts_of(QTable({"doubt": tab["flux_doubt"]}))
-
-
 def _without_doubtful_fluxes(flux, flux_doubt):
     """``flux`` with NaN in every float column of the pairs whose flux ratio is
     doubtful: they inform no test (nor the chromatic check, nor the joint test's flux
@@ -446,11 +438,8 @@ def _without_doubtful_fluxes(flux, flux_doubt):
         return flux
     out = flux.copy()
     for name in out.colnames:
-        col = out[name]
-        if np.issubdtype(np.asarray(col).dtype, np.floating):
-            unit = getattr(col, "unit", None)
-            col[held] = np.nan if unit is None or not isinstance(col, u.Quantity) \
-                else np.nan * unit
+        if np.issubdtype(np.asarray(out[name]).dtype, np.floating):
+            out[name][held] = np.nan  # NaN takes any unit
     return out
 
 
@@ -723,7 +712,7 @@ def check_duality(
                                                     n_flux)
     theta1, theta2 = _positions(tab)
     _pairs_table.check_distinct_arcs(tab)
-    flux_doubt = _flux_doubts(tab)
+    flux_doubt = doubts_of(tab, "flux_doubt")
     tested_flux = _without_doubtful_fluxes(flux, flux_doubt)
     doubt = _doubts(tab, theta1, theta2, tested_flux, chromatic_alpha)
     keep = doubt == ""
