@@ -111,14 +111,8 @@ def population_at(population, log_mhm):
     """``population`` with the half-mode mass ``log_mhm`` (its other settings kept)."""
     from ._population import SubhaloPopulation
 
-    p = population
-    return SubhaloPopulation(
-        p.z_lens, p.z_source, model="WDM", log_mlow=p.log_mlow, log_mhigh=p.log_mhigh,
-        log_m_host=p.log_m_host, shmf_log_slope=p.shmf_log_slope, log_mhm=float(log_mhm),
-        cosmology=p.cosmology, host_scaling_factor=p.host_scaling_factor,
-        redshift_scaling_factor=p.redshift_scaling_factor,
-        host_centre=p.host_centre * u.arcsec, los_normalization=p.los_normalization,
-        two_halo=p.two_halo)
+    return SubhaloPopulation(**{**population._arguments(), "model": "WDM",
+                                "log_mhm": float(log_mhm)})
 
 
 def mock_log_likelihood(pairs, lens, simulation, truth, seeds, *, sigma_pos, flux_rel_err,
@@ -300,9 +294,8 @@ def _calibrated_simulations(simulation):
     sims = [sims[k] for k in order]
 
     def rest(s):
-        # every setting but log_mhm (the eighth), the pairs, radii and grid
-        settings = s.population._settings()
-        return (settings[:7] + settings[8:], *simulation_key(s)[1:],
+        # every setting but log_mhm, the pairs, radii and grid
+        return (s.population._settings(leave_out=("log_mhm",)), *simulation_key(s)[1:],
                 s.sigma_sub.to_value(u.kpc**-2).tobytes())
 
     if len({rest(s) for s in sims}) != 1:

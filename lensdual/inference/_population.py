@@ -190,16 +190,30 @@ class SubhaloPopulation:
         self.two_halo = bool(two_halo)
         self._setup()
 
-    def _settings(self):
-        """Every setting of the population, as a tuple (equal tuples: the same
-        population): model, redshifts, mass range, host mass, slope, ``log_mhm``,
-        cosmology, host and redshift scaling factors, host centre, line-of-sight
-        normalisation and two-halo term."""
-        return (self.model, self.z_lens, self.z_source, self.log_mlow, self.log_mhigh,
-                self.log_m_host, self.shmf_log_slope, self.log_mhm, repr(self.cosmology),
-                self.host_scaling_factor, self.redshift_scaling_factor,
-                tuple(float(c) for c in self.host_centre), self.los_normalization,
-                self.two_halo)
+    def _arguments(self):
+        """The constructor's arguments that build this population again (a dict)."""
+        return {"z_lens": self.z_lens, "z_source": self.z_source, "model": self.model,
+                "log_mlow": self.log_mlow, "log_mhigh": self.log_mhigh,
+                "log_m_host": self.log_m_host, "shmf_log_slope": self.shmf_log_slope,
+                "log_mhm": self.log_mhm, "cosmology": self.cosmology,
+                "host_scaling_factor": self.host_scaling_factor,
+                "redshift_scaling_factor": self.redshift_scaling_factor,
+                "host_centre": self.host_centre * u.arcsec,
+                "los_normalization": self.los_normalization, "two_halo": self.two_halo}
+
+    def _settings(self, leave_out=()):
+        """Every setting of the population but those named in ``leave_out``, as a
+        hashable tuple (equal tuples: the same population)."""
+        out = []
+        for name, value in self._arguments().items():
+            if name in leave_out:
+                continue
+            if name == "cosmology":
+                value = repr(value)
+            elif name == "host_centre":
+                value = tuple(float(c) for c in value.value)
+            out.append((name, value))
+        return tuple(out)
 
     def __repr__(self):
         extra = f", log_mhm={self.log_mhm}" if self.model == "WDM" else ""
