@@ -306,7 +306,7 @@ def render_demo(system, truth, *, seed=0, scene="point", cluster_radii=None, psf
         radius drawn by :func:`~lensdual.simulation.draw_cluster_radii` in
         ``cluster_radii``, and, unless overridden below, the host has
         faint clumps, a cluster member and an intracluster-light gradient
-        sit next to the arcs, a diffuse patch lies under the L1 image of
+        sit next to the arcs, a diffuse patch lies under the L2 image of
         pair 0, and the PSF is poppy's hexagonal-pupil PSF with
         diffraction spikes (``psf="poppy"``, needs the ``psf`` extra); the
         noise is the point scene's.

@@ -252,22 +252,22 @@ def test_measure_pairs_reports_the_background_as_a_surface_brightness():
 
 
 def test_the_pipeline_doubts_the_pair_on_a_bright_patch():
-    """The realistic demo scene with a patch of 160 nJy under pair 0's L1 image (its
-    flux ratio about 20 % off): the pair is doubtful for its diffuse light and
-    untested; the run records the comparison."""
+    """The realistic demo scene with its default patch under pair 0's L2 image (the
+    paper's contrast, its flux ratio about 10 % off): the pair is doubtful for its
+    diffuse light and untested; the run records the comparison."""
     pytest.importorskip("poppy")
     from lensdual.demo import compare_with_truth, render_demo, simulate_demo
     from lensdual.pipeline import analyse
 
     system, truth = simulate_demo(subhalo="none", seed=0)
-    demo = render_demo(system, truth, seed=0, scene="realistic",
-                       patch={"flux": 160 * u.nJy})
+    demo = render_demo(system, truth, seed=0, scene="realistic")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         res = analyse(demo.images, psf=demo.psf, sigma_pos="auto", seed=0).result
     comp = compare_with_truth(res, truth, demo.centre)
     pairs = demo.mocks.pairs
-    under = np.asarray(pairs["source"])[np.asarray(pairs["patch1"], bool)]
+    assert pairs["patch2"][0] and not pairs["patch1"].any()
+    under = np.asarray(pairs["source"])[np.asarray(pairs["patch2"], bool)]
     row = np.flatnonzero(np.isin(np.asarray(comp["source"]), under))
     assert row.size == 1
     (k,) = row

@@ -287,7 +287,7 @@ BIG = 8.0 * u.arcsec  # an uncropped stamp for compact profiles near the arc's c
 def test_member_and_patch_add_the_flux_asked_for(sheet):
     member = {"flux": 50 * u.nJy, "R_sersic": 0.1 * u.arcsec, "n_sersic": 1.0,
               "arc": "L1", "offset": [0.3, -0.2] * u.arcsec}
-    patch = {"flux": 20 * u.nJy, "sigma": 0.1 * u.arcsec}
+    patch = {"flux": 20 * u.nJy, "sigma": 0.1 * u.arcsec, "arc": "L1"}
     mocks = _render(sheet, None, flux=0.0, cutout_size=BIG, member=member, patch=patch)
     total = mocks.image_plane_model[("L1", "F150W")].value.sum()
     assert total == pytest.approx(70.0, rel=0.01)
@@ -341,17 +341,66 @@ def test_icl_gradient(sheet):
 def test_patch_lies_under_exactly_the_chosen_image(analog):
     system, pairs = analog
     truth = pairs[[c for c in pairs.colnames if not c.startswith("snr")]]
-    mocks = render_mock_images(system, noise=False, host=False, pairs=truth,
-                               patch={"pair": 3})
-    assert np.flatnonzero(mocks.pairs["patch1"]).tolist() == [3]
-    assert not mocks.pairs["patch2"].any()
-    model = mocks.image_plane_model[("L1", "F150W")].value
-    # the patch's centroid is the chosen image, in pixels of the L1 cutout
-    yy, xx = np.mgrid[:model.shape[0], :model.shape[1]]
-    centroid = np.array([(model * xx).sum(), (model * yy).sum()]) / model.sum()
-    pix = mocks.truth_pixels("L1")
-    np.testing.assert_allclose(centroid, pix[3], atol=0.05)
-    assert np.argmin(np.hypot(*(pix - centroid).T)) == 3
+    for arc, k in (("L2", "2"), ("L1", "1")):  # the default arc, then the other
+        patch = {"pair": 3} if arc == "L2" else {"pair": 3, "arc": "L1"}
+        mocks = render_mock_images(system, noise=False, host=False, pairs=truth,
+                                   patch=patch)
+        assert np.flatnonzero(mocks.pairs[f"patch{k}"]).tolist() == [3]
+        assert not mocks.pairs[f"patch{'1' if k == '2' else '2'}"].any()
+        model = mocks.image_plane_model[(arc, "F150W")].value
+        # the patch's centroid is the chosen image, in pixels of the arc's cutout
+        yy, xx = np.mgrid[:model.shape[0], :model.shape[1]]
+        centroid = np.array([(model * xx).sum(), (model * yy).sum()]) / model.sum()
+        pix = mocks.truth_pixels(arc)
+        np.testing.assert_allclose(centroid, pix[3], atol=0.05)
+        assert np.argmin(np.hypot(*(pix - centroid).T)) == 3
+
+
+def test_patch_leak_is_the_closed_form_for_a_gaussian_psf():
+    """For a pixel-integrated Gaussian PSF of width p and patch of width s (pixels)
+    the amplitude fit takes up 2 q / (2 q + s^2 + 1/12) of the patch, q = p^2 + 1/12
+    (Gaussians convolve by adding variances; a pixel adds 1/12)."""
+    from lensdual.simulation._scene import patch_leak
+    from lensdual.simulation.mock import _gaussian_kernel
+
+    for fwhm, s in ((2.0, 4.0), (3.0, 1.0), (5.0, 10.0)):
+        q = (fwhm / (2 * np.sqrt(2 * np.log(2)))) ** 2 + 1 / 12
+        expected = 2 * q / (2 * q + s ** 2 + 1 / 12)
+        got = patch_leak(_gaussian_kernel(fwhm, 1.0, 1), s)
+        assert got == pytest.approx(expected, rel=0.02)
+    # a patch far wider than the PSF leaks little, a narrow one nearly all
+    k = _gaussian_kernel(3.0, 1.0, 1)
+    assert patch_leak(k, 30.0) < 0.01 < 0.9 < patch_leak(k, 0.05)
+
+
+def test_patch_contrast_sets_the_flux_a_psf_fit_takes_up(sheet):
+    """contrast c: an amplitude-only fit of the pixel PSF at the image, to the
+    patch's pixels alone, returns c times the image's flux, in every band."""
+    pairs = _two_band_pairs()
+    pairs["flux2_F150W"] = [40.0] * u.nJy
+    pairs["flux2_F200W"] = [10.0] * u.nJy
+    for contrast in (1.0, 0.5):
+        mocks = _render(sheet, None, cutout_size=BIG, bands=["F150W", "F200W"], pairs=pairs,
+                        patch={"contrast": contrast})
+        assert mocks.pairs["patch2"].tolist() == [True]
+        for band, image_flux in (("F150W", 40.0), ("F200W", 10.0)):
+            model = mocks.image_plane_model[("L2", band)].value
+            psf = np.asarray(mocks[("L2", band)].psf, dtype=float)
+            psf = psf / psf.sum()
+            # the PSF at the pixel nearest the image (the patch's centre)
+            n, m = model.shape[0], psf.shape[0]
+            cy, cx = np.unravel_index(np.argmax(model), model.shape)
+            stamp = model[cy - m // 2:cy + m // 2 + 1, cx - m // 2:cx + m // 2 + 1]
+            assert stamp.shape == psf.shape and n > m
+            amplitude = (psf * stamp).sum() / (psf * psf).sum()
+            assert amplitude == pytest.approx(contrast * image_flux, rel=0.05)
+            assert model.sum() == pytest.approx(mocks.pairs.meta["patch_flux"][band], rel=0.01)
+    # the default's flux follows the image: twice as bright an image, twice the patch
+    bright = pairs.copy()
+    bright["flux2_F150W"] = [80.0] * u.nJy
+    one, two = (_render(sheet, None, bands=["F150W", "F200W"], pairs=t, patch=True)
+                .pairs.meta["patch_flux"]["F150W"] for t in (pairs, bright))
+    assert two == pytest.approx(2 * one, rel=1e-12)
 
 
 def test_clumps_stay_below_the_detection_threshold(analog):
@@ -388,6 +437,10 @@ def test_clumps_stay_below_the_detection_threshold(analog):
     ({"icl": {"surface_brightness": 1 * u.nJy}}, TypeError, "arcsec"),
     ({"icl": {"direction": 1.0}}, TypeError, "angle"),
     ({"patch": {"pair": 5}}, ValueError, "row of the pairs table"),
+    ({"patch": {"flux": 5 * u.nJy, "contrast": 1.0}}, ValueError, "not both"),
+    ({"patch": {"contrast": None}}, ValueError, "needs a 'flux' or a 'contrast'"),
+    ({"patch": {"contrast": -0.5}}, ValueError, "contrast"),
+    ({"patch": {"contrast": "big"}}, TypeError, "contrast"),
     ({"clumps": {"flux": (1 * u.nJy, 0.5 * u.nJy)}}, ValueError, "low <= high"),
     ({"clumps": {"sigma": 0.1 * u.arcsec}}, TypeError, "pair"),
     ({"psf": {"F150W": "poppy"}, "bands": ["F150W", "F999W"]}, ValueError, "F999W"),

@@ -21,10 +21,14 @@
   centre), integrated over each pixel in closed form and not convolved (a
   normalised PSF changes an exponential of scale ``h`` >> PSF by a factor
   ``1 + O((FWHM / h)**2)``).
-* **A diffuse patch** (``patch=``): a faint round Gaussian in the image
-  plane (lenstronomy ``GAUSSIAN``), convolved with the PSF, centred on one
-  image of one chosen pair (as under the L1 image of the paper's pair 1);
-  the truth table records which (columns ``patch1``, ``patch2``).
+* **A diffuse patch** (``patch=``): a round Gaussian in the image plane
+  (lenstronomy ``GAUSSIAN``), convolved with the PSF, centred on one image
+  of one chosen pair (as under image 2.1, on arc 2, of the paper's pair 1);
+  the truth table records which (columns ``patch1``, ``patch2``) and its
+  flux per band (``meta['patch_flux']``, nJy). Its flux is given either in
+  nJy or as a ``contrast``: the patch's flux that an amplitude-only fit of
+  the pixel PSF, centred on the image, takes up, as a multiple of the
+  image's own flux (:func:`patch_leak`).
 """
 
 from collections.abc import Mapping
@@ -73,14 +77,21 @@ MOCK_ICL = {
     "direction": None,
 }
 
-#: The default diffuse patch (``patch=True``): a round Gaussian of total
-#: flux ``flux`` and standard deviation ``sigma`` under the image on arc
-#: ``arc`` of row ``pair`` of the pairs table.
+#: The default diffuse patch (``patch=True``): a round Gaussian of
+#: standard deviation ``sigma`` under the image on arc ``arc`` of row
+#: ``pair`` of the pairs table. Its total flux is ``flux`` (nJy, a Quantity
+#: or a dict per band) or, where ``flux`` is None, set per band so that a
+#: PSF fit of the image's amplitude without background would take up
+#: ``contrast`` times the image's flux from the patch (:func:`patch_leak`):
+#: contrast 1 doubles the image's flux to such a fit, as the diffuse
+#: emission under image 2.1 of the paper's pair 1 did (a flux ratio of
+#: about 0.5 against a size magnification of 1.04).
 MOCK_PATCH = {
-    "flux": 20.0 * u.nJy,
+    "flux": None,
+    "contrast": 1.0,
     "sigma": 0.12 * u.arcsec,
     "pair": 0,
-    "arc": "L1",
+    "arc": "L2",
 }
 
 _ARCS = ("L1", "L2")
@@ -195,9 +206,57 @@ def patch_params(patch, bands, n_rows):
     if pair >= n_rows:
         raise ValueError(f"patch['pair'] must be a row of the pairs table (0 to {n_rows - 1}), "
                          f"got {pair}")
-    return {"flux": _flux(p["flux"], "patch['flux']", bands),
-            "sigma": as_angle_scalar(p["sigma"], "patch['sigma']", allow_zero=False),
-            "pair": pair, "arc": _arc(p["arc"], "patch['arc']")}
+    given = patch if isinstance(patch, Mapping) else {}
+    if given.get("flux") is not None and given.get("contrast") is not None:
+        raise ValueError("patch takes 'flux' or 'contrast', not both")
+    out = {"sigma": as_angle_scalar(p["sigma"], "patch['sigma']", allow_zero=False),
+           "pair": pair, "arc": _arc(p["arc"], "patch['arc']"), "flux": None,
+           "contrast": None}
+    if p["flux"] is not None:
+        out["flux"] = _flux(p["flux"], "patch['flux']", bands)
+    elif p["contrast"] is None:
+        raise ValueError("patch needs a 'flux' or a 'contrast'")
+    else:
+        out["contrast"] = per_band(p["contrast"], bands, "patch['contrast']",
+                                   lambda v, label: as_real(v, label, minimum=0.0))
+    return out
+
+
+def patch_leak(pixel_kernel, sigma):
+    """The share of a round Gaussian's flux that an amplitude-only PSF fit takes up.
+
+    A least-squares fit of ``A P`` (``P`` the pixel PSF, centred on the
+    image) to the patch's pixels ``G * P`` (``G`` the pixel-integrated
+    Gaussian of standard deviation ``sigma`` pixels, of unit flux, centred
+    there too) gives ``A = <P, G * P> / <P, P>``.
+    """
+    from scipy.signal import fftconvolve
+    from scipy.special import erf
+
+    k = np.asarray(pixel_kernel, dtype=np.float64)
+    k = k / k.sum()
+    half = int(np.ceil(6 * sigma))
+    edges = (np.arange(-half, half + 2) - 0.5) / (np.sqrt(2) * sigma)
+    g1 = 0.5 * np.diff(erf(edges))
+    patch = fftconvolve(np.outer(g1, g1), k, mode="full")
+    # the kernel's footprint within the patch image, both centred on the same pixel
+    n, m = k.shape[0], patch.shape[0]
+    lo = (m - n) // 2
+    return float((k * patch[lo:lo + n, lo:lo + n]).sum() / (k * k).sum())
+
+
+def resolve_patch_flux(patch, image_flux, pixel_kernels, pixel_scale):
+    """The patch with its ``flux`` per band set from its ``contrast``.
+
+    ``image_flux`` is ``{band: flux of the image under the patch}`` (nJy),
+    ``pixel_kernels`` each band's PSF at the pixel scale (odd-sized, centred).
+    """
+    if patch is None or patch["flux"] is not None:
+        return patch
+    sigma = patch["sigma"] / pixel_scale
+    flux = {b: patch["contrast"][b] * float(image_flux[b])
+            / patch_leak(pixel_kernels[b], sigma) for b in patch["contrast"]}
+    return {**patch, "flux": flux}
 
 
 def clump_params(clumps):

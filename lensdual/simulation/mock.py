@@ -963,11 +963,15 @@ def render_mock_images(system, *, bands=("F150W", "F200W"), pixel_scale=0.04 * u
         overrides keys (``surface_brightness`` at the arc's centre,
         ``scale_length``, ``arc``, ``direction``).
     patch : bool, None or dict
-        True: a faint extended Gaussian in the image plane under one image
-        of one pair (:data:`MOCK_PATCH`: row 0's L1 image); a dict
-        overrides keys (``flux``, ``sigma``, ``pair``, a row of the pairs
-        table, ``arc``). The truth table gains the boolean columns
-        ``patch1`` and ``patch2`` (True for the image under the patch).
+        True: an extended Gaussian in the image plane under one image of
+        one pair (:data:`MOCK_PATCH`: row 0's L2 image, its flux that of
+        ``contrast`` 1); a dict overrides keys (``flux``, a Quantity or a
+        dict per band, or ``contrast``, the patch's flux that a PSF fit of
+        the image without background would take up, in units of the
+        image's flux; ``sigma``; ``pair``, a row of the pairs table;
+        ``arc``). The truth table gains the boolean columns ``patch1`` and
+        ``patch2`` (True for the image under the patch) and
+        ``meta['patch_flux']``, the patch's flux per band (nJy).
 
     Returns
     -------
@@ -1058,6 +1062,14 @@ def render_mock_images(system, *, bands=("F150W", "F200W"), pixel_scale=0.04 * u
               "icl": _scene.icl_params(icl, settings.bands)}
     truth = _truth_table(system, settings.bands, pairs, intrinsic_flux, rng)
     extras["patch"] = _scene.patch_params(patch, settings.bands, len(truth))
+    if extras["patch"] is not None:
+        p = extras["patch"]
+        image_flux = {b: truth[flux_col(p["arc"], b)][p["pair"]].to_value(_IMAGE_UNIT)
+                      for b in settings.bands}
+        extras["patch"] = _scene.resolve_patch_flux(
+            p, image_flux, {b: settings.psfs[b].pixel_kernel for b in settings.bands},
+            settings.scale)
+        truth.meta["patch_flux"] = {b: float(f) for b, f in extras["patch"]["flux"].items()}
     if extras["clumps"] is not None:
         # spawning leaves rng's stream (the noise) as it is
         extras["clump_rng"] = rng.spawn(1)[0]
