@@ -1371,7 +1371,8 @@ def null_calibration(pairs, *, sigma_pos, n_realisations=1000,
     t2 = np.ascontiguousarray(theta2.to_value(u.arcsec)[keep])
     n = t1.shape[0]
     sigma = as_sigma(_subset_sigma(sigma_pos, keep), n, positive=True)
-    flux = flux_ratios(pairs)
+    # a doubtful flux ratio is untested in the null too, as in check_duality
+    flux = _without_doubtful_fluxes(flux_ratios(pairs), doubts_of(pairs, "flux_doubt"))
     ln_flux_err = np.asarray(flux["ln_mu_flux_err"], dtype=float)[keep]
     ln_flux_err = np.where(np.isfinite(ln_flux_err), ln_flux_err, np.inf)
 

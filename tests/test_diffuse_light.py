@@ -281,21 +281,16 @@ def test_the_pipeline_doubts_the_pair_on_a_bright_patch():
     assert not any(np.asarray(res["flux_doubt"])[others])
 
 
-@pytest.mark.parametrize("test", ["geometric", "joint"])
-def test_a_doubtful_flux_ratio_stays_in_the_geometry(test):
-    """check_duality with ``flux_doubt``: the pair keeps its size magnification and
-    its place in the others' (the same as without the doubt), is not tested, and its
-    flux ratio informs nothing else: the others' results are those of the same table
-    with the pair's fluxes unmeasured (NaN)."""
-    from lensdual.duality import check_duality
-
+def _doubt_table(n=16):
+    """16 pairs through a slightly bent map, fluxes in two bands at 1 %, pair 6's L1
+    image 60 % too bright; the same table with its flux ratio doubtful, and with its
+    fluxes unmeasured (NaN)."""
     rng = np.random.default_rng(7)
-    n = 16
     theta2 = rng.uniform(-1, 1, (n, 2))
-    theta1 = theta2 @ np.array([[1.5, 0.3], [0.1, -0.8]]).T + 0.05 * theta2**2
+    a = np.array([[1.5, 0.3], [0.1, -0.8]])
+    theta1 = theta2 @ a.T + 0.05 * theta2**2
     flux2 = rng.uniform(80, 120, n)
-    det = np.abs(np.linalg.det(np.array([[1.5, 0.3], [0.1, -0.8]])))
-    flux1 = det * flux2 * np.exp(rng.normal(0, 0.01, n))
+    flux1 = abs(np.linalg.det(a)) * flux2 * np.exp(rng.normal(0, 0.01, n))
     flux1[5] *= 1.6  # light under pair 6's L1 image
     pairs = QTable({"x1": theta1[:, 0] * u.arcsec, "y1": theta1[:, 1] * u.arcsec,
                     "x2": theta2[:, 0] * u.arcsec, "y2": theta2[:, 1] * u.arcsec})
@@ -304,21 +299,55 @@ def test_a_doubtful_flux_ratio_stays_in_the_geometry(test):
         pairs[f"flux2_{band}"] = colour * flux2
         pairs[f"flux_err1_{band}"] = 0.01 * colour * flux1
         pairs[f"flux_err2_{band}"] = 0.01 * colour * flux2
-    kw = {"sigma_pos": 0.002 * u.arcsec, "seed": 1, "test": test, "snr_definition": "log"}
-    plain = check_duality(pairs, **kw)
-    assert plain["anomalous"][5]
     doubted = pairs.copy()
     reasons = [""] * n
     reasons[5] = "diffuse light differs between the images"
     doubted["flux_doubt"] = reasons
+    unmeasured = pairs.copy()
+    for name in ("flux1_F150W", "flux2_F150W", "flux1_F200W", "flux2_F200W"):
+        unmeasured[name][5] = np.nan
+    return pairs, doubted, unmeasured
+
+
+@pytest.mark.parametrize("test", ["geometric", "joint"])
+def test_the_null_calibration_leaves_a_doubtful_flux_ratio_untested(test):
+    """null_calibration with ``flux_doubt``: the pair has no null significance, and
+    the others' null is that of the same table with the pair's fluxes unmeasured (the
+    doubt's flux ratio tested in the null would make its family-wise rate too high)."""
+    from lensdual.duality import null_calibration
+
+    _, doubted, unmeasured = _doubt_table()
+    kw = {"sigma_pos": 0.002 * u.arcsec, "seed": 3, "test": test, "n_realisations": 100,
+          "snr_definition": "log"}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        got = null_calibration(doubted, **kw)
+        reference = null_calibration(unmeasured, **kw)
+    null = np.asarray(got["null_snr"], dtype=float)
+    assert np.isnan(null[5]).all() and not got["tested"][5]
+    assert np.isfinite(null[np.arange(len(null)) != 5]).mean() > 0.5
+    np.testing.assert_array_equal(null, np.asarray(reference["null_snr"], dtype=float))
+    assert got.meta["false_alarm_rate"] == reference.meta["false_alarm_rate"]
+
+
+@pytest.mark.parametrize("test", ["geometric", "joint"])
+def test_a_doubtful_flux_ratio_stays_in_the_geometry(test):
+    """check_duality with ``flux_doubt``: the pair keeps its size magnification and
+    its place in the others' (the same as without the doubt), is not tested, and its
+    flux ratio informs nothing else: the others' results are those of the same table
+    with the pair's fluxes unmeasured (NaN)."""
+    from lensdual.duality import check_duality
+
+    pairs, doubted, unmeasured = _doubt_table()
+    n = len(pairs)
+    kw = {"sigma_pos": 0.002 * u.arcsec, "seed": 1, "test": test, "snr_definition": "log"}
+    plain = check_duality(pairs, **kw)
+    assert plain["anomalous"][5]
     result = check_duality(doubted, **kw)
     assert not result["tested"][5] and not result["anomalous"][5]
     assert result["doubt"][5] == "" and result["flux_doubt"][5].startswith("diffuse light")
     np.testing.assert_allclose(result["mu_size"], plain["mu_size"], rtol=1e-12)
     assert result["mu_flux"][5] == pytest.approx(plain["mu_flux"][5])
-    unmeasured = pairs.copy()
-    for name in ("flux1_F150W", "flux2_F150W", "flux1_F200W", "flux2_F200W"):
-        unmeasured[name][5] = np.nan
     with pytest.warns(Warning, match="no band has a finite flux ratio for row"):
         reference = check_duality(unmeasured, **kw)
     others = np.arange(n) != 5

@@ -216,13 +216,13 @@ def default_test_numbers(path):
 
 
 #: The columns of a row of ``diffuse_patch_doubt.py``'s table.
-PATCH_COLUMNS = ("flux", "seeds", "doubtful", "flagged", "flagged_without", "error", "t",
-                 "clean_doubtful", "clean_flagged", "clean_tested", "subhalo_flagged",
+PATCH_COLUMNS = ("contrast", "flux", "seeds", "doubtful", "flagged", "flagged_without", "error",
+                 "t", "clean_doubtful", "clean_flagged", "clean_tested", "subhalo_flagged",
                  "subhalo_doubtful")
 
 
 def read_patch_scan(path):
-    """``diffuse_patch_doubt.py``'s rows: {flux (nJy): {column: value}}."""
+    """``diffuse_patch_doubt.py``'s rows: {contrast: {column: value}}."""
     rows = {}
     for line in Path(path).read_text().splitlines():
         words = line.split()
@@ -234,21 +234,28 @@ def read_patch_scan(path):
     return rows
 
 
+def contrast_key(contrast):
+    """The substitution names' label of a contrast: 1 -> "1", 0.25 -> "0p25"."""
+    return f"{contrast:g}".replace(".", "p")
+
+
 def patch_scan_numbers(path):
-    """Per patch flux ``F`` (nJy): the seeds where the pair's flux ratio was doubtful
-    (``mock_pd_F_doubt``), where it would have been flagged without the check
-    (``mock_pd_F_without``) and was flagged with it (``mock_pd_F_flagged``), its flux
-    ratio's median error (``mock_pd_F_err``, %); over every flux the clean pairs'
-    doubts and the sub-haloed pair's."""
+    """Per patch contrast ``C``: the seeds where the pair's flux ratio was doubtful
+    (``mock_pd_C_doubt``), where it would have been flagged without the check
+    (``mock_pd_C_without``) and was flagged with it (``mock_pd_C_flagged``), its flux
+    ratio's median error (``mock_pd_C_err``, %), the patch's median F150W flux
+    (``mock_pd_C_flux``, nJy); over every contrast the clean pairs' doubts and the
+    sub-haloed pair's."""
     rows = read_patch_scan(path)
     sub = {}
-    for flux, r in rows.items():
-        key = f"{flux:g}"
+    for contrast, r in rows.items():
+        key = contrast_key(contrast)
         n = int(r["seeds"])
         sub[f"mock_pd_{key}_doubt"] = f"{int(r['doubtful'])} of {n}"
         sub[f"mock_pd_{key}_without"] = f"{int(r['flagged_without'])} of {n}"
         sub[f"mock_pd_{key}_flagged"] = f"{int(r['flagged'])}"
         sub[f"mock_pd_{key}_err"] = f"{100 * r['error']:+.1f}"
+        sub[f"mock_pd_{key}_flux"] = f"{r['flux']:.0f}"
     sub["mock_pd_seeds"] = str(int(max(r["seeds"] for r in rows.values())))
     sub["mock_pd_clean_doubt"] = str(int(sum(r["clean_doubtful"] for r in rows.values())))
     sub["mock_pd_clean_tested"] = str(int(sum(r["clean_tested"] for r in rows.values())))
