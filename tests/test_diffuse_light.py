@@ -135,17 +135,33 @@ def test_a_sub_halo_seen_through_a_psf_leak_is_not_doubtful():
     assert reason[4] != "" and np.all(reason[np.arange(12) != 4] == "")
 
 
-def test_a_pair_missing_a_band_is_not_compared():
-    """Every pair's difference is the mean over the same bands: a pair whose fit failed
-    in one band is left out of the comparison, not doubted for the other band's light."""
-    t = _table()
-    t["bkg1_F200W"] = t["bkg1_F200W"] * 6  # the bands' light differs sixfold
-    t["bkg2_F200W"] = t["bkg2_F200W"] * 6
-    t["bkg1_F200W"][3] = np.nan
-    doubt = no_doubts(len(t))
-    summary = doubt_diffuse_light(t, ["F150W", "F200W"], doubt)
-    assert summary["n_pairs"] == 11 and np.isnan(t["diffuse_light_t"][3])
-    assert np.all(t["flux_doubt"] == "")
+def test_a_pair_missing_a_band_is_compared_in_the_others():
+    """A pair whose fit failed in one band is compared in the bands it has, against
+    the others' fit in those bands: not doubted for the other band's light (the
+    bands' light differs sixfold), found under a patch (a patch bright enough to
+    break one band's fit must not pass unseen), and counted in the Bonferroni
+    correction; its threshold has the degrees of freedom of its fit."""
+    for patch in (None, (3, 60.0)):
+        t = _table(patch=patch)
+        t["bkg1_F200W"] = t["bkg1_F200W"] * 6
+        t["bkg2_F200W"] = t["bkg2_F200W"] * 6
+        t["bkg1_F200W"][3] = np.nan
+        summary = doubt_diffuse_light(t, ["F150W", "F200W"], no_doubts(len(t)))
+        assert summary["n_pairs"] == 12 and summary["n_pairs_fewer_bands"] == 1
+        assert summary["threshold"] == pytest.approx(diffuse_light_threshold(12, n_fit=11))
+        # pair 3's t is the F150W difference alone against the fit to all the others
+        d = (t["bkg1_F150W"] - t["bkg2_F150W"]).value
+        f = (t["flux1_F150W"] - t["flux2_F150W"]).value
+        expected = studentized_residuals(_design(t["x1"].value, t["y1"].value, f), d)[3]
+        assert t["diffuse_light_t"][3] == pytest.approx(expected, rel=1e-9)
+        assert np.all(np.isfinite(t["diffuse_light_t"]))
+        reason = np.asarray(t["flux_doubt"])
+        if patch is None:
+            assert np.all(reason == "")
+        else:
+            assert reason[3].startswith("diffuse light differs")
+            assert f"beyond {diffuse_light_threshold(12):.1f}" in reason[3]
+            assert np.all(reason[np.arange(12) != 3] == "")
 
 
 def test_only_pairs_without_doubt_are_compared():
