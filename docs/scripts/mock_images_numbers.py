@@ -208,7 +208,11 @@ def default_test_numbers(path):
     if doubts is None:
         raise ValueError(f"{path}: no totals of the diffuse-light doubts")
     clean_d, patch_d, sub_d, seeds_d = (int(g) for g in doubts.groups())
+    lower, upper = (beta.ppf(0.025, false, tested - false + 1) if false else 0.0,
+                    beta.ppf(0.975, false + 1, tested - false) if false < tested else 1.0)
     return {"mock_def_clean": str(tested), "mock_def_false": str(false),
+            "mock_def_rate": f"{100 * false / tested:.1f}",
+            "mock_def_lower": f"{100 * lower:.2f}", "mock_def_upper": f"{100 * upper:.1f}",
             "mock_def_patch": f"{patch} of {seeds}", "mock_def_subhalo": f"{subhalo} of {seeds}",
             "mock_def_differ": "no seed" if n_differ == 0 else f"{n_differ} of {seeds} seeds",
             "mock_def_doubt_clean": str(clean_d), "mock_def_doubt_patch": f"{patch_d} of {seeds_d}",
