@@ -9,10 +9,11 @@ image), by the part of the source's own flux that a PSF model slightly
 unlike the source puts into the background (proportional to the flux), and
 by noise. The intracluster and member light vary smoothly over a
 constellation; a patch under one image does not. For each pair the
-difference ``d = bkg1 - bkg2`` (the mean over the bands measured under both
-its images) is compared with the least-squares fit, to the other pairs
-measured in those bands, of a plane in the L1 position plus a multiple of the
-flux difference ``f1 - f2`` (the mean over the same bands): its
+difference ``d = bkg1 - bkg2`` (the mean over bands measured under both its
+images: all of them, unless fewer give a fit of more pairs that is expected
+to see light of one colour better) is compared with the least-squares fit, to
+the other pairs measured in those bands, of a plane in the L1 position plus a
+multiple of the flux difference ``f1 - f2`` (the mean over the same bands): its
 externally studentized residual ``t`` follows Student's t with ``n - 5``
 degrees of freedom (``n`` the pairs of that fit) where the differences scatter
 normally about that model. A pair whose ``|t|`` exceeds the two-sided
@@ -23,6 +24,8 @@ source's. Its positions are not in doubt, so it stays in the geometry. A
 sub-halo's magnification moves ``f1 - f2`` and, through the leak, ``d`` along
 the fitted multiple, so it does not make a pair doubtful.
 """
+
+import itertools
 
 import numpy as np
 from astropy import units as u
@@ -96,23 +99,45 @@ def _differences(measured, bands):
     return np.array([q.value for q in d]), np.array([q.value for q in f]), used
 
 
-def _mix_residuals(mix, have, candidates, d, f, x, y):
-    """The studentized residuals of the pairs measured in exactly the bands ``mix``
-    (``(targets, t, n_fit)``): each pair's mean over ``mix`` against the fit to every
-    other candidate pair measured in at least those bands; None with too few."""
-    members = candidates & have[mix].all(axis=0)
-    targets = candidates & (have == mix[:, None]).all(axis=0)
+def _feasible_sets(have, candidates):
+    """Per pair, the subsets of the bands it was measured in (tuples of band rows, most
+    bands first) whose fit, the candidate pairs measured in at least those bands, has
+    :data:`MIN_DIFFUSE_PAIRS` pairs, with that number; empty for a pair not compared."""
+    out = [[] for _ in range(have.shape[1])]
+    for k in np.flatnonzero(candidates):
+        own = np.flatnonzero(have[:, k]).tolist()
+        for size in range(len(own), 0, -1):
+            for subset in itertools.combinations(own, size):
+                n_fit = int((candidates & have[list(subset)].all(axis=0)).sum())
+                if n_fit >= MIN_DIFFUSE_PAIRS:
+                    out[k].append((subset, n_fit))
+    return out
+
+
+def _band_choice(feasible, n_compared, alpha):
+    """The subset with the largest ``sqrt(bands) / threshold``: the expected ``t`` of
+    light of one colour, in bands of equal noise, over its critical value (the first
+    of equal ones: more bands). It depends on which pairs were measured, not on their
+    values."""
+    scores = [np.sqrt(len(subset)) / diffuse_light_threshold(n_compared, alpha, n_fit)
+              for subset, n_fit in feasible]
+    return feasible[int(np.argmax(scores))]
+
+
+def _subset_residuals(subset, have, candidates, d, f, x, y):
+    """The studentized residuals of every candidate pair measured in at least the bands
+    ``subset`` (``(members, t)``): each one's mean over ``subset`` against the fit to
+    the others."""
+    rows = list(subset)
+    members = candidates & have[rows].all(axis=0)
     n_fit = int(members.sum())
-    if n_fit < MIN_DIFFUSE_PAIRS:
-        return None
-    dm, fm = d[mix][:, members].mean(axis=0), f[mix][:, members].mean(axis=0)
+    dm, fm = d[rows][:, members].mean(axis=0), f[rows][:, members].mean(axis=0)
     xs, ys = x[members], y[members]
     scale = np.std(fm) if np.std(fm) > 0 else 1.0
     design = np.column_stack([np.ones(n_fit), xs - xs.mean(), ys - ys.mean(),
                               (fm - fm.mean()) / scale])
     with np.errstate(invalid="ignore", divide="ignore"):
-        t = studentized_residuals(design, dm)
-    return targets, t[targets[members]], n_fit
+        return members, studentized_residuals(design, dm)
 
 
 def doubt_diffuse_light(measured, bands, doubt, alpha=DIFFUSE_LIGHT_ALPHA):
@@ -120,17 +145,18 @@ def doubt_diffuse_light(measured, bands, doubt, alpha=DIFFUSE_LIGHT_ALPHA):
     sit on different light that is not lensed; "" where not) and ``diffuse_light_t``
     (NaN where not compared) to ``measured``.
 
-    Only pairs without a ``doubt`` take part, each in the bands where both its
-    backgrounds and fluxes were measured: its difference is the mean over those
-    bands, compared with the fit to the other pairs measured in them (a pair whose
-    fit failed in one band is compared in the others). A comparison needs
-    :data:`MIN_DIFFUSE_PAIRS` pairs; the Bonferroni correction is over every pair
-    compared. Returns the summary for ``meta``: the pairs compared, those compared
-    in fewer than all the bands, the bands, ``alpha`` and the threshold of the
-    pairs compared in every band (None when nothing was compared).
+    Only pairs without a ``doubt`` take part, each in bands where both its
+    backgrounds and fluxes were measured (:func:`_band_choice`: all of them, unless
+    fewer give a fit of more pairs that is expected to see light of one colour
+    better): its difference is the mean over those bands, compared with the fit
+    to the other pairs measured in them. A fit needs :data:`MIN_DIFFUSE_PAIRS`
+    pairs; the Bonferroni correction is over every pair compared. Returns the
+    summary for ``meta``: the pairs compared, those compared in fewer bands than
+    they were measured in or than the bands used, the bands used, ``alpha`` and
+    the threshold applied to the most pairs (None when nothing was compared).
     """
     t = np.full(len(measured), np.nan)
-    n_fit = np.zeros(len(measured), dtype=int)
+    thresholds = np.full(len(measured), np.inf)
     flux_doubt = no_doubts(len(measured))
     found = _differences(measured, bands)
     summary = {"alpha": alpha, "n_pairs": 0, "n_pairs_fewer_bands": 0, "bands": [],
@@ -141,19 +167,26 @@ def doubt_diffuse_light(measured, bands, doubt, alpha=DIFFUSE_LIGHT_ALPHA):
         y = u.Quantity(measured[y_col(1)], u.arcsec).value
         have = np.isfinite(d) & np.isfinite(f)
         candidates = (doubt == "") & have.any(axis=0) & np.isfinite(x) & np.isfinite(y)
-        for mix in np.unique(have[:, candidates].T, axis=0):
-            found_mix = _mix_residuals(mix, have, candidates, d, f, x, y)
-            if found_mix is not None:
-                targets, t[targets], n_fit[targets] = found_mix
-        compared = np.isfinite(t) | (n_fit > 0)
-        n = int(compared.sum())
+        feasible = _feasible_sets(have, candidates)
+        n = sum(bool(options) for options in feasible)
         if n:
-            thresholds = np.array([diffuse_light_threshold(n, alpha, m) if m else np.inf
-                                   for m in n_fit])
-            full = compared & have.all(axis=0)
-            summary.update(n_pairs=n, n_pairs_fewer_bands=int((compared & ~full).sum()),
-                           bands=list(used),
-                           threshold=(float(thresholds[full][0]) if full.any() else None))
+            chosen = [_band_choice(options, n, alpha)[0] if options else None
+                      for options in feasible]
+            for subset in sorted({c for c in chosen if c is not None}):
+                members, t_all = _subset_residuals(subset, have, candidates, d, f, x, y)
+                targets = np.array([c == subset for c in chosen])
+                t[targets] = t_all[targets[members]]
+                thresholds[targets] = diffuse_light_threshold(n, alpha,
+                                                              int(members.sum()))
+            compared = np.array([c is not None for c in chosen])
+            sizes = np.array([len(c) if c is not None else 0 for c in chosen])
+            in_bands = sorted({b for c in chosen if c is not None for b in c})
+            values, counts = np.unique(thresholds[compared], return_counts=True)
+            summary.update(
+                n_pairs=n, bands=[used[b] for b in in_bands],
+                n_pairs_fewer_bands=int((compared & ((sizes < have.sum(axis=0))
+                                                     | (sizes < len(in_bands)))).sum()),
+                threshold=float(values[np.argmax(counts)]))
             add_doubt(flux_doubt, np.abs(np.nan_to_num(t)) > thresholds, lambda k: (
                 f"diffuse light differs between the images (t = {t[k]:.1f} against the "
                 f"other pairs' model; beyond {thresholds[k]:.1f}, the {100 * alpha:g} % level "

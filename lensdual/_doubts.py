@@ -22,8 +22,11 @@ def doubts_of(tab, column="doubt"):
     """The reasons in the ``column`` of ``tab`` (absent, masked or None: no doubt)."""
     if column not in tab.colnames:
         return no_doubts(len(tab))
-    return np.array([str(d) if d is not None and str(d) not in ("", "--") else ""
-                     for d in np.asarray(tab[column], dtype=object)], dtype=object)
+    col = tab[column]
+    masked = np.ma.getmaskarray(col) if hasattr(col, "mask") else np.zeros(len(tab), bool)
+    return np.array([str(d) if not m and d is not None and str(d) not in ("", "--") else ""
+                     for d, m in zip(np.asarray(col, dtype=object), masked, strict=True)],
+                    dtype=object)
 
 
 def add_doubt(doubt, mask, reason):

@@ -164,6 +164,44 @@ def test_a_pair_missing_a_band_is_compared_in_the_others():
             assert np.all(reason[np.arange(12) != 3] == "")
 
 
+def test_a_patch_is_seen_when_other_pairs_lose_a_band():
+    """The bands a pair is compared in are chosen by which pairs were measured, not by
+    the values: a fit of fewer bands over more pairs where the full mix has too few
+    pairs (7 pairs, one without F200W: all 7 compared in F150W), or leaves too few
+    degrees of freedom (10 pairs in three bands, three without C: compared in A and B
+    over all 10, not in A, B, C over 7 with 2 degrees of freedom)."""
+    t = _table(n=7, patch=(2, 500.0))
+    t["bkg1_F200W"][0] = np.nan
+    summary = doubt_diffuse_light(t, ["F150W", "F200W"], no_doubts(7))
+    assert summary["n_pairs"] == 7 and summary["bands"] == ["F150W"]
+    assert summary["n_pairs_fewer_bands"] == 6  # pair 0 had F150W alone
+    assert summary["threshold"] == pytest.approx(diffuse_light_threshold(7))
+    reason = np.asarray(t["flux_doubt"])
+    assert reason[2] != "" and np.all(reason[np.arange(7) != 2] == "")
+    bands = ["A", "B", "C"]
+    for lost in ([], [2, 5, 8]):
+        t = _table(n=10, bands=bands, patch=(0, 80.0))
+        t["bkg2_C"][lost] = np.nan
+        summary = doubt_diffuse_light(t, bands, no_doubts(10))
+        assert summary["n_pairs"] == 10
+        assert t["flux_doubt"][0] != ""
+        expected = ["A", "B", "C"] if not lost else ["A", "B"]
+        assert summary["bands"] == expected
+        assert summary["threshold"] == pytest.approx(diffuse_light_threshold(10))
+        # pair 0's t is its mean over the chosen bands against the fit to the others
+        d = np.mean([(t[f"bkg1_{b}"] - t[f"bkg2_{b}"]).value for b in expected], axis=0)
+        f = np.mean([(t[f"flux1_{b}"] - t[f"flux2_{b}"]).value for b in expected], axis=0)
+        ref = studentized_residuals(_design(t["x1"].value, t["y1"].value, f), d)[0]
+        assert t["diffuse_light_t"][0] == pytest.approx(ref, rel=1e-9)
+    # every pair without F200W: compared in F150W, the threshold reported is the one used
+    t = _table(patch=(4, 60.0))
+    t["bkg2_F200W"] = np.nan * t["bkg2_F200W"]
+    summary = doubt_diffuse_light(t, ["F150W", "F200W"], no_doubts(12))
+    assert summary["bands"] == ["F150W"] and summary["n_pairs_fewer_bands"] == 0
+    assert summary["threshold"] == pytest.approx(diffuse_light_threshold(12))
+    assert f"beyond {summary['threshold']:.1f}" in t["flux_doubt"][4]
+
+
 def test_only_pairs_without_doubt_are_compared():
     t = _table(patch=(4, 60.0))
     doubt = no_doubts(len(t))
@@ -344,6 +382,15 @@ def test_the_null_calibration_leaves_a_doubtful_flux_ratio_untested(test):
     assert np.isfinite(null[np.arange(len(null)) != 5]).mean() > 0.5
     np.testing.assert_array_equal(null, np.asarray(reference["null_snr"], dtype=float))
     assert got.meta["false_alarm_rate"] == reference.meta["false_alarm_rate"]
+    # a masked reason is no doubt, as doubts_of documents
+    from astropy.table import MaskedColumn
+
+    from lensdual._doubts import doubts_of
+
+    masked = doubted.copy()
+    masked["flux_doubt"] = MaskedColumn(list(doubted["flux_doubt"]),
+                                        mask=np.arange(len(doubted)) == 5)
+    assert doubts_of(masked, "flux_doubt")[5] == ""
 
 
 @pytest.mark.parametrize("test", ["geometric", "joint"])

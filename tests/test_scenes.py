@@ -395,6 +395,18 @@ def test_patch_contrast_sets_the_flux_a_psf_fit_takes_up(sheet):
             amplitude = (psf * stamp).sum() / (psf * psf).sum()
             assert amplitude == pytest.approx(contrast * image_flux, rel=0.05)
             assert model.sum() == pytest.approx(mocks.pairs.meta["patch_flux"][band], rel=0.01)
+    # a rendered truth table passed in again without a patch keeps no trace of it
+    again = _render(sheet, None, bands=["F150W", "F200W"], pairs=mocks.pairs, patch=None)
+    assert "patch_flux" not in again.pairs.meta and "patch2" not in again.pairs.colnames
+    assert again.image_plane_model[("L2", "F150W")].value.sum() == 0
+    # a copy of the default with a flux: contrast None
+    from lensdual.simulation import MOCK_PATCH
+
+    with pytest.raises(ValueError, match="'contrast': None"):
+        _render(sheet, None, pairs=_pairs(10.0), patch={**MOCK_PATCH, "flux": 5 * u.nJy})
+    fixed = _render(sheet, None, pairs=_pairs(10.0),
+                    patch={**MOCK_PATCH, "flux": 5 * u.nJy, "contrast": None})
+    assert fixed.pairs.meta["patch_flux"]["F150W"] == pytest.approx(5.0)
     # the default's flux follows the image: twice as bright an image, twice the patch
     bright = pairs.copy()
     bright["flux2_F150W"] = [80.0] * u.nJy

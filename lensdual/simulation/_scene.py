@@ -208,7 +208,8 @@ def patch_params(patch, bands, n_rows):
                          f"got {pair}")
     given = patch if isinstance(patch, Mapping) else {}
     if given.get("flux") is not None and given.get("contrast") is not None:
-        raise ValueError("patch takes 'flux' or 'contrast', not both")
+        raise ValueError("patch takes 'flux' or 'contrast', not both (with a flux, set "
+                         "'contrast': None)")
     out = {"sigma": as_angle_scalar(p["sigma"], "patch['sigma']", allow_zero=False),
            "pair": pair, "arc": _arc(p["arc"], "patch['arc']"), "flux": None,
            "contrast": None}

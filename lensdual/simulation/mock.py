@@ -1062,6 +1062,9 @@ def render_mock_images(system, *, bands=("F150W", "F200W"), pixel_scale=0.04 * u
               "icl": _scene.icl_params(icl, settings.bands)}
     truth = _truth_table(system, settings.bands, pairs, intrinsic_flux, rng)
     extras["patch"] = _scene.patch_params(patch, settings.bands, len(truth))
+    # a rendered truth table passed in again: its patch is not this render's
+    truth.meta.pop("patch_flux", None)
+    truth.remove_columns([c for c in ("patch1", "patch2") if c in truth.colnames])
     if extras["patch"] is not None:
         p = extras["patch"]
         image_flux = {b: truth[flux_col(p["arc"], b)][p["pair"]].to_value(_IMAGE_UNIT)
