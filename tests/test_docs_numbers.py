@@ -661,8 +661,22 @@ def test_mock_images_numbers_are_the_benchmarks_outputs(tmp_path):
     assert scan[0.25]["doubtful"] > scan[0.25]["flagged_without"]
     assert all(scan[c]["clean_doubtful"] == 0 for c in contrasts[:-1])
     assert sum(r["subhalo_doubtful"] for r in scan.values()) == 0
-    # the default test's clean flags: "its 95 % interval ... holds the issue's 0.5 %"
+    # the default test's clean flags: "its 95 % interval ... holds the issue's 0.5 %";
+    # together with the scene without the sub-halo "the issue's 0.5 % lies inside the
+    # interval, below the point estimate"; "No flag is on the patch pair"
     assert float(sub["mock_def_lower"]) < 0.5 < float(sub["mock_def_upper"])
+    assert float(sub["mock_defall_lower"]) < 0.5 < float(sub["mock_defall_rate"])
+    assert sub["mock_def_patch"].startswith("0 of") and sub["mock_defn_patch"].startswith("0 of")
+    # the held-out families: "where they were [analysed], the patch pair was doubtful";
+    # "most [of the group's runs] were not analysed"
+    assert "_static/scenes/diffuse_patch_heldout.txt" in page
+    text = (folder / "diffuse_patch_heldout.txt").read_text()
+    rows = text[text.index("family runs"):].splitlines()[1:]
+    # family runs patch_found patch_doubtful patch_flagged ...
+    totals = {w[0]: [int(v) for v in w[1:5]] for w in map(str.split, rows) if w}
+    for _, found, doubtful, flagged in totals.values():
+        assert doubtful == found > 0 and flagged == 0
+    assert totals["group_fold"][0] < 16 / 2 < totals["smacs_analog"][0]
 
 
 def test_abundance_prose_is_the_functions():

@@ -10,11 +10,12 @@ prose cannot drift from them:
   (detection, photometry and pairing on mocks of the SMACS0723 analogue);
 - ``performance/demo_time_realistic.txt``: ``benchmarks/bench_demo_time.py
   --scene realistic`` (the realistic demo's wall time);
-- ``scenes/default_test.txt``: ``benchmarks/scene_default_test.py --seeds 30``
+- ``scenes/default_test.txt``, ``scenes/default_test_nosub.txt``:
+  ``benchmarks/scene_default_test.py --seeds 30`` (and ``--subhalo none``)
   (the realistic scene under the default test and under the former one, and
   the diffuse-light check's doubts);
 - ``scenes/diffuse_patch_doubt.txt``: ``benchmarks/diffuse_patch_doubt.py
-  --seeds 12`` (the diffuse-light check against the patch's flux).
+  --seeds 12`` (the diffuse-light check against the patch's contrast).
 
 Run from the repository root after rerunning a benchmark::
 
@@ -22,6 +23,8 @@ Run from the repository root after rerunning a benchmark::
         --out docs/_static/scenes/finite_size_bias.txt
     python benchmarks/acceptance_pixels.py --seeds 20 --output docs/_static/scenes/acceptance.txt
     python benchmarks/scene_default_test.py --seeds 30 --output docs/_static/scenes/default_test.txt
+    python benchmarks/scene_default_test.py --seeds 30 --subhalo none \
+        --output docs/_static/scenes/default_test_nosub.txt
     python benchmarks/diffuse_patch_doubt.py --seeds 12 \
         --output docs/_static/scenes/diffuse_patch_doubt.txt
     python docs/scripts/mock_images_numbers.py
@@ -193,30 +196,59 @@ def demo_time_numbers(path):
             "mock_demo_cores": cores, "mock_demo_load": load}
 
 
-def default_test_numbers(path):
-    """``scene_default_test.py``: the realistic scene's flags under the default test,
-    and the seeds where the former default differs."""
+def _interval(k, n):
+    """The two-sided 95 % Clopper-Pearson interval of k in n, in per cent."""
+    lower = beta.ppf(0.025, k, n - k + 1) if k else 0.0
+    upper = beta.ppf(0.975, k + 1, n - k) if k < n else 1.0
+    return 100 * lower, 100 * upper
+
+
+def read_default_test(path):
+    """``scene_default_test.py``'s totals: the default test's (clean tested, clean
+    flagged, patch flagged seeds, sub-halo flagged seeds, seeds), the seeds where the
+    former default differs, and the doubts (clean, patch, sub-halo, seeds)."""
     text = path.read_text()
     m = re.search(r"^default (\d+) (\d+) (\d+) (\d+) (\d+)$", text, re.MULTILINE)
     if m is None:
         raise ValueError(f"{path}: no totals row of the default test")
-    tested, false, patch, subhalo, seeds = (int(g) for g in m.groups())
+    totals = tuple(int(g) for g in m.groups())
     n_differ = int(search(r"seeds where the two tests differ: (\d+)",
                           text.splitlines(), path).group(1))
     doubts = re.search(r"^diffuse-light doubts: clean (\d+) patch (\d+) subhalo (\d+) "
                        r"seeds (\d+)$", text, re.MULTILINE)
     if doubts is None:
         raise ValueError(f"{path}: no totals of the diffuse-light doubts")
-    clean_d, patch_d, sub_d, seeds_d = (int(g) for g in doubts.groups())
-    lower, upper = (beta.ppf(0.025, false, tested - false + 1) if false else 0.0,
-                    beta.ppf(0.975, false + 1, tested - false) if false < tested else 1.0)
-    return {"mock_def_clean": str(tested), "mock_def_false": str(false),
-            "mock_def_rate": f"{100 * false / tested:.1f}",
-            "mock_def_lower": f"{100 * lower:.2f}", "mock_def_upper": f"{100 * upper:.1f}",
-            "mock_def_patch": f"{patch} of {seeds}", "mock_def_subhalo": f"{subhalo} of {seeds}",
-            "mock_def_differ": "no seed" if n_differ == 0 else f"{n_differ} of {seeds} seeds",
-            "mock_def_doubt_clean": str(clean_d), "mock_def_doubt_patch": f"{patch_d} of {seeds_d}",
-            "mock_def_doubt_subhalo": f"{sub_d} of {seeds_d}"}
+    return totals, n_differ, tuple(int(g) for g in doubts.groups())
+
+
+def default_test_numbers(path, prefix="mock_def"):
+    """``scene_default_test.py``: the realistic scene's flags under the default test,
+    and the seeds where the former default differs."""
+    (tested, false, patch, subhalo, seeds), n_differ, doubts = read_default_test(path)
+    clean_d, patch_d, sub_d, seeds_d = doubts
+    lower, upper = _interval(false, tested)
+    return {f"{prefix}_clean": str(tested), f"{prefix}_false": str(false),
+            f"{prefix}_rate": f"{100 * false / tested:.1f}",
+            f"{prefix}_lower": f"{lower:.2f}", f"{prefix}_upper": f"{upper:.1f}",
+            f"{prefix}_patch": f"{patch} of {seeds}",
+            f"{prefix}_subhalo": f"{subhalo} of {seeds}",
+            f"{prefix}_differ": "no seed" if n_differ == 0 else f"{n_differ} of {seeds} seeds",
+            f"{prefix}_doubt_clean": str(clean_d),
+            f"{prefix}_doubt_patch": f"{patch_d} of {seeds_d}",
+            f"{prefix}_doubt_subhalo": f"{sub_d} of {seeds_d}"}
+
+
+def default_tests_together(paths, prefix="mock_defall"):
+    """The clean pairs tested and flagged over several of ``scene_default_test.py``'s
+    outputs, with the two-sided 95 % interval of the rate."""
+    tested = false = 0
+    for path in paths:
+        totals, _, _ = read_default_test(path)
+        tested, false = tested + totals[0], false + totals[1]
+    lower, upper = _interval(false, tested)
+    return {f"{prefix}_clean": str(tested), f"{prefix}_false": str(false),
+            f"{prefix}_rate": f"{100 * false / tested:.1f}",
+            f"{prefix}_lower": f"{lower:.2f}", f"{prefix}_upper": f"{upper:.1f}"}
 
 
 #: The columns of a row of ``diffuse_patch_doubt.py``'s table.
@@ -274,6 +306,9 @@ def compute(folder=OUT):
             | acceptance_numbers(folder / "acceptance.txt")
             | demo_time_numbers(folder.parent / "performance" / "demo_time_realistic.txt")
             | default_test_numbers(folder / "default_test.txt")
+            | default_test_numbers(folder / "default_test_nosub.txt", "mock_defn")
+            | default_tests_together([folder / "default_test.txt",
+                                      folder / "default_test_nosub.txt"])
             | patch_scan_numbers(folder / "diffuse_patch_doubt.txt"))
 
 
