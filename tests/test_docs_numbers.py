@@ -667,6 +667,12 @@ def test_mock_images_numbers_are_the_benchmarks_outputs(tmp_path):
     assert float(sub["mock_def_lower"]) < 0.5 < float(sub["mock_def_upper"])
     assert float(sub["mock_defall_lower"]) < 0.5 < float(sub["mock_defall_rate"])
     assert sub["mock_def_patch"].startswith("0 of") and sub["mock_defn_patch"].startswith("0 of")
+    # the flux-ratio pulls: the realistic scene's "come out high" and spread wider than
+    # the point scene's, more of them beyond 3
+    assert float(sub["mock_pull_realistic_median"]) > 0.2 > abs(
+        float(sub["mock_pull_point_median"]))
+    assert float(sub["mock_pull_realistic_width"]) > float(sub["mock_pull_point_width"])
+    assert float(sub["mock_pull_realistic_beyond3"]) > float(sub["mock_pull_point_beyond3"])
     # the held-out families: "where they were [analysed], the patch pair was doubtful";
     # "most [of the group's runs] were not analysed"
     assert "_static/scenes/diffuse_patch_heldout.txt" in page

@@ -15,7 +15,9 @@ prose cannot drift from them:
   (the realistic scene under the default test and under the former one, and
   the diffuse-light check's doubts);
 - ``scenes/diffuse_patch_doubt.txt``: ``benchmarks/diffuse_patch_doubt.py
-  --seeds 12`` (the diffuse-light check against the patch's contrast).
+  --seeds 12`` (the diffuse-light check against the patch's contrast);
+- ``scenes/flux_pulls.txt``: ``benchmarks/scene_flux_pulls.py --seeds 30``
+  (the flux-ratio pulls of the point and realistic scenes).
 
 Run from the repository root after rerunning a benchmark::
 
@@ -27,6 +29,7 @@ Run from the repository root after rerunning a benchmark::
         --output docs/_static/scenes/default_test_nosub.txt
     python benchmarks/diffuse_patch_doubt.py --seeds 12 \
         --output docs/_static/scenes/diffuse_patch_doubt.txt
+    python benchmarks/scene_flux_pulls.py --seeds 30 --output docs/_static/scenes/flux_pulls.txt
     python docs/scripts/mock_images_numbers.py
 """
 
@@ -251,6 +254,24 @@ def default_tests_together(paths, prefix="mock_defall"):
             f"{prefix}_lower": f"{lower:.2f}", f"{prefix}_upper": f"{upper:.1f}"}
 
 
+def flux_pull_numbers(path):
+    """``scene_flux_pulls.py``: per scene, the median flux-ratio pull, the 16-84 %
+    half-width and the per cent beyond 3; the seeds."""
+    text = Path(path).read_text()
+    sub = {}
+    for m in re.finditer(r"^(point|realistic) (\d+) ([+-][\d.]+) ([\d.]+) ([\d.]+) ([\d.]+)$",
+                         text, re.MULTILINE):
+        scene, _, median, width, _, beyond = m.groups()
+        sub[f"mock_pull_{scene}_median"] = median
+        sub[f"mock_pull_{scene}_width"] = width
+        sub[f"mock_pull_{scene}_beyond3"] = beyond
+    seeds = {int(n) + 1 for n in re.findall(r"seeds 0-(\d+)$", text, re.MULTILINE)}
+    if len(sub) != 6 or len(seeds) != 1:
+        raise ValueError(f"{path}: expected one row per scene (point, realistic) of one run")
+    sub["mock_pull_seeds"] = str(seeds.pop())
+    return sub
+
+
 #: The columns of a row of ``diffuse_patch_doubt.py``'s table.
 PATCH_COLUMNS = ("contrast", "flux", "seeds", "doubtful", "flagged", "flagged_without", "error",
                  "t", "clean_doubtful", "clean_flagged", "clean_tested", "subhalo_flagged",
@@ -309,7 +330,8 @@ def compute(folder=OUT):
             | default_test_numbers(folder / "default_test_nosub.txt", "mock_defn")
             | default_tests_together([folder / "default_test.txt",
                                       folder / "default_test_nosub.txt"])
-            | patch_scan_numbers(folder / "diffuse_patch_doubt.txt"))
+            | patch_scan_numbers(folder / "diffuse_patch_doubt.txt")
+            | flux_pull_numbers(folder / "flux_pulls.txt"))
 
 
 def main(out=OUT):
