@@ -1,6 +1,7 @@
 """Running independent tasks here, on a dask Client or on an Executor (one home)."""
 
 import os
+import warnings
 
 __all__ = []
 
@@ -22,10 +23,22 @@ def check_client(client):
     return client
 
 
-def run_tasks(fn, tasks, client):
-    """``[fn(t) for t in tasks]`` serially, on a dask Client or on an Executor."""
-    if client is None:
-        return [fn(t) for t in tasks]
-    if all(callable(getattr(client, k, None)) for k in ("submit", "map", "gather", "scatter")):
-        return client.gather(client.map(fn, tasks, pure=False))  # dask.distributed.Client
-    return list(client.map(fn, tasks))
+def run_tasks(fn, tasks, client, ignore=()):
+    """``[fn(t) for t in tasks]`` serially, on a dask Client or on an Executor.
+
+    ``ignore``: the warning categories the tasks silence themselves. Warning
+    filters are process-wide and ``warnings.catch_warnings`` is not
+    thread-safe: a task that leaves its block restores the filters another
+    thread's task entered with. The categories are therefore also silenced
+    here, around all the tasks, so that every state a thread restores silences
+    them too.
+    """
+    with warnings.catch_warnings():
+        for category in ignore:
+            warnings.simplefilter("ignore", category)
+        if client is None:
+            return [fn(t) for t in tasks]
+        if all(callable(getattr(client, k, None))
+               for k in ("submit", "map", "gather", "scatter")):
+            return client.gather(client.map(fn, tasks, pure=False))  # dask.distributed.Client
+        return list(client.map(fn, tasks))

@@ -455,3 +455,50 @@ def test_half_mode_calibration_bad_input(setup, half_mode_setup):
         sim.sigma_sub, n_realisations=MIN_REALISATIONS, seed=2) for m in MASSES]
     with pytest.raises(ValueError, match="was not made on simulation 1"):
         half_mode_posterior(data, slope, calibrations=hm)
+
+
+def _interleaved_tasks():
+    """Two tasks that each silence UserWarning with ``catch_warnings``, interleaved so
+    that the first leaves its block (restoring the filters it entered with) while the
+    second, inside its own, still warns."""
+    import threading
+
+    a_in, b_in, a_out = threading.Event(), threading.Event(), threading.Event()
+
+    def task(name):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)
+            if name == "a":
+                a_in.set()
+                assert b_in.wait(10)
+            else:
+                assert a_in.wait(10)
+                b_in.set()
+                assert a_out.wait(10)
+                warnings.warn("raised after the other task restored the filters", UserWarning,
+                              stacklevel=2)
+        if name == "a":
+            a_out.set()
+        return name
+
+    return task
+
+
+def test_run_tasks_silences_what_threaded_tasks_silence():
+    """catch_warnings is not thread-safe: the second task's warning escapes its own
+    block (an error under an "error" filter) unless run_tasks silences the category
+    around all the tasks, as calibrate_posterior does for its threads."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from lensdual._parallel import run_tasks
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with ThreadPoolExecutor(2) as pool, pytest.raises(UserWarning, match="restored"):
+            run_tasks(_interleaved_tasks(), ["a", "b"], pool)
+        with ThreadPoolExecutor(2) as pool:
+            assert run_tasks(_interleaved_tasks(), ["a", "b"], pool,
+                             ignore=(UserWarning,)) == ["a", "b"]
+        # the filters are as they were: the category is an error again
+        with pytest.raises(UserWarning):
+            warnings.warn("after", UserWarning, stacklevel=2)

@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from astropy import units as u
+from astropy.utils.exceptions import AstropyDeprecationWarning
 
 from .._parallel import check_client, run_tasks
 from ..exceptions import EstimatorWarning
@@ -263,7 +264,8 @@ def calibrate_posterior(pairs, lens, simulation, *, sigma_pos, flux_rel_err, n_m
     target = sims[0] if log_mhm is None else sims
     tasks = [(pairs, lens, target, 10**t, None if mhm_truths is None else float(mhm_truths[k]),
               draw_mock_seeds(rng), kwargs) for k, t in enumerate(truths)]
-    results = run_tasks(_calibration_task, tasks, check_client(client))
+    results = run_tasks(_calibration_task, tasks, check_client(client),
+                        ignore=(EstimatorWarning, AstropyDeprecationWarning))
     lls = np.array([r[0] for r in results])
     n_tested = np.array([r[1] for r in results], dtype=int)
     key = (simulation_key(sims[0]) if log_mhm is None

@@ -6,6 +6,7 @@ from typing import NamedTuple
 import numpy as np
 from astropy import units as u
 from astropy.table import QTable, Table
+from astropy.utils.exceptions import AstropyDeprecationWarning
 from scipy.spatial import cKDTree
 
 from .._pairs_table import pair_bands, positions
@@ -395,7 +396,7 @@ def _simulate(pairs, lens, population, sigma, n_real, radii, seed, client):
         for arc, (jac, xy) in enumerate(((jac1, xy1), (jac2, xy2))):
             tasks.append(_ImageTask(jac[i], xy[i], float(radii[arc]), sigma, n_real,
                                     seeds[2 * i + arc], population))
-    results = run_tasks(_image_task, tasks, client)
+    results = run_tasks(_image_task, tasks, client, ignore=(AstropyDeprecationWarning,))
     e1 = np.stack([results[2 * i][0] for i in range(len(pairs))])
     e2 = np.stack([results[2 * i + 1][0] for i in range(len(pairs))])
     c1 = np.stack([results[2 * i][1] for i in range(len(pairs))])
