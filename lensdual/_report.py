@@ -13,6 +13,8 @@ from pathlib import Path
 import numpy as np
 from astropy import units as u
 
+from ._doubts import doubts_of
+
 __all__ = ["format_pairs_table", "verdict", "format_report", "parametric_paragraph",
            "knot_report"]
 
@@ -178,15 +180,13 @@ def verdict(result, sigma_pos):
                            for why, ids in reasons.items())
         text += (f"{len(untested)} pair(s) could not be tested and are NOT passes "
                  f"(column 'tested'; {listed}). ")
-        doubtful = untested[[bool(str(d)) for d in untested["doubt"]]] if "doubt" in \
-            untested.colnames else untested[:0]
+        doubtful = untested[doubts_of(untested) != ""]
         if len(doubtful):
             text += ("Doubtful pairings are left out of the size magnification of the other "
                      "pairs and never counted as anomalies: "
                      + "; ".join(f"pair {r['pair_id']} ({r['id1']}, {r['id2']}): {r['doubt']}"
                                  for r in doubtful) + ". ")
-        fluxes = untested[[bool(str(d)) for d in untested["flux_doubt"]]] if "flux_doubt" in \
-            untested.colnames else untested[:0]
+        fluxes = untested[doubts_of(untested, "flux_doubt") != ""]
         if len(fluxes):
             text += ("Pairs whose flux ratio is doubtful keep their place in the geometry and "
                      "are never counted as anomalies: "

@@ -311,13 +311,14 @@ def test_the_pipeline_doubts_the_pair_on_a_bright_patch():
     diffuse light and untested; the run records the comparison."""
     pytest.importorskip("poppy")
     from lensdual.demo import compare_with_truth, render_demo, simulate_demo
-    from lensdual.pipeline import analyse
+    from lensdual.pipeline import analyse, verdict
 
     system, truth = simulate_demo(subhalo="none", seed=0)
     demo = render_demo(system, truth, seed=0, scene="realistic")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        res = analyse(demo.images, psf=demo.psf, sigma_pos="auto", seed=0).result
+        analysis = analyse(demo.images, psf=demo.psf, sigma_pos="auto", seed=0)
+    res = analysis.result
     comp = compare_with_truth(res, truth, demo.centre)
     pairs = demo.mocks.pairs
     assert pairs["patch2"][0] and not pairs["patch1"].any()
@@ -333,6 +334,11 @@ def test_the_pipeline_doubts_the_pair_on_a_bright_patch():
     assert meta["n_pairs"] >= MIN_DIFFUSE_PAIRS and meta["alpha"] == DIFFUSE_LIGHT_ALPHA
     others = np.arange(len(res)) != k
     assert not any(np.asarray(res["flux_doubt"])[others])
+    # the report lists it apart from doubtful pairings, with its reason
+    text = verdict(res, analysis.sigma_pos)
+    assert (f"whose flux ratio is doubtful keep their place in the geometry and are never "
+            f"counted as anomalies: pair {res['pair_id'][k]}: diffuse light differs") in text
+    assert "Doubtful pairings" not in text
 
 
 def _doubt_table(n=16):
