@@ -252,7 +252,7 @@ def resolve_patch_flux(patch, image_flux, pixel_kernels, pixel_scale):
     ``image_flux`` is ``{band: flux of the image under the patch}`` (nJy),
     ``pixel_kernels`` each band's PSF at the pixel scale (odd-sized, centred).
     """
-    if patch is None or patch["flux"] is not None:
+    if patch["flux"] is not None:
         return patch
     sigma = patch["sigma"] / pixel_scale
     flux = {b: patch["contrast"][b] * float(image_flux[b])
