@@ -33,16 +33,13 @@ import warnings
 
 import numpy as np
 from _output import add_output_argument
+from _scenes import flux_doubtful, patch_sources
 
 from lensdual.demo import compare_with_truth, render_demo, simulate_demo
 from lensdual.duality import check_duality
 from lensdual.pipeline import analyse
 
 CONTRASTS = (0.25, 0.5, 1.0, 2.0, 4.0)
-
-
-def _diffuse(res):
-    return np.array([bool(str(d)) for d in res["flux_doubt"]])
 
 
 def one(seed, contrast):
@@ -56,11 +53,9 @@ def one(seed, contrast):
     comp = compare_with_truth(res, truth, demo.centre)
     sub = np.asarray(comp["subhalo"], dtype=bool)
     pairs = demo.mocks.pairs
-    under = np.asarray(pairs["source"])[np.asarray(pairs["patch1"], bool)
-                                        | np.asarray(pairs["patch2"], bool)]
-    patch = np.isin(np.asarray(comp["source"]), under) & ~sub
+    patch = np.isin(np.asarray(comp["source"]), patch_sources(pairs)) & ~sub
     clean = ~sub & ~patch
-    diffuse = _diffuse(res)
+    diffuse = flux_doubtful(res)
     flag = np.asarray(res["anomalous"], dtype=bool)
     # the same measurements without the diffuse-light doubts
     bare = res.copy()

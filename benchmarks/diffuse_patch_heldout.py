@@ -28,6 +28,7 @@ import warnings
 
 import numpy as np
 from _output import Record, add_output_argument
+from _scenes import flux_doubtful, patch_sources
 from acceptance_pixels import grid_constellation
 from astropy import units as u
 from astropy.coordinates import SkyCoord
@@ -68,10 +69,8 @@ def one(family, seed):
     meta = mocks[("L1", "F150W")].meta
     comp = compare_with_truth(res, pairs, SkyCoord(meta["LENSRA"] * u.deg,
                                                    meta["LENSDEC"] * u.deg))
-    under = np.asarray(pairs["source"])[np.asarray(pairs["patch1"], bool)
-                                        | np.asarray(pairs["patch2"], bool)]
-    patch = np.isin(np.asarray(comp["source"]), under)
-    doubtful = np.array([bool(str(d)) for d in res["flux_doubt"]])
+    patch = np.isin(np.asarray(comp["source"]), patch_sources(pairs))
+    doubtful = flux_doubtful(res)
     flag = np.asarray(res["anomalous"], dtype=bool)
     bare = res.copy()
     bare["flux_doubt"] = [""] * len(bare)

@@ -41,6 +41,7 @@ import warnings
 from pathlib import Path
 
 import numpy as np
+from _scenes import patch_sources
 from astropy import units as u
 from astropy.coordinates import SkyCoord
 from astropy.table import QTable
@@ -147,13 +148,8 @@ def pipeline_flags(seeds, rows=PIPELINE_ROWS):
             comp = compare_with_truth(analysis.result, truth, demo.centre)
             pairs = demo.mocks.pairs
             sub = np.asarray(comp["subhalo"], dtype=bool)
-            if "patch1" in pairs.colnames:
-                # the source whose image lies on the realistic scene's diffuse patch
-                under = np.asarray(pairs["source"])[np.asarray(pairs["patch1"], bool)
-                                                    | np.asarray(pairs["patch2"], bool)]
-                on = np.isin(np.asarray(comp["source"]), under) & ~sub
-            else:
-                on = np.zeros(len(comp), dtype=bool)
+            # the source whose image lies on the realistic scene's diffuse patch
+            on = np.isin(np.asarray(comp["source"]), patch_sources(pairs)) & ~sub
             on_patch = int(np.sum(on & np.asarray(comp["anomalous"], bool)))
             false_flags += comp.meta["false_flags"] - on_patch
             patch_flags += on_patch

@@ -27,6 +27,7 @@ import warnings
 
 import numpy as np
 from _output import Record, add_output_argument
+from _scenes import flux_doubtful, patch_sources
 
 from lensdual.demo import compare_with_truth, render_demo, simulate_demo
 from lensdual.duality import check_duality
@@ -44,9 +45,7 @@ def one(seed, subhalo="overconcentrated"):
     analysis = analyse(demo.images, psf=demo.psf, sigma_pos="auto", seed=seed,
                        null_realisations=0)
     pairs = demo.mocks.pairs
-    # the source whose image lies on the diffuse patch
-    under = np.asarray(pairs["source"])[np.asarray(pairs["patch1"], bool)
-                                        | np.asarray(pairs["patch2"], bool)]
+    under = patch_sources(pairs)
     out = {}
     for name, kw in TESTS.items():
         res = (analysis.result if not kw else
@@ -60,7 +59,7 @@ def one(seed, subhalo="overconcentrated"):
         tested = np.asarray(res["tested"], dtype=bool)
         out[name] = (int((clean & tested).sum()), int((clean & flag).sum()),
                      bool((patch & flag).any()), bool((sub & flag).any()))
-        diffuse = np.array([bool(str(d)) for d in res["flux_doubt"]])
+        diffuse = flux_doubtful(res)
         doubts = (int((clean & diffuse).sum()), bool((patch & diffuse).any()),
                   bool((sub & diffuse).any()))
     return out, doubts

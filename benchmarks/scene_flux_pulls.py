@@ -21,6 +21,7 @@ import warnings
 
 import numpy as np
 from _output import Record, add_output_argument
+from _scenes import patch_sources
 
 from lensdual.demo import compare_with_truth, render_demo, simulate_demo
 from lensdual.pipeline import analyse
@@ -34,9 +35,7 @@ def pulls(scene, seed):
                   null_realisations=0).result
     comp = compare_with_truth(res, truth, demo.centre)
     pairs = demo.mocks.pairs
-    under = (np.asarray(pairs["source"])[np.asarray(pairs["patch1"], bool)
-                                         | np.asarray(pairs["patch2"], bool)]
-             if "patch1" in pairs.colnames else [])
+    under = patch_sources(pairs)
     source = np.asarray(comp["source"])
     keep = (source >= 0) & ~np.isin(source, under)
     mu_flux = np.asarray(res["mu_flux"], dtype=float)
